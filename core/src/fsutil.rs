@@ -1,0 +1,64 @@
+//! Atomic file writes: write to a temporary file beside the target, flush, fsync, rename.
+//! A crash or an error never leaves a partial file under the target name.
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+/// Writes `path` atomically: `fill` receives a buffered writer on a temporary file in the same
+/// directory; on success the file is synced and renamed over `path`, on error it is removed.
+pub fn atomic_write<E>(path: &Path, fill: impl FnOnce(&mut BufWriter<File>) -> Result<(), E>) -> Result<(), E>
+where
+    E: From<std::io::Error>,
+{
+    let tmp = temp_path_for(path);
+    let result = (|| {
+        let file = File::create(&tmp)?;
+        let mut w = BufWriter::with_capacity(1 << 20, file);
+        fill(&mut w)?;
+        w.flush()?;
+        let file = w.into_inner().map_err(std::io::IntoInnerError::into_error)?;
+        file.sync_all()?;
+        drop(file);
+        std::fs::rename(&tmp, path)?;
+        Ok(())
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// `dir/.name.tmp-<pid>-<n>` beside `path`: same file system, so the rename is atomic.
+pub fn temp_path_for(path: &Path) -> PathBuf {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+    let name = path.file_name().map_or_else(|| "out".into(), |s| s.to_string_lossy().into_owned());
+    let tmp_name = format!(".{name}.tmp-{}-{n}", std::process::id());
+    match path.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => dir.join(tmp_name),
+        _ => PathBuf::from(tmp_name),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn writes_and_cleans_up_on_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("a.bin");
+        atomic_write::<std::io::Error>(&target, |w| w.write_all(b"hello")).unwrap();
+        assert_eq!(std::fs::read(&target).unwrap(), b"hello");
+        let err = atomic_write::<std::io::Error>(&target, |w| {
+            w.write_all(b"partial")?;
+            Err(std::io::Error::other("boom"))
+        });
+        assert!(err.is_err());
+        // The old content survives and no temp file is left behind.
+        assert_eq!(std::fs::read(&target).unwrap(), b"hello");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+}
