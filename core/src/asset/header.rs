@@ -1,0 +1,483 @@
+//! The JSON header of an `.lfa` file: what the asset holds and how it was made, with the
+//! validation every reader and writer applies to it.
+
+use std::collections::HashSet;
+use std::fmt;
+
+use serde::{Deserialize, Serialize};
+
+use super::format::PageGrid;
+use super::{AssetError, FORMAT_VERSION, Result};
+
+/// Highest icosahedron subdivision level of a spherical camera set (642 cameras).
+pub const MAX_CAMERA_LEVEL: u8 = 3;
+/// Largest accepted image side in pixels (one RGBA8 image is then 256 MiB).
+pub const MAX_RESOLUTION_PX: u32 = 8192;
+/// Smallest accepted page side in pixels.
+pub const MIN_PAGE_SIZE: u32 = 16;
+/// Largest accepted page side in pixels.
+pub const MAX_PAGE_SIZE: u32 = 4096;
+/// Page side used by [`AssetHeader::new_spherical`].
+pub const DEFAULT_PAGE_SIZE: u32 = 128;
+/// Most layers an asset may declare.
+pub const MAX_LAYERS: usize = 256;
+/// Most states an asset may declare.
+pub const MAX_STATES: usize = 256;
+
+/// Number of cameras of the icosahedron subdivided `level` times: `10·4^level + 2`
+/// (12, 42, 162, 642), or `None` above [`MAX_CAMERA_LEVEL`].
+pub fn camera_count_for_level(level: u8) -> Option<u32> {
+    (level <= MAX_CAMERA_LEVEL).then(|| 10 * 4u32.pow(u32::from(level)) + 2)
+}
+
+/// What kind of light field the asset holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum AssetKind {
+    /// Cameras on a sphere around the object, each recording the opposite hemisphere (DESIGN §4).
+    Spherical,
+}
+
+/// How a camera's hemisphere is mapped to its square image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum MapProjection {
+    /// `(u, v) = (r_x, r_y) / (1 + r_z)` with the hemisphere's pole on +z.
+    Parabolic,
+}
+
+/// Camera set and image size of a spherical light field.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SphericalGeometry {
+    /// Icosahedron subdivision level, 0..=3.
+    pub camera_level: u8,
+    /// `10·4^camera_level + 2`; stored so a reader can check it.
+    pub camera_count: u32,
+    /// Side of every (square) camera image in pixels.
+    pub resolution_px: u32,
+    /// Hemisphere-to-image mapping.
+    pub map: MapProjection,
+}
+
+/// The light-field frame: the object's bounding sphere in world units.
+///
+/// `world_from_lf = translate(center) · scale(radius·√2)`, so the bounding sphere has radius
+/// `1/√2` in the light-field frame and the cameras sit on the unit sphere.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LfFrame {
+    /// Centre of the bounding sphere in world units.
+    pub center: [f64; 3],
+    /// Radius of the bounding sphere in world units, > 0.
+    pub radius: f64,
+}
+
+impl LfFrame {
+    /// World units per light-field unit: `radius·√2`.
+    pub fn world_from_lf_scale(&self) -> f64 {
+        self.radius * std::f64::consts::SQRT_2
+    }
+
+    /// `translate(center) · scale(radius·√2)` as a column-major 4×4 matrix (`m[column][row]`).
+    pub fn world_from_lf(&self) -> [[f64; 4]; 4] {
+        let s = self.world_from_lf_scale();
+        let [cx, cy, cz] = self.center;
+        [
+            [s, 0.0, 0.0, 0.0],
+            [0.0, s, 0.0, 0.0],
+            [0.0, 0.0, s, 0.0],
+            [cx, cy, cz, 1.0],
+        ]
+    }
+
+    /// The inverse of [`Self::world_from_lf`], column-major.
+    pub fn lf_from_world(&self) -> [[f64; 4]; 4] {
+        let inv = 1.0 / self.world_from_lf_scale();
+        let [cx, cy, cz] = self.center;
+        [
+            [inv, 0.0, 0.0, 0.0],
+            [0.0, inv, 0.0, 0.0],
+            [0.0, 0.0, inv, 0.0],
+            [-cx * inv, -cy * inv, -cz * inv, 1.0],
+        ]
+    }
+}
+
+/// What an image's texels mean.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum Channel {
+    /// Display colour, RGBA8 in v1.
+    Color,
+    /// Normalized depth along the camera ray (1 = no hit).
+    Depth,
+}
+
+impl Channel {
+    /// Every channel, in index order.
+    pub const ALL: [Channel; 2] = [Channel::Color, Channel::Depth];
+
+    /// The channel's code in the binary index.
+    pub fn code(self) -> u8 {
+        match self {
+            Channel::Color => 0,
+            Channel::Depth => 1,
+        }
+    }
+
+    /// The channel for an index code, `None` for unknown codes.
+    pub fn from_code(code: u8) -> Option<Self> {
+        match code {
+            0 => Some(Channel::Color),
+            1 => Some(Channel::Depth),
+            _ => None,
+        }
+    }
+}
+
+impl fmt::Display for Channel {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Channel::Color => "color",
+            Channel::Depth => "depth",
+        })
+    }
+}
+
+/// How one texel is stored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+#[non_exhaustive]
+pub enum Encoding {
+    /// 4 bytes R, G, B, A (colour).
+    Rgba8,
+    /// u16 little endian: `round(d·65535)`, hits clamped to ≤ 65534, 65535 = no hit (depth).
+    R16,
+    /// u8: `round(d·255)`, hits clamped to ≤ 254, 255 = no hit (depth).
+    R8,
+    /// f32 little endian: `d` itself, 1.0 = no hit (depth).
+    R32F,
+}
+
+impl Encoding {
+    /// Bytes per texel: 4, 2, 1, 4.
+    pub fn bytes_per_texel(self) -> u32 {
+        match self {
+            Encoding::Rgba8 | Encoding::R32F => 4,
+            Encoding::R16 => 2,
+            Encoding::R8 => 1,
+        }
+    }
+
+    /// Whether a channel may use this encoding in format version 1.
+    pub fn allowed_for(self, channel: Channel) -> bool {
+        match channel {
+            Channel::Color => self == Encoding::Rgba8,
+            Channel::Depth => matches!(self, Encoding::R16 | Encoding::R8 | Encoding::R32F),
+        }
+    }
+}
+
+/// One channel of every image and its encoding.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChannelDesc {
+    /// Which channel.
+    pub name: Channel,
+    /// How its texels are stored.
+    pub encoding: Encoding,
+}
+
+/// A named layer (e.g. one volume transfer function), composited at runtime.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LayerDesc {
+    /// Unique, non-empty name.
+    pub name: String,
+    /// Opacity in [0, 1] a viewer starts with.
+    pub default_opacity: f32,
+}
+
+/// A named state (light direction, animation frame, deformation) with its parameter values.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StateDesc {
+    /// Unique, non-empty name.
+    pub name: String,
+    /// Free-form parameters, e.g. `{"light_dir": [0, 1, 0]}`.
+    pub params: serde_json::Map<String, serde_json::Value>,
+}
+
+/// How the asset was made.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Provenance {
+    /// File name (or description) of the source.
+    pub source_name: String,
+    /// Hex SHA-256 of the source bytes (empty if unknown).
+    pub source_sha256: String,
+    /// Version of lumigraph that baked the asset.
+    pub lumigraph_version: String,
+    /// The bake options as given, for reproduction.
+    pub bake_options: serde_json::Value,
+    /// Triangles of the source mesh (0 for non-mesh sources).
+    pub triangles: u64,
+    /// Vertices of the source mesh (0 for non-mesh sources).
+    pub vertices: u64,
+    /// Wall-clock bake time in milliseconds, finite and ≥ 0.
+    pub bake_ms: f64,
+    /// Creation time, seconds since the Unix epoch.
+    pub created_unix: u64,
+}
+
+/// The JSON header of an `.lfa` file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AssetHeader {
+    /// Must equal the preamble's format version (1).
+    pub format_version: u32,
+    /// Light-field kind; decides the geometry.
+    pub kind: AssetKind,
+    /// Camera set and image size.
+    pub geometry: SphericalGeometry,
+    /// The object's bounding sphere in world units.
+    pub frame: LfFrame,
+    /// Side of a page in pixels: a power of two in 16..=4096.
+    pub page_size: u32,
+    /// Exactly one colour and one depth channel in v1, in any order.
+    pub channels: Vec<ChannelDesc>,
+    /// 1..=256 layers.
+    pub layers: Vec<LayerDesc>,
+    /// 1..=256 states; state 0 is the base state.
+    pub states: Vec<StateDesc>,
+    /// How the asset was made.
+    pub provenance: Provenance,
+    /// Quality report of the bake (free-form), if measured.
+    pub quality: Option<serde_json::Value>,
+}
+
+impl AssetHeader {
+    /// A spherical asset's header with the defaults: page size 128, RGBA8 colour, one layer
+    /// `default` at opacity 1, one state `base`, no quality report.
+    pub fn new_spherical(
+        camera_level: u8,
+        resolution_px: u32,
+        frame: LfFrame,
+        depth_encoding: Encoding,
+        provenance: Provenance,
+    ) -> Result<Self> {
+        let camera_count = camera_count_for_level(camera_level).ok_or_else(|| {
+            AssetError::Header(format!(
+                "camera level {camera_level} is above the maximum {MAX_CAMERA_LEVEL}"
+            ))
+        })?;
+        let header = Self {
+            format_version: FORMAT_VERSION,
+            kind: AssetKind::Spherical,
+            geometry: SphericalGeometry {
+                camera_level,
+                camera_count,
+                resolution_px,
+                map: MapProjection::Parabolic,
+            },
+            frame,
+            page_size: DEFAULT_PAGE_SIZE,
+            channels: vec![
+                ChannelDesc {
+                    name: Channel::Color,
+                    encoding: Encoding::Rgba8,
+                },
+                ChannelDesc {
+                    name: Channel::Depth,
+                    encoding: depth_encoding,
+                },
+            ],
+            layers: vec![LayerDesc {
+                name: "default".to_owned(),
+                default_opacity: 1.0,
+            }],
+            states: vec![StateDesc {
+                name: "base".to_owned(),
+                params: serde_json::Map::new(),
+            }],
+            provenance,
+            quality: None,
+        };
+        header.validate()?;
+        Ok(header)
+    }
+
+    /// The encoding of `channel`, if the header declares it.
+    pub fn encoding(&self, channel: Channel) -> Option<Encoding> {
+        self.channels
+            .iter()
+            .find(|c| c.name == channel)
+            .map(|c| c.encoding)
+    }
+
+    /// Number of cameras (as declared; [`Self::validate`] checks it against the level).
+    pub fn camera_count(&self) -> u32 {
+        self.geometry.camera_count
+    }
+
+    /// How each image is cut into pages.
+    pub fn page_grid(&self) -> Result<PageGrid> {
+        PageGrid::new(self.geometry.resolution_px, self.page_size).ok_or_else(|| {
+            AssetError::Header(format!(
+                "resolution {} px with page size {} px gives no valid page grid",
+                self.geometry.resolution_px, self.page_size
+            ))
+        })
+    }
+
+    /// Bytes of one whole image of `channel`, or `None` if the channel is not declared.
+    pub fn image_bytes(&self, channel: Channel) -> Option<u64> {
+        let side = u64::from(self.geometry.resolution_px);
+        let bpp = u64::from(self.encoding(channel)?.bytes_per_texel());
+        side.checked_mul(side)?.checked_mul(bpp)
+    }
+
+    /// Checks every rule of format version 1 (see `docs/format.md`, "Validation").
+    pub fn validate(&self) -> Result<()> {
+        let bad = |msg: String| Err(AssetError::Header(msg));
+        if self.format_version != FORMAT_VERSION {
+            return bad(format!(
+                "header says format version {} but this is a version {FORMAT_VERSION} file",
+                self.format_version
+            ));
+        }
+        let g = &self.geometry;
+        match camera_count_for_level(g.camera_level) {
+            None => {
+                return bad(format!(
+                    "camera level {} is above the maximum {MAX_CAMERA_LEVEL}",
+                    g.camera_level
+                ));
+            }
+            Some(count) if count != g.camera_count => {
+                return bad(format!(
+                    "camera_count {} does not match camera level {} (which has {count} cameras)",
+                    g.camera_count, g.camera_level
+                ));
+            }
+            Some(_) => {}
+        }
+        if !(1..=MAX_RESOLUTION_PX).contains(&g.resolution_px) {
+            return bad(format!(
+                "resolution {} px is outside 1..={MAX_RESOLUTION_PX}",
+                g.resolution_px
+            ));
+        }
+        if !self.page_size.is_power_of_two()
+            || !(MIN_PAGE_SIZE..=MAX_PAGE_SIZE).contains(&self.page_size)
+        {
+            return bad(format!(
+                "page size {} px is not a power of two in {MIN_PAGE_SIZE}..={MAX_PAGE_SIZE}",
+                self.page_size
+            ));
+        }
+        self.validate_frame()?;
+        self.validate_channels()?;
+        validate_names(
+            "layer",
+            MAX_LAYERS,
+            self.layers.iter().map(|l| l.name.as_str()),
+        )?;
+        for layer in &self.layers {
+            if !(layer.default_opacity.is_finite() && (0.0..=1.0).contains(&layer.default_opacity))
+            {
+                return bad(format!(
+                    "layer {:?} has default opacity {}, outside [0, 1]",
+                    layer.name, layer.default_opacity
+                ));
+            }
+        }
+        validate_names(
+            "state",
+            MAX_STATES,
+            self.states.iter().map(|s| s.name.as_str()),
+        )?;
+        let bake_ms = self.provenance.bake_ms;
+        if !(bake_ms.is_finite() && bake_ms >= 0.0) {
+            return bad(format!(
+                "provenance bake_ms {bake_ms} is not a finite, non-negative number"
+            ));
+        }
+        Ok(())
+    }
+
+    fn validate_frame(&self) -> Result<()> {
+        let LfFrame { center, radius } = &self.frame;
+        if !center.iter().all(|c| c.is_finite()) {
+            return Err(AssetError::Header(format!(
+                "frame centre {center:?} is not finite"
+            )));
+        }
+        // The scale and its inverse must be finite too, or the frame matrices overflow.
+        let scale = self.frame.world_from_lf_scale();
+        if !(radius.is_finite() && *radius > 0.0 && scale.is_finite() && scale.recip().is_finite())
+        {
+            return Err(AssetError::Header(format!(
+                "frame radius {radius} is not a finite number > 0 with a finite inverse"
+            )));
+        }
+        Ok(())
+    }
+
+    fn validate_channels(&self) -> Result<()> {
+        if self.channels.len() != Channel::ALL.len() {
+            return Err(AssetError::Header(format!(
+                "{} channels declared; version 1 needs exactly one color and one depth channel",
+                self.channels.len()
+            )));
+        }
+        for channel in Channel::ALL {
+            let mut found = self.channels.iter().filter(|c| c.name == channel);
+            match (found.next(), found.next()) {
+                (Some(desc), None) if desc.encoding.allowed_for(channel) => {}
+                (Some(desc), None) => {
+                    return Err(AssetError::Header(format!(
+                        "the {channel} channel cannot use encoding {:?} (color: rgba8; depth: \
+                         r16, r8 or r32f)",
+                        desc.encoding
+                    )));
+                }
+                _ => {
+                    return Err(AssetError::Header(format!(
+                        "version 1 needs exactly one {channel} channel"
+                    )));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+fn validate_names<'a>(
+    what: &str,
+    max: usize,
+    names: impl ExactSizeIterator<Item = &'a str>,
+) -> Result<()> {
+    let count = names.len();
+    if !(1..=max).contains(&count) {
+        return Err(AssetError::Header(format!(
+            "{count} {what}s declared; an asset needs 1..={max}"
+        )));
+    }
+    let mut seen = HashSet::with_capacity(count);
+    for name in names {
+        if name.is_empty() {
+            return Err(AssetError::Header(format!("a {what} has an empty name")));
+        }
+        if !seen.insert(name) {
+            return Err(AssetError::Header(format!(
+                "{what} name {name:?} is used twice"
+            )));
+        }
+    }
+    Ok(())
+}

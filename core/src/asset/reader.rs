@@ -1,0 +1,358 @@
+//! Reading `.lfa` files: open validates preamble, header and index; pages are read, verified
+//! and decoded on demand.
+
+use std::fmt;
+use std::fs::File;
+use std::path::Path;
+
+use super::format::{Layout, PREAMBLE_LEN, Preamble, crc32, parse_index};
+use super::header::AssetHeader;
+use super::{AssetError, Codec, ImageKey, IndexEntry, Result};
+
+/// Where the bytes come from.
+enum Source {
+    File(File),
+    Bytes(Vec<u8>),
+}
+
+impl Source {
+    /// Reads `len` bytes at `offset`. Callers pass ranges already checked against the length
+    /// seen at open; a file that shrank since then gives an I/O error, not a panic.
+    fn read_at(&self, offset: u64, len: usize) -> Result<Vec<u8>> {
+        match self {
+            Source::File(file) => {
+                let mut buf = vec![0u8; len];
+                read_exact_at(file, &mut buf, offset)?;
+                Ok(buf)
+            }
+            Source::Bytes(bytes) => {
+                let slice = usize::try_from(offset)
+                    .ok()
+                    .and_then(|start| bytes.get(start..start.checked_add(len)?))
+                    .ok_or(AssetError::Truncated {
+                        what: "requested range",
+                        needed: offset.saturating_add(len as u64),
+                        available: bytes.len() as u64,
+                    })?;
+                Ok(slice.to_vec())
+            }
+        }
+    }
+
+    /// Borrows a range without copying where possible.
+    fn with_range<T>(
+        &self,
+        offset: u64,
+        len: usize,
+        f: impl FnOnce(&[u8]) -> Result<T>,
+    ) -> Result<T> {
+        match self {
+            Source::Bytes(bytes) => {
+                let slice = usize::try_from(offset)
+                    .ok()
+                    .and_then(|start| bytes.get(start..start.checked_add(len)?))
+                    .ok_or(AssetError::Truncated {
+                        what: "requested range",
+                        needed: offset.saturating_add(len as u64),
+                        available: bytes.len() as u64,
+                    })?;
+                f(slice)
+            }
+            Source::File(_) => f(&self.read_at(offset, len)?),
+        }
+    }
+}
+
+#[cfg(unix)]
+fn read_exact_at(file: &File, buf: &mut [u8], offset: u64) -> std::io::Result<()> {
+    std::os::unix::fs::FileExt::read_exact_at(file, buf, offset)
+}
+
+#[cfg(windows)]
+fn read_exact_at(file: &File, mut buf: &mut [u8], mut offset: u64) -> std::io::Result<()> {
+    use std::os::windows::fs::FileExt;
+    while !buf.is_empty() {
+        match file.seek_read(buf, offset) {
+            Ok(0) => return Err(std::io::ErrorKind::UnexpectedEof.into()),
+            Ok(n) => {
+                buf = &mut buf[n..];
+                offset += n as u64;
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
+}
+
+#[cfg(not(any(unix, windows)))]
+fn read_exact_at(_file: &File, _buf: &mut [u8], _offset: u64) -> std::io::Result<()> {
+    Err(std::io::Error::new(
+        std::io::ErrorKind::Unsupported,
+        "positional file reads are not available on this platform; use AssetFile::from_bytes",
+    ))
+}
+
+/// An opened, validated asset. Pages are read on demand; `&self` methods may run on several
+/// threads at once.
+pub struct AssetFile {
+    source: Source,
+    file_len: u64,
+    preamble: Preamble,
+    header: AssetHeader,
+    layout: Layout,
+    index: Vec<IndexEntry>,
+}
+
+impl fmt::Debug for AssetFile {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("AssetFile")
+            .field("file_len", &self.file_len)
+            .field("preamble", &self.preamble)
+            .field("header", &self.header)
+            .field("index_entries", &self.index.len())
+            .finish_non_exhaustive()
+    }
+}
+
+impl AssetFile {
+    /// Opens `path` and validates preamble, header and index (not the pages: see
+    /// [`Self::verify_all`]). Reads only the preamble, header and index.
+    pub fn open(path: impl AsRef<Path>) -> Result<Self> {
+        let file = File::open(path)?;
+        let file_len = file.metadata()?.len();
+        Self::parse(Source::File(file), file_len)
+    }
+
+    /// Validates an asset held in memory, e.g. an upload, exactly as [`Self::open`] does.
+    pub fn from_bytes(bytes: Vec<u8>) -> Result<Self> {
+        let file_len = bytes.len() as u64;
+        Self::parse(Source::Bytes(bytes), file_len)
+    }
+
+    fn parse(source: Source, file_len: u64) -> Result<Self> {
+        let head = source.read_at(0, file_len.min(PREAMBLE_LEN) as usize)?;
+        let preamble = Preamble::parse(&head, file_len)?;
+        // Both lengths were checked against the file's length (and the header's against
+        // 16 MiB), so these reads never allocate more than the file holds.
+        let header = source.with_range(
+            preamble.header_offset,
+            preamble.header_len as usize,
+            |bytes| {
+                if crc32(bytes) != preamble.header_crc32 {
+                    return Err(AssetError::Checksum {
+                        what: "header".to_owned(),
+                    });
+                }
+                serde_json::from_slice::<AssetHeader>(bytes)
+                    .map_err(|e| AssetError::Header(format!("not a valid version 1 header: {e}")))
+            },
+        )?;
+        let layout = Layout::new(&header)?;
+        let index = source.with_range(
+            preamble.index_offset,
+            preamble.index_len as usize,
+            |bytes| {
+                if crc32(bytes) != preamble.index_crc32 {
+                    return Err(AssetError::Checksum {
+                        what: "index".to_owned(),
+                    });
+                }
+                parse_index(bytes, &layout, preamble.page_data_end())
+            },
+        )?;
+        Ok(Self {
+            source,
+            file_len,
+            preamble,
+            header,
+            layout,
+            index,
+        })
+    }
+
+    /// The validated header.
+    pub fn header(&self) -> &AssetHeader {
+        &self.header
+    }
+
+    /// The validated index, sorted by (layer, state, camera, channel, page).
+    pub fn index(&self) -> &[IndexEntry] {
+        &self.index
+    }
+
+    /// The validated preamble.
+    pub fn preamble(&self) -> &Preamble {
+        &self.preamble
+    }
+
+    /// Length of the file (or byte buffer) in bytes.
+    pub fn file_len(&self) -> u64 {
+        self.file_len
+    }
+
+    /// Whether the image is stored under exactly this key (no state fallback).
+    pub fn has_image(&self, key: ImageKey) -> bool {
+        self.first_entry(key).is_some()
+    }
+
+    /// The key whose pages serve `key`: `key` itself if stored, else the same image in state 0.
+    pub fn resolve(&self, key: ImageKey) -> Result<ImageKey> {
+        self.layout.check_key(key)?;
+        [key, key.in_base_state()]
+            .into_iter()
+            .find(|&k| self.has_image(k))
+            .ok_or(AssetError::MissingImage { key })
+    }
+
+    /// Reads the whole image for `key` (falling back to state 0 if the state omits it):
+    /// `resolution_px²` texels, row-major, top row first, in the channel's encoding.
+    /// Every page's checksum and decoded size are verified.
+    pub fn read_image(&self, key: ImageKey) -> Result<Vec<u8>> {
+        let stored = self.resolve(key)?;
+        let first = self
+            .first_entry(stored)
+            .ok_or(AssetError::MissingImage { key })?;
+        let page_count = self.layout.grid.page_count() as usize;
+        let entries = &self.index[first..first + page_count];
+        let bpp = self.layout.bytes_per_texel(key.channel) as usize;
+        let side = self.layout.grid.resolution_px() as usize;
+        // Validated header: ≤ 8192² × 4 bytes.
+        let mut image = vec![0u8; self.layout.image_bytes(key.channel) as usize];
+        let mut decoder = PageDecoder::new()?;
+
+        let mut put_page = |entry: &IndexEntry, stored_bytes: &[u8]| -> Result<()> {
+            let page = decoder.decode(entry, stored_bytes)?;
+            // Validated at open, so this error is unreachable in practice.
+            let rect = self.layout.grid.page_rect(entry.page).ok_or_else(|| {
+                AssetError::Index(format!("page {} is outside the page grid", entry.page))
+            })?;
+            let row_bytes = rect.width as usize * bpp;
+            for (row, src) in page.chunks_exact(row_bytes).enumerate() {
+                let start = ((rect.y as usize + row) * side + rect.x as usize) * bpp;
+                image[start..start + row_bytes].copy_from_slice(src);
+            }
+            Ok(())
+        };
+
+        // The writer stores an image's pages back to back: then one read fetches them all.
+        let contiguous = entries
+            .windows(2)
+            .all(|w| w[0].offset + u64::from(w[0].length) == w[1].offset);
+        if contiguous {
+            let start = entries[0].offset;
+            let span: u64 = entries.iter().map(|e| u64::from(e.length)).sum();
+            self.source.with_range(start, span as usize, |bytes| {
+                for entry in entries {
+                    let at = (entry.offset - start) as usize;
+                    put_page(entry, &bytes[at..at + entry.length as usize])?;
+                }
+                Ok(())
+            })?;
+        } else {
+            for entry in entries {
+                self.source
+                    .with_range(entry.offset, entry.length as usize, |bytes| {
+                        put_page(entry, bytes)
+                    })?;
+            }
+        }
+        Ok(image)
+    }
+
+    /// Reads one page of the image for `key` (with the state fallback): the page's rectangle
+    /// ([`super::PageGrid::page_rect`]) row-major in the channel's encoding.
+    pub fn read_page(&self, key: ImageKey, page: u32) -> Result<Vec<u8>> {
+        let stored = self.resolve(key)?;
+        let page_count = self.layout.grid.page_count();
+        if page >= page_count {
+            return Err(AssetError::MissingPage {
+                key,
+                page,
+                page_count,
+            });
+        }
+        let at = self
+            .first_entry(stored)
+            .ok_or(AssetError::MissingImage { key })?
+            + page as usize;
+        let entry = &self.index[at];
+        let mut decoder = PageDecoder::new()?;
+        self.source
+            .with_range(entry.offset, entry.length as usize, |bytes| {
+                decoder.decode(entry, bytes).map(<[u8]>::to_vec)
+            })
+    }
+
+    /// Reads, checks and decodes every page of the file.
+    pub fn verify_all(&self) -> Result<()> {
+        let mut decoder = PageDecoder::new()?;
+        for entry in &self.index {
+            self.source
+                .with_range(entry.offset, entry.length as usize, |bytes| {
+                    decoder.decode(entry, bytes).map(|_| ())
+                })?;
+        }
+        Ok(())
+    }
+
+    /// Position in the index of page 0 of `key`, if stored.
+    fn first_entry(&self, key: ImageKey) -> Option<usize> {
+        let at = self.index.partition_point(|e| e.sort_key() < (key, 0));
+        self.index
+            .get(at)
+            .is_some_and(|e| e.sort_key() == (key, 0))
+            .then_some(at)
+    }
+}
+
+/// Verifies and decodes pages, reusing one zstd context and one buffer.
+struct PageDecoder {
+    zstd: zstd::bulk::Decompressor<'static>,
+    buf: Vec<u8>,
+}
+
+impl PageDecoder {
+    fn new() -> Result<Self> {
+        Ok(Self {
+            zstd: zstd::bulk::Decompressor::new()?,
+            buf: Vec::new(),
+        })
+    }
+
+    /// Checks `stored` against the entry's CRC and decodes it to exactly `raw_length` bytes.
+    /// The one-shot decoder writes into a buffer of `raw_length` bytes and fails rather than
+    /// grow it, and needs no window buffer of its own, so a hostile frame cannot make it
+    /// allocate more than the (validated) page size.
+    fn decode<'a>(&'a mut self, entry: &IndexEntry, stored: &'a [u8]) -> Result<&'a [u8]> {
+        if crc32(stored) != entry.crc32 {
+            return Err(AssetError::Checksum {
+                what: format!("page {} of {}", entry.page, entry.key),
+            });
+        }
+        match entry.codec {
+            Codec::Raw => Ok(stored),
+            Codec::Zstd => {
+                let raw_length = entry.raw_length as usize;
+                self.buf.clear();
+                self.buf.resize(raw_length, 0);
+                let written = self
+                    .zstd
+                    .decompress_to_buffer(stored, self.buf.as_mut_slice())
+                    .map_err(|source| AssetError::Decompress {
+                        key: entry.key,
+                        page: entry.page,
+                        source,
+                    })?;
+                if written != raw_length {
+                    return Err(AssetError::Page {
+                        key: entry.key,
+                        page: entry.page,
+                        reason: format!("decoded to {written} bytes instead of {raw_length}"),
+                    });
+                }
+                Ok(&self.buf)
+            }
+        }
+    }
+}
