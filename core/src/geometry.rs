@@ -237,7 +237,12 @@ impl CameraSet {
                 let m12 = midpoint(v1, v2, &mut pos);
                 let m20 = midpoint(v2, v0, &mut pos);
                 tris[t].first_child = tris.len() as u32;
-                for v in [[v0, m01, m20], [m01, v1, m12], [m20, m12, v2], [m01, m12, m20]] {
+                for v in [
+                    [v0, m01, m20],
+                    [m01, v1, m12],
+                    [m20, m12, v2],
+                    [m01, m12, m20],
+                ] {
                     tris.push(HierTriangle {
                         v,
                         first_child: NO_CHILD,
@@ -476,7 +481,10 @@ pub const PARABOLIC_EPS: f32 = 1e-6;
 /// meaningless) for finite input. `r` is assumed unit length (not normalised
 /// here). Computed in `f64`.
 #[must_use]
-#[allow(clippy::cast_possible_truncation, reason = "f64 → f32 output by design")]
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "f64 → f32 output by design"
+)]
 pub fn parabolic_forward(r: Vec3) -> Vec2 {
     let r = r.as_dvec3();
     let denom = (1.0 + r.z).max(f64::from(PARABOLIC_EPS));
@@ -490,7 +498,10 @@ pub fn parabolic_forward(r: Vec3) -> Vec2 {
 /// (tending to `-z` at infinity). The result is unit length for every finite
 /// `uv` (computed in `f64`). NaN input gives NaN output.
 #[must_use]
-#[allow(clippy::cast_possible_truncation, reason = "f64 → f32 output by design")]
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "f64 → f32 output by design"
+)]
 pub fn parabolic_inverse(uv: Vec2) -> Vec3 {
     let uv: DVec2 = uv.as_dvec2();
     let s = uv.length_squared();
@@ -514,7 +525,10 @@ pub fn parabolic_inverse(uv: Vec2) -> Vec3 {
 ///
 /// `n = 0` is treated as `n = 1`.
 #[must_use]
-#[allow(clippy::cast_possible_truncation, reason = "f64 → f32 output by design")]
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "f64 → f32 output by design"
+)]
 pub fn texel_center_uv(a: u32, b: u32, n: u32) -> Vec2 {
     let n = f64::from(n.max(1));
     let u = (f64::from(b) + 0.5) / n * 2.0 - 1.0;
@@ -526,7 +540,10 @@ pub fn texel_center_uv(a: u32, b: u32, n: u32) -> Vec2 {
 /// `x = (u + 1) / 2 · n` (column axis), `y = (v + 1) / 2 · n` (row axis), so
 /// the centre of texel (row `a`, column `b`) is at `(b + 0.5, a + 0.5)`.
 #[must_use]
-#[allow(clippy::cast_possible_truncation, reason = "f64 → f32 output by design")]
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "f64 → f32 output by design"
+)]
 pub fn uv_to_texel_coords(uv: Vec2, n: u32) -> Vec2 {
     let n = f64::from(n);
     let uv = uv.as_dvec2();
@@ -569,14 +586,20 @@ fn quantise_depth(d: f32, scale: f64) -> Option<u32> {
 /// quantisation error for hits is at most `0.5 / 65535` (up to `1 / 65535` for the few hits
 /// with `d > 65534.5 / 65535`; objects lie inside radius `1/√2`, so real hits have `d < 0.86`).
 #[must_use]
-#[allow(clippy::cast_possible_truncation, reason = "quantise_depth returns ≤ 65534")]
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "quantise_depth returns ≤ 65534"
+)]
 pub fn encode_depth_u16(d: f32) -> u16 {
     quantise_depth(d, f64::from(NO_HIT_U16)).map_or(NO_HIT_U16, |q| q as u16)
 }
 
 /// Decodes a 16-bit depth: `v / 65535` ([`NO_HIT_U16`] → `1.0`, no hit).
 #[must_use]
-#[allow(clippy::cast_possible_truncation, reason = "f64 → f32 output by design")]
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "f64 → f32 output by design"
+)]
 pub fn decode_depth_u16(v: u16) -> f32 {
     if v == NO_HIT_U16 {
         1.0
@@ -589,14 +612,20 @@ pub fn decode_depth_u16(v: u16) -> f32 {
 /// (`d ≥ 1`, NaN, ±∞) to [`NO_HIT_U8`] (255). The quantisation error for hits below
 /// `254.5 / 255` is at most `0.5 / 255`.
 #[must_use]
-#[allow(clippy::cast_possible_truncation, reason = "quantise_depth returns ≤ 254")]
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "quantise_depth returns ≤ 254"
+)]
 pub fn encode_depth_u8(d: f32) -> u8 {
     quantise_depth(d, f64::from(NO_HIT_U8)).map_or(NO_HIT_U8, |q| q as u8)
 }
 
 /// Decodes an 8-bit depth: `v / 255` ([`NO_HIT_U8`] → `1.0`, no hit).
 #[must_use]
-#[allow(clippy::cast_possible_truncation, reason = "f64 → f32 output by design")]
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "f64 → f32 output by design"
+)]
 pub fn decode_depth_u8(v: u8) -> f32 {
     if v == NO_HIT_U8 {
         1.0
@@ -661,7 +690,10 @@ pub fn ray_sphere(origin: DVec3, dir: DVec3, center: DVec3, radius: f64) -> Opti
 /// The value is positive for directions pointing into the sphere and `≤ 0` for
 /// directions pointing outwards (no second intersection ahead of the camera).
 #[must_use]
-#[allow(clippy::cast_possible_truncation, reason = "f64 → f32 output by design")]
+#[allow(
+    clippy::cast_possible_truncation,
+    reason = "f64 → f32 output by design"
+)]
 pub fn chord_length(p: Vec3, w: Vec3) -> f32 {
     (-2.0 * p.as_dvec3().dot(w.as_dvec3())) as f32
 }

@@ -1,0 +1,538 @@
+//! Baking a mesh into a spherical light field on the GPU (seed 002 §3, DESIGN §4).
+//!
+//! For each camera `p_k` of the chosen icosphere level and each texel of its `N×N` parabolic map,
+//! the bake shader (`shaders/bake.wgsl`) traces the texel's exact ray from `p_k` through a BVH of
+//! the mesh (in the light-field frame) to the first hit. Depth is therefore exact per texel — no
+//! rasterized flat triangles standing in for the non-linear parabolic mapping, no blending across
+//! silhouettes — and colour is the DESIGN §3 shading at the hit with `v` towards the camera.
+
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use crate::asset::{
+    AssetError, AssetHeader, AssetWriter, Channel, Encoding, ImageKey, Provenance, encode_asset,
+};
+use crate::geometry::{self, CAMERA_COUNTS};
+use crate::gpu::mesh::{GpuMesh, mesh_sampler};
+use crate::gpu::{Gpu, GpuError, storage_buffer};
+use crate::mesh::Mesh;
+use crate::shading::{GpuShading, Shading, ShadingError};
+
+/// Largest map resolution accepted by the baker.
+pub const MAX_BAKE_RESOLUTION: u32 = 4096;
+
+/// Errors while baking.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum BakeError {
+    /// Camera count is not an icosphere level.
+    #[error("--cameras {0} is not one of 12, 42, 162, 642")]
+    BadCameras(u32),
+    /// Resolution out of range.
+    #[error("resolution {0} px must be between 8 and {MAX_BAKE_RESOLUTION}")]
+    BadResolution(u32),
+    /// Depth bits other than 8 or 16.
+    #[error("depth bits {0} must be 8 or 16")]
+    BadDepthBits(u8),
+    /// Bad shading options.
+    #[error(transparent)]
+    Shading(#[from] ShadingError),
+    /// The device failed.
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    /// Writing the asset failed.
+    #[error(transparent)]
+    Asset(#[from] AssetError),
+}
+
+/// Bake options (CLI flags of `lumigraph bake`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BakeOptions {
+    /// Cameras: 12, 42, 162 or 642.
+    pub cameras: u32,
+    /// Parabolic map side in pixels.
+    pub resolution: u32,
+    /// Shading model options.
+    pub shading: Shading,
+    /// Depth precision: 16 (default) or 8 bits.
+    pub depth_bits: u8,
+}
+
+impl Default for BakeOptions {
+    fn default() -> Self {
+        Self {
+            cameras: 162,
+            resolution: 256,
+            shading: Shading::default(),
+            depth_bits: 16,
+        }
+    }
+}
+
+impl BakeOptions {
+    /// Checks every option.
+    ///
+    /// # Errors
+    /// The [`BakeError`] naming the bad option.
+    pub fn validate(&self) -> Result<u32, BakeError> {
+        let level = geometry::level_for_camera_count(self.cameras)
+            .ok_or(BakeError::BadCameras(self.cameras))?;
+        if !(8..=MAX_BAKE_RESOLUTION).contains(&self.resolution) {
+            return Err(BakeError::BadResolution(self.resolution));
+        }
+        if self.depth_bits != 8 && self.depth_bits != 16 {
+            return Err(BakeError::BadDepthBits(self.depth_bits));
+        }
+        self.shading.validate()?;
+        Ok(level)
+    }
+}
+
+/// What a bake produced.
+#[derive(Clone, Debug, Serialize)]
+pub struct BakeReport {
+    /// Cameras baked.
+    pub cameras: u32,
+    /// Map resolution.
+    pub resolution: u32,
+    /// Source triangles.
+    pub triangles: u64,
+    /// Wall-clock bake time (ray tracing, encoding, writing).
+    pub bake_ms: f64,
+    /// Asset size in bytes.
+    pub asset_bytes: u64,
+}
+
+/// The bake pipeline, built once and reused.
+pub struct Baker {
+    gpu: Arc<Gpu>,
+    pipeline: wgpu::ComputePipeline,
+    frame_layout: wgpu::BindGroupLayout,
+    mesh_layout: wgpu::BindGroupLayout,
+    sampler: wgpu::Sampler,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct BakeParams {
+    resolution: u32,
+    first_camera: u32,
+    camera_count: u32,
+    pad: u32,
+    shading: GpuShading,
+}
+const _: () = assert!(std::mem::size_of::<BakeParams>() == 48);
+
+/// One camera as the shaders read it (`struct Camera`): position and local frame, 64 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+pub(crate) struct GpuCamera {
+    pub position: [f32; 4],
+    pub x: [f32; 4],
+    pub y: [f32; 4],
+    pub z: [f32; 4],
+}
+const _: () = assert!(std::mem::size_of::<GpuCamera>() == 64);
+
+/// The first `count` cameras with their local frames.
+pub(crate) fn gpu_cameras(count: usize) -> Vec<GpuCamera> {
+    let set = geometry::camera_set();
+    set.positions[..count]
+        .iter()
+        .map(|p| {
+            let [x, y, z] = geometry::camera_frame(*p);
+            let v4 = |v: glam::Vec3| [v.x, v.y, v.z, 0.0];
+            GpuCamera {
+                position: v4(*p),
+                x: v4(x),
+                y: v4(y),
+                z: v4(z),
+            }
+        })
+        .collect()
+}
+
+fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE
+            | wgpu::ShaderStages::VERTEX
+            | wgpu::ShaderStages::FRAGMENT,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+/// The mesh bind group layout shared by baker and reference renderer (`@group(1)`).
+pub(crate) fn mesh_layout(gpu: &Gpu, visibility: wgpu::ShaderStages) -> wgpu::BindGroupLayout {
+    let mut entries: Vec<wgpu::BindGroupLayoutEntry> = (0..4)
+        .map(|b| wgpu::BindGroupLayoutEntry {
+            visibility,
+            ..storage_entry(b, true)
+        })
+        .collect();
+    entries.push(wgpu::BindGroupLayoutEntry {
+        binding: 4,
+        visibility,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable: true },
+            view_dimension: wgpu::TextureViewDimension::D2Array,
+            multisampled: false,
+        },
+        count: None,
+    });
+    entries.push(wgpu::BindGroupLayoutEntry {
+        binding: 5,
+        visibility,
+        ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+        count: None,
+    });
+    gpu.device
+        .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("mesh"),
+            entries: &entries,
+        })
+}
+
+pub(crate) fn mesh_bind_group(
+    gpu: &Gpu,
+    layout: &wgpu::BindGroupLayout,
+    mesh: &GpuMesh,
+    sampler: &wgpu::Sampler,
+) -> wgpu::BindGroup {
+    gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("mesh"),
+        layout,
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: mesh.vertex_buffer.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: mesh.triangle_buffer.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: mesh.bvh_buffer.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 3,
+                resource: mesh.material_buffer.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 4,
+                resource: wgpu::BindingResource::TextureView(&mesh.texture_view),
+            },
+            wgpu::BindGroupEntry {
+                binding: 5,
+                resource: wgpu::BindingResource::Sampler(sampler),
+            },
+        ],
+    })
+}
+
+/// Hex SHA-256 of `bytes` (provenance).
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::Digest;
+    let digest = sha2::Sha256::digest(bytes);
+    digest.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Where the baked images go.
+enum Sink {
+    File(AssetWriter),
+    Memory(Vec<(ImageKey, Vec<u8>)>),
+}
+
+impl Baker {
+    /// Builds the pipeline.
+    pub fn new(gpu: Arc<Gpu>) -> Baker {
+        let device = &gpu.device;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("bake.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(crate::shaders::BAKE.into()),
+        });
+        let uniform = wgpu::BindGroupLayoutEntry {
+            binding: 0,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let frame_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("bake frame"),
+            entries: &[
+                uniform,
+                storage_entry(1, true),
+                storage_entry(2, false),
+                storage_entry(3, false),
+            ]
+            .map(|e| wgpu::BindGroupLayoutEntry {
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ..e
+            }),
+        });
+        let mesh_layout = mesh_layout(&gpu, wgpu::ShaderStages::COMPUTE);
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("bake"),
+            bind_group_layouts: &[Some(&frame_layout), Some(&mesh_layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("bake"),
+            layout: Some(&layout),
+            module: &module,
+            entry_point: Some("cs_main"),
+            compilation_options: wgpu::PipelineCompilationOptions::default(),
+            cache: None,
+        });
+        let sampler = mesh_sampler(&gpu);
+        Baker {
+            gpu,
+            pipeline,
+            frame_layout,
+            mesh_layout,
+            sampler,
+        }
+    }
+
+    /// Bakes `mesh` into an `.lfa` file at `path` (written atomically), calling
+    /// `progress(cameras_done, cameras_total)` as cameras finish.
+    ///
+    /// # Errors
+    /// [`BakeError`]; on error nothing is left at `path`.
+    pub fn bake_to_file(
+        &self,
+        mesh: &Mesh,
+        options: &BakeOptions,
+        source: &Provenance,
+        path: &Path,
+        progress: &mut dyn FnMut(u32, u32),
+    ) -> Result<BakeReport, BakeError> {
+        let start = Instant::now();
+        let (header, gpu_mesh) = self.prepare(mesh, options, source)?;
+        let mut sink = Sink::File(AssetWriter::create(path, header)?);
+        self.trace_all(&gpu_mesh, options, &mut sink, progress)?;
+        let Sink::File(mut writer) = sink else {
+            unreachable!("sink kind is fixed above")
+        };
+        let bake_ms = start.elapsed().as_secs_f64() * 1e3;
+        writer.set_bake_ms(bake_ms);
+        writer.finish()?;
+        let asset_bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+        Ok(BakeReport {
+            cameras: options.cameras,
+            resolution: options.resolution,
+            triangles: mesh.triangles.len() as u64,
+            bake_ms,
+            asset_bytes,
+        })
+    }
+
+    /// Bakes `mesh` into an in-memory `.lfa` image.
+    ///
+    /// # Errors
+    /// [`BakeError`].
+    pub fn bake_to_bytes(
+        &self,
+        mesh: &Mesh,
+        options: &BakeOptions,
+        source: &Provenance,
+        progress: &mut dyn FnMut(u32, u32),
+    ) -> Result<Vec<u8>, BakeError> {
+        let start = Instant::now();
+        let (mut header, gpu_mesh) = self.prepare(mesh, options, source)?;
+        let mut sink = Sink::Memory(Vec::new());
+        self.trace_all(&gpu_mesh, options, &mut sink, progress)?;
+        let Sink::Memory(images) = sink else {
+            unreachable!("sink kind is fixed above")
+        };
+        header.provenance.bake_ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(encode_asset(header, images)?)
+    }
+
+    fn prepare(
+        &self,
+        mesh: &Mesh,
+        options: &BakeOptions,
+        source: &Provenance,
+    ) -> Result<(AssetHeader, GpuMesh), BakeError> {
+        let level = options.validate()?;
+        let gpu_mesh = GpuMesh::upload(&self.gpu, mesh)?;
+        let provenance = Provenance {
+            lumigraph_version: env!("CARGO_PKG_VERSION").to_owned(),
+            bake_options: serde_json::to_value(options).unwrap_or_default(),
+            triangles: mesh.triangles.len() as u64,
+            vertices: mesh.positions.len() as u64,
+            created_unix: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map(|d| d.as_secs())
+                .unwrap_or(0),
+            ..source.clone()
+        };
+        let depth = if options.depth_bits == 8 {
+            Encoding::R8
+        } else {
+            Encoding::R16
+        };
+        let header = AssetHeader::new_spherical(
+            u8::try_from(level).unwrap_or(u8::MAX),
+            options.resolution,
+            gpu_mesh.frame.clone(),
+            depth,
+            provenance,
+        )?;
+        Ok((header, gpu_mesh))
+    }
+
+    fn trace_all(
+        &self,
+        mesh: &GpuMesh,
+        options: &BakeOptions,
+        sink: &mut Sink,
+        progress: &mut dyn FnMut(u32, u32),
+    ) -> Result<(), BakeError> {
+        let gpu = &self.gpu;
+        let n = options.resolution;
+        let texels = u64::from(n) * u64::from(n);
+        // Batch cameras so one dispatch stays well below a second on lavapipe and the output
+        // buffers stay bounded (≤ 64 MiB per channel).
+        let per_batch = u32::try_from((16u64 << 20) / texels)
+            .unwrap_or(1)
+            .clamp(1, 16);
+        let total = options.cameras;
+        let cameras = gpu_cameras(total as usize);
+        let camera_buffer = storage_buffer(
+            gpu,
+            "bake cameras",
+            bytemuck::cast_slice(&cameras),
+            wgpu::BufferUsages::empty(),
+        );
+        let out_bytes = u64::from(per_batch) * texels * 4;
+        gpu.check_storage("bake output", out_bytes)?;
+        let make_out = |label| {
+            gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: out_bytes,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            })
+        };
+        let out_color = make_out("bake colour");
+        let out_depth = make_out("bake depth");
+        let mesh_group = mesh_bind_group(gpu, &self.mesh_layout, mesh, &self.sampler);
+        let shading = options.shading.to_gpu();
+        progress(0, total);
+        let mut first = 0;
+        while first < total {
+            let count = per_batch.min(total - first);
+            let params = BakeParams {
+                resolution: n,
+                first_camera: first,
+                camera_count: count,
+                pad: 0,
+                shading,
+            };
+            let uniform = {
+                use wgpu::util::DeviceExt;
+                gpu.device
+                    .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                        label: Some("bake params"),
+                        contents: bytemuck::bytes_of(&params),
+                        usage: wgpu::BufferUsages::UNIFORM,
+                    })
+            };
+            let frame_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("bake frame"),
+                layout: &self.frame_layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: uniform.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: camera_buffer.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: out_color.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 3,
+                        resource: out_depth.as_entire_binding(),
+                    },
+                ],
+            });
+            let mut encoder = gpu
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("bake"),
+                });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("bake"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &frame_group, &[]);
+                pass.set_bind_group(1, &mesh_group, &[]);
+                pass.dispatch_workgroups(n.div_ceil(8), n.div_ceil(8), count);
+            }
+            gpu.queue.submit([encoder.finish()]);
+            let used = u64::from(count) * texels * 4;
+            let colors = gpu.read_buffer(&out_color, used)?;
+            let depths = gpu.read_buffer(&out_depth, used)?;
+            let image_bytes = (texels * 4) as usize;
+            for c in 0..count {
+                let camera = first + c;
+                let range = c as usize * image_bytes..(c as usize + 1) * image_bytes;
+                let color = colors[range.clone()].to_vec();
+                let depth_f32: &[f32] = bytemuck::cast_slice(&depths[range]);
+                let depth = encode_depth(depth_f32, options.depth_bits);
+                for (channel, bytes) in [(Channel::Color, color), (Channel::Depth, depth)] {
+                    let key = ImageKey::new(0, 0, camera, channel);
+                    match sink {
+                        Sink::File(writer) => writer.add_image(key, &bytes)?,
+                        Sink::Memory(images) => images.push((key, bytes)),
+                    }
+                }
+            }
+            first += count;
+            progress(first, total);
+        }
+        Ok(())
+    }
+}
+
+/// Encodes a depth map (1 = no hit) at 8 or 16 bits, little-endian.
+fn encode_depth(depth: &[f32], bits: u8) -> Vec<u8> {
+    if bits == 8 {
+        depth
+            .iter()
+            .map(|&d| geometry::encode_depth_u8(if d >= 1.0 { f32::INFINITY } else { d }))
+            .collect()
+    } else {
+        depth
+            .iter()
+            .flat_map(|&d| {
+                geometry::encode_depth_u16(if d >= 1.0 { f32::INFINITY } else { d }).to_le_bytes()
+            })
+            .collect()
+    }
+}
+
+/// The camera count of each level (re-exported for callers choosing `--cameras`).
+pub const CAMERA_CHOICES: [u32; 4] = CAMERA_COUNTS;

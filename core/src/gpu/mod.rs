@@ -1,0 +1,369 @@
+//! The one headless GPU device per process (DESIGN §6) and small helpers shared by the
+//! pipelines: buffer readback and texture-array uploads.
+//!
+//! On CPU-only servers the adapter is Mesa's lavapipe (Vulkan) or llvmpipe (GL); on machines with
+//! a GPU it is the GPU. `LUMIGRAPH_BACKEND` (vulkan | gl | metal | dx12 | auto) restricts the
+//! backend.
+
+use std::sync::{Arc, OnceLock};
+
+/// Errors while creating the device or talking to it.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum GpuError {
+    /// `LUMIGRAPH_BACKEND` holds an unknown value.
+    #[error("LUMIGRAPH_BACKEND={0:?} is not one of vulkan, gl, metal, dx12, auto")]
+    BadBackend(String),
+    /// No adapter was found.
+    #[error(
+        "no GPU adapter found for backend {backend}: on a CPU-only Debian/Ubuntu machine install Mesa's \
+         software Vulkan driver with `apt-get install -y mesa-vulkan-drivers libvulkan1` ({detail})"
+    )]
+    NoAdapter {
+        /// The backends that were tried.
+        backend: String,
+        /// wgpu's reason.
+        detail: String,
+    },
+    /// The adapter refused to create a device.
+    #[error("cannot open the GPU device {adapter}: {detail}")]
+    Device {
+        /// Adapter name.
+        adapter: String,
+        /// wgpu's reason.
+        detail: String,
+    },
+    /// A readback or submission failed.
+    #[error("GPU operation failed: {0}")]
+    Operation(String),
+    /// A request exceeds what the device supports.
+    #[error("{what} needs {needed} but the device allows at most {limit}")]
+    Limit {
+        /// What was asked for.
+        what: &'static str,
+        /// Needed amount.
+        needed: u64,
+        /// Device limit.
+        limit: u64,
+    },
+}
+
+/// The headless device with its queue; create once ([`Gpu::shared`]) and share.
+pub struct Gpu {
+    /// The wgpu device.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// What the adapter reported.
+    pub adapter_info: wgpu::AdapterInfo,
+    /// Whether the adapter is a software rasterizer (lavapipe/llvmpipe).
+    pub is_software: bool,
+}
+
+static SHARED: OnceLock<Result<Arc<Gpu>, String>> = OnceLock::new();
+
+fn backends_from_env() -> Result<(wgpu::Backends, String), GpuError> {
+    let value = std::env::var("LUMIGRAPH_BACKEND").unwrap_or_else(|_| "auto".to_owned());
+    let backends = match value.to_ascii_lowercase().as_str() {
+        "" | "auto" => wgpu::Backends::all(),
+        "vulkan" => wgpu::Backends::VULKAN,
+        "gl" | "gles" | "opengl" => wgpu::Backends::GL,
+        "metal" => wgpu::Backends::METAL,
+        "dx12" => wgpu::Backends::DX12,
+        _ => return Err(GpuError::BadBackend(value)),
+    };
+    Ok((backends, value))
+}
+
+impl Gpu {
+    /// The process-wide device, created on first use. Later calls return the same device (or the
+    /// same error).
+    ///
+    /// # Errors
+    /// See [`Gpu::new`].
+    pub fn shared() -> Result<Arc<Gpu>, GpuError> {
+        SHARED
+            .get_or_init(|| Gpu::new().map(Arc::new).map_err(|e| e.to_string()))
+            .clone()
+            .map_err(GpuError::Operation)
+    }
+
+    /// Opens a new headless device on the backend `LUMIGRAPH_BACKEND` selects.
+    ///
+    /// # Errors
+    /// [`GpuError::BadBackend`], [`GpuError::NoAdapter`] (the message names the package to
+    /// install), [`GpuError::Device`].
+    pub fn new() -> Result<Gpu, GpuError> {
+        let (backends, backend_name) = backends_from_env()?;
+        // `auto` tries the native backends first (Vulkan/Metal/DX12: lavapipe on CPU-only Linux)
+        // and falls back to GL only when none has an adapter.
+        let attempts = if backends == wgpu::Backends::all() {
+            vec![wgpu::Backends::PRIMARY, wgpu::Backends::GL]
+        } else {
+            vec![backends]
+        };
+        let mut last_error = String::from("no backend tried");
+        let mut found = None;
+        for attempt in attempts {
+            let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+            desc.backends = attempt;
+            let instance = wgpu::Instance::new(desc);
+            match pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+                power_preference: wgpu::PowerPreference::HighPerformance,
+                force_fallback_adapter: false,
+                compatible_surface: None,
+                apply_limit_buckets: false,
+            })) {
+                Ok(adapter) => {
+                    found = Some(adapter);
+                    break;
+                }
+                Err(e) => last_error = e.to_string(),
+            }
+        }
+        let adapter = found.ok_or_else(|| GpuError::NoAdapter {
+            backend: backend_name.clone(),
+            detail: last_error,
+        })?;
+        let adapter_info = adapter.get_info();
+        let is_software = adapter_info.device_type == wgpu::DeviceType::Cpu
+            || adapter_info.name.contains("llvmpipe")
+            || adapter_info.name.contains("lavapipe");
+        // Ask for everything the adapter can do: camera arrays need up to 642+1 layers and large
+        // storage buffers, far above wgpu's portable defaults.
+        let limits = adapter.limits();
+        let wanted = wgpu::Features::FLOAT32_FILTERABLE;
+        let features = adapter.features() & wanted;
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("lumigraph"),
+            required_features: features,
+            required_limits: limits,
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .map_err(|e| GpuError::Device {
+            adapter: adapter_info.name.clone(),
+            detail: e.to_string(),
+        })?;
+        let gpu = Gpu {
+            device,
+            queue,
+            adapter_info,
+            is_software,
+        };
+        tracing::info!("{}", gpu.adapter_summary());
+        if gpu.is_software {
+            tracing::info!("the adapter is a software rasterizer: rendering runs on the CPU cores");
+        }
+        Ok(gpu)
+    }
+
+    /// One line naming the adapter, driver and backend.
+    pub fn adapter_summary(&self) -> String {
+        let info = &self.adapter_info;
+        format!(
+            "GPU adapter: {} ({:?}, {:?} backend, driver {} {}){}",
+            info.name,
+            info.device_type,
+            info.backend,
+            info.driver,
+            info.driver_info,
+            if self.is_software {
+                " [software rasterizer]"
+            } else {
+                ""
+            }
+        )
+    }
+
+    /// Blocks until the submitted work is done.
+    ///
+    /// # Errors
+    /// [`GpuError::Operation`] when the device is lost.
+    pub fn wait(&self) -> Result<(), GpuError> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| GpuError::Operation(e.to_string()))
+    }
+
+    /// Copies `size` bytes of `source` (which needs `COPY_SRC`) back to the CPU.
+    ///
+    /// # Errors
+    /// [`GpuError::Operation`] when mapping fails.
+    pub fn read_buffer(&self, source: &wgpu::Buffer, size: u64) -> Result<Vec<u8>, GpuError> {
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("readback"),
+            });
+        encoder.copy_buffer_to_buffer(source, 0, &staging, 0, size);
+        self.queue.submit([encoder.finish()]);
+        self.map_read(&staging)
+    }
+
+    /// Maps a `MAP_READ` buffer and copies it out.
+    ///
+    /// # Errors
+    /// [`GpuError::Operation`] when mapping fails.
+    pub fn map_read(&self, staging: &wgpu::Buffer) -> Result<Vec<u8>, GpuError> {
+        let slice = staging.slice(..);
+        let (sender, receiver) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |result| {
+            let _ = sender.send(result);
+        });
+        self.wait()?;
+        receiver
+            .recv()
+            .map_err(|e| GpuError::Operation(e.to_string()))?
+            .map_err(|e| GpuError::Operation(e.to_string()))?;
+        let bytes = slice
+            .get_mapped_range()
+            .map_err(|e| GpuError::Operation(e.to_string()))?
+            .to_vec();
+        staging.unmap();
+        Ok(bytes)
+    }
+
+    /// Layer count to allocate for `layers` images of a square texture array: one extra layer
+    /// when the count is a multiple of 6, because wgpu's GL backend silently treats such arrays
+    /// as cube-map arrays (PLATFORM.md).
+    /// A single layer is padded to two for the same reason: GL would bind it as a plain 2D
+    /// texture, not an array.
+    pub fn padded_layers(layers: u32) -> u32 {
+        if layers <= 1 {
+            2
+        } else if layers % 6 == 0 {
+            layers + 1
+        } else {
+            layers
+        }
+    }
+
+    /// Checks `layers` against the device's texture-array limit.
+    ///
+    /// # Errors
+    /// [`GpuError::Limit`].
+    pub fn check_layers(&self, layers: u32) -> Result<(), GpuError> {
+        let limit = self.device.limits().max_texture_array_layers;
+        if layers > limit {
+            return Err(GpuError::Limit {
+                what: "texture array layers",
+                needed: layers.into(),
+                limit: limit.into(),
+            });
+        }
+        Ok(())
+    }
+
+    /// Checks a storage buffer size against the device limits.
+    ///
+    /// # Errors
+    /// [`GpuError::Limit`].
+    pub fn check_storage(&self, what: &'static str, bytes: u64) -> Result<(), GpuError> {
+        let limits = self.device.limits();
+        let limit = u64::from(limits.max_storage_buffer_binding_size).min(limits.max_buffer_size);
+        if bytes > limit {
+            return Err(GpuError::Limit {
+                what,
+                needed: bytes,
+                limit,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Creates a storage buffer initialised with `contents` (never empty: wgpu rejects zero-size
+/// bindings, so an empty slice becomes 16 zero bytes).
+pub(crate) fn storage_buffer(
+    gpu: &Gpu,
+    label: &str,
+    contents: &[u8],
+    extra: wgpu::BufferUsages,
+) -> wgpu::Buffer {
+    use wgpu::util::DeviceExt;
+    let zeros = [0u8; 16];
+    let data = if contents.is_empty() {
+        &zeros[..]
+    } else {
+        contents
+    };
+    gpu.device
+        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(label),
+            contents: data,
+            usage: wgpu::BufferUsages::STORAGE | extra,
+        })
+}
+
+/// Uploads `layers` equally sized images into a new 2D texture array (padded per
+/// [`Gpu::padded_layers`]).
+pub(crate) fn texture_array(
+    gpu: &Gpu,
+    label: &str,
+    format: wgpu::TextureFormat,
+    width: u32,
+    height: u32,
+    images: &[&[u8]],
+) -> wgpu::Texture {
+    let bytes_per_texel = format.block_copy_size(None).unwrap_or(4);
+    let layers = Gpu::padded_layers(u32::try_from(images.len()).unwrap_or(u32::MAX));
+    let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width,
+            height,
+            depth_or_array_layers: layers,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    for (layer, image) in images.iter().enumerate() {
+        gpu.queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d {
+                    x: 0,
+                    y: 0,
+                    z: u32::try_from(layer).unwrap_or(0),
+                },
+                aspect: wgpu::TextureAspect::All,
+            },
+            image,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(width * bytes_per_texel),
+                rows_per_image: Some(height),
+            },
+            wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+        );
+    }
+    texture
+}
+
+/// Texture-array view covering every layer.
+pub(crate) fn array_view(texture: &wgpu::Texture) -> wgpu::TextureView {
+    texture.create_view(&wgpu::TextureViewDescriptor {
+        dimension: Some(wgpu::TextureViewDimension::D2Array),
+        ..Default::default()
+    })
+}
+pub mod bvh;
+pub mod mesh;

@@ -1,0 +1,650 @@
+//! Rendering new views from a spherical light field on the GPU (seed 000 §2, DESIGN §4).
+//!
+//! [`Renderer`] holds the compute pipeline (built once); [`GpuLightField`] holds one asset's
+//! colour and depth maps as 2D texture arrays plus its cameras and triangle hierarchy; a render
+//! fills a [`Frame`] with colour, z-depth in world units and stats.
+//!
+//! Two methods: [`Method::Fixed`] is the seed's fixed-step search with bilinear depth (the
+//! baseline); [`Method::Default`] marches coarse steps with an edge-aware depth lookup and
+//! accepts a bisection-refined crossing only where a camera's estimate is continuous across it.
+
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::asset::{AssetError, AssetFile, Channel, Encoding, ImageKey};
+use crate::bake::gpu_cameras;
+use crate::frame::{Frame, FrameStats};
+use crate::geometry::{self, CAMERA_COUNTS};
+use crate::gpu::{Gpu, GpuError, array_view, storage_buffer, texture_array};
+use crate::view::{DEFAULT_MAX_VIEW_PX, View, ViewError};
+
+/// Default step of the fixed method, in units of the bounding-sphere diameter (64 steps across).
+pub const DEFAULT_FIXED_STEP: f32 = 1.0 / 64.0;
+/// Default coarse step of the default method, in bounding-sphere diameters (32 steps across).
+pub const DEFAULT_REFINED_STEP: f32 = 1.0 / 32.0;
+/// Smallest step accepted (bounds the work per pixel: at most 1/step samples).
+pub const MIN_STEP: f32 = 1.0 / 4096.0;
+/// Bisection iterations of the default method.
+const REFINE_ITERATIONS: u32 = 8;
+/// Depth gap (in normalized map depth) above which a 2×2 footprint is split into layers.
+const EDGE_GAP: f32 = 0.05;
+
+/// Errors while rendering.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum RenderError {
+    /// The view is invalid.
+    #[error(transparent)]
+    View(#[from] ViewError),
+    /// A quality option is out of range.
+    #[error("{0}")]
+    Option(String),
+    /// The asset cannot be used.
+    #[error(transparent)]
+    Asset(#[from] AssetError),
+    /// The device failed.
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+}
+
+/// Marching method.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Seed 000's fixed-step search with bilinear depth (baseline).
+    Fixed,
+    /// Edge-aware depth, coarse steps, bisection-refined crossings accepted where a camera agrees.
+    #[default]
+    Default,
+}
+
+impl std::str::FromStr for Method {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "fixed" => Ok(Method::Fixed),
+            "default" => Ok(Method::Default),
+            _ => Err(format!("unknown method `{s}`: use fixed or default")),
+        }
+    }
+}
+
+impl std::fmt::Display for Method {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Method::Fixed => "fixed",
+            Method::Default => "default",
+        })
+    }
+}
+
+/// Quality knobs of a render; `None` means the method's default.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RenderOptions {
+    /// Cameras to use: 12, 42, 162 or 642 (at most the asset's count), or a level 0–3.
+    pub lod: Option<u32>,
+    /// Step in bounding-sphere diameters.
+    pub step: Option<f32>,
+    /// Tolerance in bounding-sphere diameters (default: step / 2, seed 000 §3.1).
+    pub tolerance: Option<f32>,
+    /// Marching method.
+    pub method: Method,
+}
+
+/// The resolved settings a render used.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ResolvedOptions {
+    /// Icosphere level.
+    pub level: u32,
+    /// Cameras.
+    pub cameras: u32,
+    /// Step in bounding-sphere diameters.
+    pub step: f32,
+    /// Tolerance in bounding-sphere diameters.
+    pub tolerance: f32,
+    /// Method.
+    pub method: Method,
+}
+
+impl RenderOptions {
+    /// Resolves defaults and checks ranges against an asset with `max_level`.
+    ///
+    /// # Errors
+    /// [`RenderError::Option`] naming the bad knob.
+    pub fn resolve(&self, max_level: u32) -> Result<ResolvedOptions, RenderError> {
+        let level = match self.lod {
+            None => max_level,
+            Some(l) if l <= 3 => l,
+            Some(n) => geometry::level_for_camera_count(n).ok_or_else(|| {
+                RenderError::Option(format!(
+                    "lod {n} is not a camera count (12, 42, 162, 642) or a level 0-3"
+                ))
+            })?,
+        };
+        if level > max_level {
+            return Err(RenderError::Option(format!(
+                "lod {} cameras exceeds the asset's {} cameras",
+                CAMERA_COUNTS[level as usize], CAMERA_COUNTS[max_level as usize]
+            )));
+        }
+        let default_step = if self.method == Method::Fixed {
+            DEFAULT_FIXED_STEP
+        } else {
+            DEFAULT_REFINED_STEP
+        };
+        let step = self.step.unwrap_or(default_step);
+        if !step.is_finite() || !(MIN_STEP..=1.0).contains(&step) {
+            return Err(RenderError::Option(format!(
+                "step {step} must be finite and in [{MIN_STEP}, 1] bounding diameters"
+            )));
+        }
+        let tolerance = self.tolerance.unwrap_or(step / 2.0);
+        if !tolerance.is_finite() || !(tolerance > 0.0 && tolerance <= 1.0) {
+            return Err(RenderError::Option(format!(
+                "tolerance {tolerance} must be finite and in (0, 1] bounding diameters"
+            )));
+        }
+        Ok(ResolvedOptions {
+            level,
+            cameras: CAMERA_COUNTS[level as usize],
+            step,
+            tolerance,
+            method: self.method,
+        })
+    }
+}
+
+/// One asset on the GPU. Cheap to share (`Arc`) between threads.
+pub struct GpuLightField {
+    /// World units per light-field unit.
+    pub scale: f64,
+    /// Bounding-sphere centre, world units.
+    pub center: DVec3,
+    /// Bounding radius, world units.
+    pub radius: f64,
+    /// Icosphere level baked.
+    pub max_level: u32,
+    /// Map resolution.
+    pub resolution: u32,
+    /// Bytes of texture memory used.
+    pub gpu_bytes: u64,
+    group: wgpu::BindGroup,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct RenderParams {
+    eye: [f32; 3],
+    width: u32,
+    right: [f32; 3],
+    height: u32,
+    up: [f32; 3],
+    focal_px: f32,
+    forward: [f32; 3],
+    level: u32,
+    step: f32,
+    tolerance: f32,
+    max_steps: u32,
+    method: u32,
+    resolution: f32,
+    depth_scale: f32,
+    edge_gap: f32,
+    refine_iterations: u32,
+}
+const _: () = assert!(std::mem::size_of::<RenderParams>() == 96);
+
+/// Per-size output buffers, reused between frames of the same size.
+struct Targets {
+    pixels: u64,
+    uniform: wgpu::Buffer,
+    color: wgpu::Buffer,
+    depth: wgpu::Buffer,
+    counters: wgpu::Buffer,
+    readback: wgpu::Buffer,
+    group: wgpu::BindGroup,
+}
+
+/// The light-field render pipeline; one per process, shared by threads.
+pub struct Renderer {
+    gpu: Arc<Gpu>,
+    pipeline: wgpu::ComputePipeline,
+    frame_layout: wgpu::BindGroupLayout,
+    field_layout: wgpu::BindGroupLayout,
+    linear: wgpu::Sampler,
+    camera_buffer: wgpu::Buffer,
+    hierarchy_buffer: wgpu::Buffer,
+    /// Reusable targets; the lock also serializes frames on the one queue.
+    targets: Mutex<Option<Targets>>,
+    max_px: u32,
+}
+
+fn buffer_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+fn texture_entry(binding: u32, filterable: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable },
+            view_dimension: wgpu::TextureViewDimension::D2Array,
+            multisampled: false,
+        },
+        count: None,
+    }
+}
+
+impl Renderer {
+    /// Builds the pipeline and uploads the icosphere cameras and hierarchy.
+    pub fn new(gpu: Arc<Gpu>) -> Renderer {
+        let device = &gpu.device;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("render.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(crate::shaders::RENDER.into()),
+        });
+        let storage = wgpu::BufferBindingType::Storage { read_only: false };
+        let read_only = wgpu::BufferBindingType::Storage { read_only: true };
+        let frame_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("render frame"),
+            entries: &[
+                buffer_entry(0, wgpu::BufferBindingType::Uniform),
+                buffer_entry(1, storage),
+                buffer_entry(2, storage),
+                buffer_entry(3, storage),
+            ],
+        });
+        let field_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("light field"),
+            entries: &[
+                buffer_entry(0, read_only),
+                buffer_entry(1, read_only),
+                texture_entry(2, true),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 3,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Uint,
+                        view_dimension: wgpu::TextureViewDimension::D2Array,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 4,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
+            ],
+        });
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("render"),
+            bind_group_layouts: &[Some(&frame_layout), Some(&field_layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("render"),
+            layout: Some(&layout),
+            module: &module,
+            entry_point: Some("cs_main"),
+            compilation_options: wgpu::PipelineCompilationOptions::default(),
+            cache: None,
+        });
+        let sampler = |label, filter| {
+            device.create_sampler(&wgpu::SamplerDescriptor {
+                label: Some(label),
+                address_mode_u: wgpu::AddressMode::ClampToEdge,
+                address_mode_v: wgpu::AddressMode::ClampToEdge,
+                mag_filter: filter,
+                min_filter: filter,
+                ..Default::default()
+            })
+        };
+        let linear = sampler("light-field linear", wgpu::FilterMode::Linear);
+        let set = geometry::camera_set();
+        let cameras = gpu_cameras(set.positions.len());
+        let none = wgpu::BufferUsages::empty();
+        let camera_buffer = storage_buffer(
+            &gpu,
+            "icosphere cameras",
+            bytemuck::cast_slice(&cameras),
+            none,
+        );
+        let hierarchy: Vec<[u32; 4]> = set
+            .triangles
+            .iter()
+            .map(|t| [t.v[0], t.v[1], t.v[2], t.first_child])
+            .collect();
+        let hierarchy_buffer = storage_buffer(
+            &gpu,
+            "icosphere hierarchy",
+            bytemuck::cast_slice(&hierarchy),
+            none,
+        );
+        let max_px = DEFAULT_MAX_VIEW_PX.min(gpu.device.limits().max_texture_dimension_2d);
+        Renderer {
+            gpu,
+            pipeline,
+            frame_layout,
+            field_layout,
+            linear,
+            camera_buffer,
+            hierarchy_buffer,
+            targets: Mutex::new(None),
+            max_px,
+        }
+    }
+
+    /// The device.
+    pub fn gpu(&self) -> &Arc<Gpu> {
+        &self.gpu
+    }
+
+    /// Uploads an asset's base state and first layer (all cameras) as texture arrays.
+    ///
+    /// # Errors
+    /// [`RenderError::Asset`] for unreadable images, [`RenderError::Gpu`] for device limits.
+    pub fn upload(&self, asset: &AssetFile) -> Result<GpuLightField, RenderError> {
+        let header = asset.header();
+        let n = header.geometry.resolution_px;
+        let cameras = header.geometry.camera_count;
+        let max_level = u32::from(header.geometry.camera_level);
+        let depth_encoding = header
+            .encoding(Channel::Depth)
+            .ok_or_else(|| AssetError::Header("no depth channel".to_owned()))?;
+        let limit = self.gpu.device.limits().max_texture_dimension_2d;
+        if n > limit {
+            return Err(GpuError::Limit {
+                what: "map resolution",
+                needed: n.into(),
+                limit: limit.into(),
+            }
+            .into());
+        }
+        self.gpu.check_layers(Gpu::padded_layers(cameras))?;
+        let mut colors = Vec::with_capacity(cameras as usize);
+        let mut depths = Vec::with_capacity(cameras as usize);
+        for k in 0..cameras {
+            colors.push(asset.read_image(ImageKey::new(0, 0, k, Channel::Color))?);
+            let raw = asset.read_image(ImageKey::new(0, 0, k, Channel::Depth))?;
+            let codes: Vec<u16> = match depth_encoding {
+                Encoding::R16 => raw
+                    .chunks_exact(2)
+                    .map(|c| u16::from_le_bytes([c[0], c[1]]))
+                    .collect(),
+                Encoding::R8 => raw
+                    .iter()
+                    .map(|&v| {
+                        geometry::encode_depth_u16(if v == geometry::NO_HIT_U8 {
+                            1.0
+                        } else {
+                            geometry::decode_depth_u8(v)
+                        })
+                    })
+                    .collect(),
+                _ => raw
+                    .chunks_exact(4)
+                    .map(|c| {
+                        geometry::encode_depth_u16(
+                            f32::from_le_bytes([c[0], c[1], c[2], c[3]]).max(0.0),
+                        )
+                    })
+                    .collect(),
+            };
+            depths.push(footprint_texels(&codes, n as usize));
+        }
+        let color_refs: Vec<&[u8]> = colors.iter().map(Vec::as_slice).collect();
+        let depth_refs: Vec<&[u8]> = depths.iter().map(Vec::as_slice).collect();
+        let color_tex = texture_array(
+            &self.gpu,
+            "light-field colour",
+            wgpu::TextureFormat::Rgba8Unorm,
+            n,
+            n,
+            &color_refs,
+        );
+        let depth_tex = texture_array(
+            &self.gpu,
+            "light-field depth footprints",
+            wgpu::TextureFormat::Rgba16Uint,
+            n,
+            n,
+            &depth_refs,
+        );
+        let gpu_bytes = u64::from(Gpu::padded_layers(cameras)) * u64::from(n) * u64::from(n) * 12;
+        let color_view = array_view(&color_tex);
+        let depth_view = array_view(&depth_tex);
+        let group = self
+            .gpu
+            .device
+            .create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("light field"),
+                layout: &self.field_layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: self.camera_buffer.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: self.hierarchy_buffer.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: wgpu::BindingResource::TextureView(&color_view),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 3,
+                        resource: wgpu::BindingResource::TextureView(&depth_view),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 4,
+                        resource: wgpu::BindingResource::Sampler(&self.linear),
+                    },
+                ],
+            });
+        let frame = &header.frame;
+        Ok(GpuLightField {
+            scale: frame.world_from_lf_scale(),
+            center: DVec3::from(frame.center),
+            radius: frame.radius,
+            max_level,
+            resolution: n,
+            gpu_bytes,
+            group,
+        })
+    }
+
+    fn targets_for(&self, pixels: u64) -> Targets {
+        let device = &self.gpu.device;
+        let make = |label, size, usage| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        let out = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
+        let uniform = make(
+            "render params",
+            std::mem::size_of::<RenderParams>() as u64,
+            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        );
+        let color = make("render colour", pixels * 4, out);
+        let depth = make("render depth", pixels * 4, out);
+        let counters = make("render counters", 16, out | wgpu::BufferUsages::COPY_DST);
+        let readback = make(
+            "render readback",
+            pixels * 8 + 16,
+            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        );
+        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("render frame"),
+            layout: &self.frame_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: uniform.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: color.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: depth.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: counters.as_entire_binding(),
+                },
+            ],
+        });
+        Targets {
+            pixels,
+            uniform,
+            color,
+            depth,
+            counters,
+            readback,
+            group,
+        }
+    }
+
+    /// Renders `view` (world coordinates) from `field`.
+    ///
+    /// # Errors
+    /// [`RenderError::View`] / [`RenderError::Option`] for bad input, [`RenderError::Gpu`].
+    pub fn render(
+        &self,
+        field: &GpuLightField,
+        view: &View,
+        options: &RenderOptions,
+    ) -> Result<Frame, RenderError> {
+        let basis = view.basis(self.max_px)?;
+        let resolved = options.resolve(field.max_level)?;
+        let start = Instant::now();
+        let lf_eye = (basis.eye - field.center) / field.scale;
+        if !lf_eye.is_finite() {
+            return Err(RenderError::View(ViewError::NotFinite("eye")));
+        }
+        let diameter_lf = std::f32::consts::SQRT_2;
+        let step = resolved.step * diameter_lf;
+        let max_steps = (diameter_lf / step).ceil() as u32 + 2;
+        let params = RenderParams {
+            eye: lf_eye.as_vec3().to_array(),
+            width: view.width,
+            right: basis.right.as_vec3().to_array(),
+            height: view.height,
+            up: basis.true_up.as_vec3().to_array(),
+            focal_px: basis.focal_px as f32,
+            forward: basis.forward.as_vec3().to_array(),
+            level: resolved.level,
+            step,
+            tolerance: resolved.tolerance * diameter_lf,
+            max_steps,
+            method: u32::from(resolved.method != Method::Fixed),
+            resolution: field.resolution as f32,
+            depth_scale: field.scale as f32,
+            edge_gap: EDGE_GAP,
+            refine_iterations: REFINE_ITERATIONS,
+        };
+        let pixels = u64::from(view.width) * u64::from(view.height);
+        let mut guard = self
+            .targets
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if guard.as_ref().is_none_or(|t| t.pixels != pixels) {
+            *guard = Some(self.targets_for(pixels));
+        }
+        let Some(targets) = guard.as_ref() else {
+            return Err(GpuError::Operation("render targets missing".to_owned()).into());
+        };
+        let gpu = &self.gpu;
+        gpu.queue
+            .write_buffer(&targets.uniform, 0, bytemuck::bytes_of(&params));
+        gpu.queue.write_buffer(&targets.counters, 0, &[0u8; 16]);
+        let mut encoder = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("render"),
+            });
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("render"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &targets.group, &[]);
+            pass.set_bind_group(1, &field.group, &[]);
+            pass.dispatch_workgroups(view.width.div_ceil(8), view.height.div_ceil(8), 1);
+        }
+        encoder.copy_buffer_to_buffer(&targets.color, 0, &targets.readback, 0, pixels * 4);
+        encoder.copy_buffer_to_buffer(&targets.depth, 0, &targets.readback, pixels * 4, pixels * 4);
+        encoder.copy_buffer_to_buffer(&targets.counters, 0, &targets.readback, pixels * 8, 16);
+        gpu.queue.submit([encoder.finish()]);
+        let bytes = gpu.map_read(&targets.readback)?;
+        drop(guard);
+        let split = (pixels * 4) as usize;
+        let color = bytes[..split].to_vec();
+        let depth: Vec<f32> = bytes[split..2 * split]
+            .chunks_exact(4)
+            .map(|c| {
+                let z = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+                if z < 0.0 { f32::INFINITY } else { z }
+            })
+            .collect();
+        let counters: Vec<u32> = bytes[2 * split..2 * split + 16]
+            .chunks_exact(4)
+            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        let render_ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(Frame {
+            width: view.width,
+            height: view.height,
+            color,
+            depth,
+            stats: FrameStats {
+                render_ms,
+                rays: u64::from(counters[2]),
+                steps: u64::from(counters[1]),
+                fetches: u64::from(counters[0]),
+            },
+        })
+    }
+}
+
+/// Packs a camera's `n×n` depth codes into footprint texels: texel `(x, y)` holds the codes of
+/// `(x, y)`, `(x+1, y)`, `(x, y+1)`, `(x+1, y+1)` (clamped at the border), as `Rgba16Uint` bytes.
+fn footprint_texels(codes: &[u16], n: usize) -> Vec<u8> {
+    let at = |x: usize, y: usize| {
+        codes
+            .get(y.min(n - 1) * n + x.min(n - 1))
+            .copied()
+            .unwrap_or(geometry::NO_HIT_U16)
+    };
+    let mut out = Vec::with_capacity(n * n * 8);
+    for y in 0..n {
+        for x in 0..n {
+            for code in [at(x, y), at(x + 1, y), at(x, y + 1), at(x + 1, y + 1)] {
+                out.extend_from_slice(&code.to_le_bytes());
+            }
+        }
+    }
+    out
+}

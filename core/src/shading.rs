@@ -1,0 +1,107 @@
+//! The DESIGN §3 shading options shared by baking and the reference renderer.
+
+use serde::{Deserialize, Serialize};
+
+/// Default light direction before normalization (DESIGN §3).
+pub const DEFAULT_LIGHT: [f32; 3] = [0.3, 1.0, 0.5];
+/// Default ambient term.
+pub const DEFAULT_AMBIENT: f32 = 0.25;
+
+/// Invalid shading options.
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[non_exhaustive]
+pub enum ShadingError {
+    /// The light direction is zero or not finite.
+    #[error("light direction {0:?} must be finite and non-zero")]
+    BadLight([f32; 3]),
+    /// Ambient outside [0, 1].
+    #[error("ambient {0} must be in [0, 1]")]
+    BadAmbient(f32),
+    /// Specular coefficient or exponent out of range.
+    #[error("specular ks={ks} shininess={shininess}: need 0 ≤ ks ≤ 1 and 0 < shininess ≤ 10000")]
+    BadSpecular {
+        /// Coefficient.
+        ks: f32,
+        /// Exponent.
+        shininess: f32,
+    },
+}
+
+/// `color = albedo·(ambient + (1-ambient)·max(0, n·light)) + ks·max(0, n·h)^shininess`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Shading {
+    /// World-space light direction (normalized when used).
+    pub light: [f32; 3],
+    /// Ambient term in [0, 1].
+    pub ambient: f32,
+    /// Optional specular `(ks, shininess)`.
+    pub specular: Option<(f32, f32)>,
+    /// `color = albedo`.
+    pub unlit: bool,
+}
+
+impl Default for Shading {
+    fn default() -> Self {
+        Self {
+            light: DEFAULT_LIGHT,
+            ambient: DEFAULT_AMBIENT,
+            specular: None,
+            unlit: false,
+        }
+    }
+}
+
+/// The WGSL `Shading` struct (`shaders/shared/mesh.wgsl`): 32 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub(crate) struct GpuShading {
+    pub light: [f32; 3],
+    pub ambient: f32,
+    pub ks: f32,
+    pub shininess: f32,
+    pub unlit: u32,
+    pub pad: u32,
+}
+const _: () = assert!(std::mem::size_of::<GpuShading>() == 32);
+
+impl Shading {
+    /// Checks every field.
+    ///
+    /// # Errors
+    /// [`ShadingError`] naming the bad field.
+    pub fn validate(&self) -> Result<(), ShadingError> {
+        let l = self.light;
+        let len2 = l[0] * l[0] + l[1] * l[1] + l[2] * l[2];
+        if !l.iter().all(|x| x.is_finite()) || !(len2 > 1e-20) || !len2.is_finite() {
+            return Err(ShadingError::BadLight(l));
+        }
+        if !(0.0..=1.0).contains(&self.ambient) {
+            return Err(ShadingError::BadAmbient(self.ambient));
+        }
+        if let Some((ks, shininess)) = self.specular
+            && !((0.0..=1.0).contains(&ks) && shininess > 0.0 && shininess <= 10_000.0)
+        {
+            return Err(ShadingError::BadSpecular { ks, shininess });
+        }
+        Ok(())
+    }
+
+    /// The unit light direction.
+    pub fn light_dir(&self) -> [f32; 3] {
+        let l = glam::DVec3::from(self.light.map(f64::from)).normalize_or(glam::DVec3::Y);
+        l.as_vec3().to_array()
+    }
+
+    pub(crate) fn to_gpu(self) -> GpuShading {
+        let (ks, shininess) = self.specular.unwrap_or((0.0, 1.0));
+        GpuShading {
+            light: self.light_dir(),
+            ambient: self.ambient,
+            ks,
+            shininess,
+            unlit: u32::from(self.unlit),
+            pad: 0,
+        }
+    }
+}
