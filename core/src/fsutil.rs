@@ -7,7 +7,10 @@ use std::path::{Path, PathBuf};
 
 /// Writes `path` atomically: `fill` receives a buffered writer on a temporary file in the same
 /// directory; on success the file is synced and renamed over `path`, on error it is removed.
-pub fn atomic_write<E>(path: &Path, fill: impl FnOnce(&mut BufWriter<File>) -> Result<(), E>) -> Result<(), E>
+pub fn atomic_write<E>(
+    path: &Path,
+    fill: impl FnOnce(&mut BufWriter<File>) -> Result<(), E>,
+) -> Result<(), E>
 where
     E: From<std::io::Error>,
 {
@@ -17,7 +20,9 @@ where
         let mut w = BufWriter::with_capacity(1 << 20, file);
         fill(&mut w)?;
         w.flush()?;
-        let file = w.into_inner().map_err(std::io::IntoInnerError::into_error)?;
+        let file = w
+            .into_inner()
+            .map_err(std::io::IntoInnerError::into_error)?;
         file.sync_all()?;
         drop(file);
         std::fs::rename(&tmp, path)?;
@@ -34,7 +39,9 @@ pub fn temp_path_for(path: &Path) -> PathBuf {
     use std::sync::atomic::{AtomicU64, Ordering};
     static COUNTER: AtomicU64 = AtomicU64::new(0);
     let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-    let name = path.file_name().map_or_else(|| "out".into(), |s| s.to_string_lossy().into_owned());
+    let name = path
+        .file_name()
+        .map_or_else(|| "out".into(), |s| s.to_string_lossy().into_owned());
     let tmp_name = format!(".{name}.tmp-{}-{n}", std::process::id());
     match path.parent() {
         Some(dir) if !dir.as_os_str().is_empty() => dir.join(tmp_name),

@@ -82,8 +82,21 @@ pub struct ViewBasis {
 
 impl View {
     /// A view looking from `eye` at `target` with +y up.
-    pub fn look_at(eye: [f64; 3], target: [f64; 3], yfov_deg: f64, width: u32, height: u32) -> Self {
-        Self { eye, target, up: default_up(), yfov_deg, width, height }
+    pub fn look_at(
+        eye: [f64; 3],
+        target: [f64; 3],
+        yfov_deg: f64,
+        width: u32,
+        height: u32,
+    ) -> Self {
+        Self {
+            eye,
+            target,
+            up: default_up(),
+            yfov_deg,
+            width,
+            height,
+        }
     }
 
     /// Checks every field and derives the basis; `max_px` caps width and height.
@@ -100,11 +113,19 @@ impl View {
             return Err(ViewError::BadFov(self.yfov_deg));
         }
         if self.width == 0 || self.height == 0 || self.width > max_px || self.height > max_px {
-            return Err(ViewError::BadSize { width: self.width, height: self.height, max: max_px });
+            return Err(ViewError::BadSize {
+                width: self.width,
+                height: self.height,
+                max: max_px,
+            });
         }
         let eye = DVec3::from(self.eye);
         let delta = DVec3::from(self.target) - eye;
-        let scale = eye.abs().max_element().max(DVec3::from(self.target).abs().max_element()).max(f64::MIN_POSITIVE);
+        let scale = eye
+            .abs()
+            .max_element()
+            .max(DVec3::from(self.target).abs().max_element())
+            .max(f64::MIN_POSITIVE);
         if !(delta.length() > scale * 1e-12) {
             return Err(ViewError::EyeIsTarget);
         }
@@ -120,12 +141,21 @@ impl View {
         let right = cross.normalize();
         let true_up = right.cross(forward);
         let focal_px = (f64::from(self.height) / 2.0) / (self.yfov_deg.to_radians() / 2.0).tan();
-        Ok(ViewBasis { eye, forward, right, true_up, focal_px, width: self.width, height: self.height })
+        Ok(ViewBasis {
+            eye,
+            forward,
+            right,
+            true_up,
+            focal_px,
+            width: self.width,
+            height: self.height,
+        })
     }
 
     /// Parses either one view object or a JSON list of views.
     pub fn parse_many(json: &str) -> Result<Vec<View>, ViewError> {
-        let value: serde_json::Value = serde_json::from_str(json).map_err(|e| ViewError::Json(e.to_string()))?;
+        let value: serde_json::Value =
+            serde_json::from_str(json).map_err(|e| ViewError::Json(e.to_string()))?;
         let views = if value.is_array() {
             serde_json::from_value::<Vec<View>>(value)
         } else {
@@ -147,7 +177,14 @@ impl ViewBasis {
 
 /// `n` views with the eye uniformly random on a sphere of radius `distance` around `center`,
 /// looking at `center` (the `eval` default: distance 2.5 × bounding radius, 40°, 256×256).
-pub fn random_orbit_views(center: [f64; 3], distance: f64, n: usize, seed: u64, yfov_deg: f64, size_px: u32) -> Vec<View> {
+pub fn random_orbit_views(
+    center: [f64; 3],
+    distance: f64,
+    n: usize,
+    seed: u64,
+    yfov_deg: f64,
+    size_px: u32,
+) -> Vec<View> {
     use rand::{RngExt, SeedableRng};
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
     let c = DVec3::from(center);
@@ -160,8 +197,19 @@ pub fn random_orbit_views(center: [f64; 3], distance: f64, n: usize, seed: u64, 
             let dir = DVec3::new(s * phi.cos(), z, s * phi.sin());
             let eye = c + dir * distance;
             // +y up unless the eye is (almost) straight above or below.
-            let up = if dir.y.abs() > 0.99 { [0.0, 0.0, 1.0] } else { [0.0, 1.0, 0.0] };
-            View { eye: eye.to_array(), target: center, up, yfov_deg, width: size_px, height: size_px }
+            let up = if dir.y.abs() > 0.99 {
+                [0.0, 0.0, 1.0]
+            } else {
+                [0.0, 1.0, 0.0]
+            };
+            View {
+                eye: eye.to_array(),
+                target: center,
+                up,
+                yfov_deg,
+                width: size_px,
+                height: size_px,
+            }
         })
         .collect()
 }
@@ -223,7 +271,12 @@ mod tests {
         let many = format!("[{one},{one}]");
         assert_eq!(View::parse_many(&many).unwrap().len(), 2);
         assert!(View::parse_many(r#"{"eye":[0,0]}"#).is_err());
-        assert!(View::parse_many(r#"{"eye":[0,0,5],"target":[0,0,0],"yfov_deg":40,"width":8,"height":8,"zoom":1}"#).is_err());
+        assert!(
+            View::parse_many(
+                r#"{"eye":[0,0,5],"target":[0,0,0],"yfov_deg":40,"width":8,"height":8,"zoom":1}"#
+            )
+            .is_err()
+        );
     }
 
     #[test]

@@ -10,8 +10,8 @@
     reason = "test code: exact float comparisons and small casts are intentional"
 )]
 
-use lumigraph_core::geometry::*;
 use glam::{DVec3, Vec2, Vec3};
+use lumigraph_core::geometry::*;
 use proptest::prelude::*;
 use std::collections::{HashMap, HashSet};
 use std::f64::consts::PI;
@@ -68,11 +68,17 @@ fn min_edge_det(set: &CameraSet, t: usize, p: DVec3) -> f64 {
 fn check_located(set: &CameraSet, dir: Vec3, level: u32, loc: &Located) {
     let range = set.level_range(level);
     let t = loc.triangle as usize;
-    assert!(range.contains(&t), "triangle {t} not in level {level} range");
+    assert!(
+        range.contains(&t),
+        "triangle {t} not in level {level} range"
+    );
     assert_eq!(loc.cameras, set.triangles[t].v);
     let p = d(dir).normalize();
     let m = min_edge_det(set, t, p);
-    assert!(m >= -1e-6, "dir {dir:?} not inside triangle {t} (min det {m})");
+    assert!(
+        m >= -1e-6,
+        "dir {dir:?} not inside triangle {t} (min det {m})"
+    );
     let sum: f32 = loc.weights.iter().sum();
     assert!((sum - 1.0).abs() <= 1e-6, "weights sum {sum}");
     assert!(loc.weights.iter().all(|&w| w >= 0.0));
@@ -160,7 +166,10 @@ fn hierarchy_is_nested_and_consistent() {
     for l in 0..=MAX_LEVEL {
         let n = CAMERA_COUNTS[l as usize];
         for (j, t) in set.level_triangles(l).iter().enumerate() {
-            assert!(t.v.iter().all(|&v| v < n), "level {l} tri uses vertex >= {n}");
+            assert!(
+                t.v.iter().all(|&v| v < n),
+                "level {l} tri uses vertex >= {n}"
+            );
             if l == MAX_LEVEL {
                 assert_eq!(t.first_child, NO_CHILD);
                 assert_eq!(t.first_child, u32::MAX);
@@ -168,7 +177,11 @@ fn hierarchy_is_nested_and_consistent() {
             }
             let next = set.level_range(l + 1);
             let fc = t.first_child as usize;
-            assert_eq!(fc, next.start + 4 * j, "children contiguous, in parent order");
+            assert_eq!(
+                fc,
+                next.start + 4 * j,
+                "children contiguous, in parent order"
+            );
             let ch: Vec<[u32; 3]> = (fc..fc + 4).map(|c| set.triangles[c].v).collect();
             let [v0, v1, v2] = t.v;
             // corners of corner children are the parent's corners
@@ -182,7 +195,11 @@ fn hierarchy_is_nested_and_consistent() {
             assert_eq!(ch[3], [m01, m12, m20]);
             let n_next = CAMERA_COUNTS[l as usize + 1];
             for (m, a, b) in [(m01, v0, v1), (m12, v1, v2), (m20, v2, v0)] {
-                assert!((n..n_next).contains(&m), "midpoint {m} not new at level {}", l + 1);
+                assert!(
+                    (n..n_next).contains(&m),
+                    "midpoint {m} not new at level {}",
+                    l + 1
+                );
                 let e = (d(set.positions[a as usize]) + d(set.positions[b as usize])).normalize();
                 assert!((d(set.positions[m as usize]) - e).length() < 1e-6);
             }
@@ -294,7 +311,10 @@ fn locate_at_edge_midpoints() {
                 let mut w = loc.weights;
                 w.sort_by(f32::total_cmp);
                 assert!(w[0] < 1e-5, "{w:?}");
-                assert!((w[1] - 0.5).abs() < 1e-5 && (w[2] - 0.5).abs() < 1e-5, "{w:?}");
+                assert!(
+                    (w[1] - 0.5).abs() < 1e-5 && (w[2] - 0.5).abs() < 1e-5,
+                    "{w:?}"
+                );
                 // the two half weights belong to the edge's endpoints
                 for (k, &c) in loc.cameras.iter().enumerate() {
                     if c != a && c != b {
@@ -383,7 +403,10 @@ fn check_frame(p: Vec3) {
     }
     assert!(x.dot(y).abs() < 1e-6 && y.dot(z).abs() < 1e-6 && z.dot(x).abs() < 1e-6);
     assert!((x.cross(y) - z).length() < 1e-6, "right-handed for {p:?}");
-    assert!((d(z) + d(p).normalize()).length() < 1e-6, "z = -normalize(p)");
+    assert!(
+        (d(z) + d(p).normalize()).length() < 1e-6,
+        "z = -normalize(p)"
+    );
     assert_eq!(camera_frame(p), [x, y, z], "deterministic");
 }
 
@@ -475,9 +498,16 @@ fn parabolic_rim_and_pole() {
     assert!(r.z < 0.0 && (r.length() - 1.0).abs() < 1e-6);
     assert!((parabolic_forward(r) - uv).length() < 1e-5);
     // extremes: finite results, no panic
-    for uv in [Vec2::splat(1e30), Vec2::splat(f32::MAX), Vec2::new(f32::MAX, 0.0)] {
+    for uv in [
+        Vec2::splat(1e30),
+        Vec2::splat(f32::MAX),
+        Vec2::new(f32::MAX, 0.0),
+    ] {
         let r = parabolic_inverse(uv);
-        assert!(r.is_finite() && (r.length() - 1.0).abs() < 1e-6, "{uv:?} -> {r:?}");
+        assert!(
+            r.is_finite() && (r.length() - 1.0).abs() < 1e-6,
+            "{uv:?} -> {r:?}"
+        );
     }
     assert!(parabolic_forward(-Vec3::Z).is_finite());
     assert!(parabolic_inverse(Vec2::NAN).is_nan());
@@ -491,7 +521,10 @@ fn texel_mapping_round_trip() {
     assert_eq!(texel_center_uv(0, 0, 1), Vec2::ZERO);
     assert_eq!(texel_center_uv(0, 0, 0), Vec2::ZERO, "n = 0 acts as 1");
     assert_eq!(uv_to_texel_coords(Vec2::new(-1.0, -1.0), 64), Vec2::ZERO);
-    assert_eq!(uv_to_texel_coords(Vec2::new(1.0, 1.0), 64), Vec2::splat(64.0));
+    assert_eq!(
+        uv_to_texel_coords(Vec2::new(1.0, 1.0), 64),
+        Vec2::splat(64.0)
+    );
     for n in [1u32, 2, 7, 64, 255, 1024, 4096] {
         let step = (n / 37).max(1);
         for a in (0..n).step_by(step as usize) {
@@ -501,7 +534,10 @@ fn texel_mapping_round_trip() {
                 let tc = uv_to_texel_coords(uv, n);
                 let want = Vec2::new(b as f32 + 0.5, a as f32 + 0.5);
                 let tol = 1e-6 * n as f32 + 1e-6;
-                assert!((tc - want).abs().max_element() <= tol, "n={n} a={a} b={b} {tc:?}");
+                assert!(
+                    (tc - want).abs().max_element() <= tol,
+                    "n={n} a={a} b={b} {tc:?}"
+                );
                 assert_eq!(tc.floor(), Vec2::new(b as f32, a as f32));
             }
         }
@@ -538,7 +574,15 @@ proptest! {
 fn depth_codes() {
     assert_eq!(NO_HIT_U16, 65535);
     assert_eq!(NO_HIT_U8, 255);
-    for miss in [1.0, 1.0001, 2.0, f32::MAX, f32::INFINITY, f32::NEG_INFINITY, f32::NAN] {
+    for miss in [
+        1.0,
+        1.0001,
+        2.0,
+        f32::MAX,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::NAN,
+    ] {
         assert_eq!(encode_depth_u16(miss), NO_HIT_U16, "{miss}");
         assert_eq!(encode_depth_u8(miss), NO_HIT_U8, "{miss}");
     }
@@ -585,7 +629,10 @@ fn ray_sphere_cases() {
     // tangent / grazing
     let o = DVec3::new(-5.0, 1.0, 0.0);
     assert_eq!(ray_sphere(o, DVec3::X, c, 1.0), Some((5.0, 5.0)));
-    assert_eq!(ray_sphere(DVec3::new(-5.0, 1.0 + 1e-9, 0.0), DVec3::X, c, 1.0), None);
+    assert_eq!(
+        ray_sphere(DVec3::new(-5.0, 1.0 + 1e-9, 0.0), DVec3::X, c, 1.0),
+        None
+    );
     let (t0, t1) = ray_sphere(DVec3::new(-5.0, 1.0 - 1e-12, 0.0), DVec3::X, c, 1.0).unwrap();
     assert!(t0 <= t1 && (t0 - 5.0).abs() < 1e-5 && (t1 - 5.0).abs() < 1e-5);
     // tangent at the origin
@@ -594,7 +641,10 @@ fn ray_sphere_cases() {
     let o = DVec3::new(-1e6, 0.5, 0.0);
     let (t0, t1) = ray_sphere(o, DVec3::X, c, 1.0).unwrap();
     let h = 0.75_f64.sqrt();
-    assert!((t0 - (1e6 - h)).abs() < 1e-9 && (t1 - (1e6 + h)).abs() < 1e-9, "{t0} {t1}");
+    assert!(
+        (t0 - (1e6 - h)).abs() < 1e-9 && (t1 - (1e6 + h)).abs() < 1e-9,
+        "{t0} {t1}"
+    );
     on_sphere(o, DVec3::X, c, 1.0, t0, 1e-9);
     on_sphere(o, DVec3::X, c, 1.0, t1, 1e-9);
     // far away, oblique, non-unit dir, offset centre
@@ -618,9 +668,15 @@ fn ray_sphere_cases() {
     assert_eq!(ray_sphere(c, DVec3::X, c, f64::INFINITY), None);
     assert_eq!(ray_sphere(c, DVec3::X, c, -1.0), None);
     assert_eq!(ray_sphere(c, DVec3::ZERO, c, 1.0), None);
-    assert_eq!(ray_sphere(DVec3::splat(f64::INFINITY), DVec3::X, c, 1.0), None);
+    assert_eq!(
+        ray_sphere(DVec3::splat(f64::INFINITY), DVec3::X, c, 1.0),
+        None
+    );
     // miss
-    assert_eq!(ray_sphere(DVec3::new(0.0, 2.0, 0.0), DVec3::X, c, 1.0), None);
+    assert_eq!(
+        ray_sphere(DVec3::new(0.0, 2.0, 0.0), DVec3::X, c, 1.0),
+        None
+    );
 }
 
 proptest! {

@@ -80,7 +80,11 @@ fn checker_texture() -> Texture {
             rgba8.extend_from_slice(&[value, value, value, 255]);
         }
     }
-    Texture { width: TEXTURE_W, height: TEXTURE_H, rgba8 }
+    Texture {
+        width: TEXTURE_W,
+        height: TEXTURE_H,
+        rgba8,
+    }
 }
 
 /// The demo mesh: a trefoil-knot tube of 17,280 triangles, about 7 × 6.5 × 2.7 units.
@@ -129,7 +133,10 @@ pub fn demo_mesh() -> Result<Mesh, MeshError> {
         colors: Some(colors),
         triangles,
         triangle_materials,
-        materials: vec![Material { base_color_factor: [1.0; 4], base_color_texture: Some(0) }],
+        materials: vec![Material {
+            base_color_factor: [1.0; 4],
+            base_color_texture: Some(0),
+        }],
         textures: vec![checker_texture()],
     }
     .finish()

@@ -5,7 +5,7 @@ mod demo;
 mod load;
 
 pub use demo::demo_mesh;
-pub use load::{load_mesh, load_mesh_from_bytes, MeshFormat};
+pub use load::{MeshFormat, load_mesh, load_mesh_from_bytes};
 
 use glam::DVec3;
 
@@ -50,7 +50,9 @@ pub enum MeshError {
         index: usize,
     },
     /// A triangle refers to a vertex that does not exist.
-    #[error("triangle {triangle} refers to vertex {vertex}, but the mesh has {vertex_count} vertices")]
+    #[error(
+        "triangle {triangle} refers to vertex {vertex}, but the mesh has {vertex_count} vertices"
+    )]
     IndexOutOfRange {
         /// Triangle index.
         triangle: usize,
@@ -104,7 +106,10 @@ pub struct Material {
 
 impl Default for Material {
     fn default() -> Self {
-        Self { base_color_factor: DEFAULT_BASE_COLOR, base_color_texture: None }
+        Self {
+            base_color_factor: DEFAULT_BASE_COLOR,
+            base_color_texture: None,
+        }
     }
 }
 
