@@ -1,0 +1,549 @@
+//! The `lumigraph` command line: `bake`, `render`, `reference`, `eval`, `info` (and `serve`).
+//!
+//! Every command validates its input before touching the GPU and reports any failure as one
+//! line (`error: …`) with a non-zero exit status; nothing here panics on bad input.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use lumigraph_core::asset::{AssetFile, Provenance};
+use lumigraph_core::bake::{BakeOptions, Baker, sha256_hex};
+use lumigraph_core::frame::Frame;
+use lumigraph_core::gpu::Gpu;
+use lumigraph_core::mesh::{Mesh, demo_mesh, load_mesh};
+use lumigraph_core::metrics::{self, Comparison};
+use lumigraph_core::reference::ReferenceRenderer;
+use lumigraph_core::render::{Method, RenderOptions, Renderer};
+use lumigraph_core::shading::Shading;
+use lumigraph_core::view::{View, random_orbit_views};
+
+/// lumigraph: bake, render, evaluate and serve light fields.
+#[derive(Debug, Parser)]
+#[command(name = "lumigraph", version, about, propagate_version = true)]
+pub struct Cli {
+    /// The command.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// Commands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Bake a mesh (glTF/GLB, OBJ, PLY, STL, OFF) or the built-in demo into a spherical light field.
+    Bake(BakeArgs),
+    /// Render views of a light-field asset.
+    Render(RenderArgs),
+    /// Rasterize a mesh directly with the same view and shading (ground truth).
+    Reference(ReferenceArgs),
+    /// Compare light-field renders against reference renders of the source mesh.
+    Eval(EvalArgs),
+    /// Print an asset's header.
+    Info(InfoArgs),
+}
+
+/// Shading flags shared by `bake` and `reference` (DESIGN §3).
+#[derive(Debug, Args, Clone)]
+pub struct ShadingArgs {
+    /// Light direction X,Y,Z (world space; normalized).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub light: Option<[f32; 3]>,
+    /// Ambient term in [0, 1].
+    #[arg(long, allow_hyphen_values = true)]
+    pub ambient: Option<f32>,
+    /// Specular term KS,SHININESS.
+    #[arg(long, value_parser = parse_pair, allow_hyphen_values = true)]
+    pub specular: Option<(f32, f32)>,
+    /// Unlit: colour = albedo.
+    #[arg(long)]
+    pub unlit: bool,
+}
+
+impl ShadingArgs {
+    fn to_shading(&self) -> Result<Shading> {
+        let mut shading = Shading::default();
+        if let Some(light) = self.light {
+            shading.light = light;
+        }
+        if let Some(ambient) = self.ambient {
+            shading.ambient = ambient;
+        }
+        shading.specular = self.specular;
+        shading.unlit = self.unlit;
+        shading.validate()?;
+        Ok(shading)
+    }
+}
+
+/// `lumigraph bake`.
+#[derive(Debug, Args)]
+pub struct BakeArgs {
+    /// Mesh file (omit with --demo).
+    #[arg(required_unless_present = "demo", conflicts_with = "demo")]
+    pub mesh: Option<PathBuf>,
+    /// Bake the built-in demo scene (a trefoil-knot tube).
+    #[arg(long)]
+    pub demo: bool,
+    /// Output asset (.lfa).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Cameras: 12, 42, 162 or 642.
+    #[arg(long, default_value_t = 162, allow_hyphen_values = true)]
+    pub cameras: u32,
+    /// Parabolic map resolution in pixels.
+    #[arg(long, default_value_t = 256, allow_hyphen_values = true)]
+    pub resolution: u32,
+    /// Depth precision: 8 or 16 bits.
+    #[arg(long, default_value_t = 16, allow_hyphen_values = true)]
+    pub depth_bits: u8,
+    /// Shading.
+    #[command(flatten)]
+    pub shading: ShadingArgs,
+}
+
+/// One view file or a list of views.
+#[derive(Debug, Args)]
+#[group(required = true, multiple = false)]
+pub struct ViewArgs {
+    /// A JSON view (DESIGN §3).
+    #[arg(long)]
+    pub view: Option<PathBuf>,
+    /// A JSON list of views; OUT becomes a folder of 000.png, 001.png, …
+    #[arg(long)]
+    pub views: Option<PathBuf>,
+}
+
+/// Quality knobs of `render` and `eval`.
+#[derive(Debug, Args, Clone)]
+pub struct QualityArgs {
+    /// Cameras to use (12, 42, 162, 642; at most the asset's).
+    #[arg(long, allow_hyphen_values = true)]
+    pub lod: Option<u32>,
+    /// Step in bounding-sphere diameters.
+    #[arg(long, allow_hyphen_values = true)]
+    pub step: Option<f32>,
+    /// Tolerance in bounding-sphere diameters (default step/2).
+    #[arg(long, allow_hyphen_values = true)]
+    pub tolerance: Option<f32>,
+    /// Marching method: default or fixed.
+    #[arg(long, default_value = "default")]
+    pub method: Method,
+}
+
+impl QualityArgs {
+    fn options(&self) -> RenderOptions {
+        RenderOptions { lod: self.lod, step: self.step, tolerance: self.tolerance, method: self.method }
+    }
+}
+
+/// Depth output flags.
+#[derive(Debug, Args)]
+pub struct DepthArgs {
+    /// Write depth (.npy or .exr; with --views a folder of 000.npy, …).
+    #[arg(long)]
+    pub depth: Option<PathBuf>,
+    /// Depth format inside a --depth folder: npy or exr.
+    #[arg(long, default_value = "npy", value_parser = ["npy", "exr"])]
+    pub depth_format: String,
+}
+
+/// `lumigraph render`.
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// Light-field asset (.lfa).
+    pub asset: PathBuf,
+    /// Views.
+    #[command(flatten)]
+    pub views: ViewArgs,
+    /// Output PNG (or folder with --views).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Depth output.
+    #[command(flatten)]
+    pub depth: DepthArgs,
+    /// Quality knobs.
+    #[command(flatten)]
+    pub quality: QualityArgs,
+}
+
+/// `lumigraph reference`.
+#[derive(Debug, Args)]
+pub struct ReferenceArgs {
+    /// Mesh file (omit with --demo).
+    #[arg(required_unless_present = "demo", conflicts_with = "demo")]
+    pub mesh: Option<PathBuf>,
+    /// Use the built-in demo scene.
+    #[arg(long)]
+    pub demo: bool,
+    /// Views.
+    #[command(flatten)]
+    pub views: ViewArgs,
+    /// Output PNG (or folder with --views).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Depth output.
+    #[command(flatten)]
+    pub depth: DepthArgs,
+    /// Shading.
+    #[command(flatten)]
+    pub shading: ShadingArgs,
+}
+
+/// `lumigraph eval`.
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    /// Light-field asset (.lfa).
+    pub asset: PathBuf,
+    /// Source mesh of the asset.
+    #[arg(long, required_unless_present = "demo", conflicts_with = "demo")]
+    pub mesh: Option<PathBuf>,
+    /// The asset was baked from the built-in demo scene.
+    #[arg(long)]
+    pub demo: bool,
+    /// A number of random views (default 12) or a JSON list of views.
+    #[arg(long, default_value = "12")]
+    pub views: String,
+    /// Seed of the random views.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Size of the random views in pixels.
+    #[arg(long, default_value_t = 256)]
+    pub size: u32,
+    /// Quality knobs.
+    #[command(flatten)]
+    pub quality: QualityArgs,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `lumigraph info`.
+#[derive(Debug, Args)]
+pub struct InfoArgs {
+    /// Light-field asset (.lfa).
+    pub asset: PathBuf,
+}
+
+fn parse_floats(s: &str, n: usize) -> Result<Vec<f32>, String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    if parts.len() != n {
+        return Err(format!("expected {n} comma-separated numbers, got `{s}`"));
+    }
+    parts
+        .iter()
+        .map(|p| match p.parse::<f32>() {
+            Ok(v) if v.is_finite() => Ok(v),
+            _ => Err(format!("`{p}` is not a finite number")),
+        })
+        .collect()
+}
+
+fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
+    let v = parse_floats(s, 3)?;
+    Ok([v[0], v[1], v[2]])
+}
+
+fn parse_pair(s: &str) -> Result<(f32, f32), String> {
+    let v = parse_floats(s, 2)?;
+    Ok((v[0], v[1]))
+}
+
+/// Runs a parsed command.
+///
+/// # Errors
+/// Any failure, with context, for `main` to print as one line.
+pub fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Bake(args) => bake(&args),
+        Command::Render(args) => render(&args),
+        Command::Reference(args) => reference(&args),
+        Command::Eval(args) => eval(&args),
+        Command::Info(args) => info(&args),
+    }
+}
+
+fn gpu() -> Result<Arc<Gpu>> {
+    Ok(Gpu::shared()?)
+}
+
+fn progress_bar(len: u64, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len);
+    let style = ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} ({elapsed}, eta {eta})")
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> ");
+    bar.set_style(style);
+    bar.set_message(what.to_owned());
+    bar
+}
+
+/// Loads the mesh argument or the demo, with provenance.
+fn load_source(mesh: Option<&Path>, demo: bool) -> Result<(Mesh, Provenance)> {
+    if demo || mesh.is_none() {
+        let mesh = demo_mesh()?;
+        let bytes = bytemuck_positions(&mesh);
+        return Ok((mesh, Provenance { source_name: "demo:trefoil".to_owned(), source_sha256: sha256_hex(&bytes), ..Default::default() }));
+    }
+    let path = mesh.unwrap_or(Path::new(""));
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let mesh = load_mesh(path)?;
+    let name = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
+    Ok((mesh, Provenance { source_name: name, source_sha256: sha256_hex(&bytes), ..Default::default() }))
+}
+
+fn bytemuck_positions(mesh: &Mesh) -> Vec<u8> {
+    mesh.positions.iter().flat_map(|p| p.iter().flat_map(|c| c.to_le_bytes())).collect()
+}
+
+fn bake(args: &BakeArgs) -> Result<()> {
+    let options = BakeOptions {
+        cameras: args.cameras,
+        resolution: args.resolution,
+        shading: args.shading.to_shading()?,
+        depth_bits: args.depth_bits,
+    };
+    options.validate()?;
+    let (mesh, provenance) = load_source(args.mesh.as_deref(), args.demo)?;
+    let baker = Baker::new(gpu()?);
+    let bar = progress_bar(u64::from(options.cameras), "baking cameras");
+    let report = baker.bake_to_file(&mesh, &options, &provenance, &args.output, &mut |done, _| bar.set_position(u64::from(done)))?;
+    bar.finish_and_clear();
+    println!(
+        "baked {} cameras at {} px from {} triangles in {:.0} ms: {} ({:.1} MiB)",
+        report.cameras,
+        report.resolution,
+        report.triangles,
+        report.bake_ms,
+        args.output.display(),
+        report.asset_bytes as f64 / (1024.0 * 1024.0)
+    );
+    Ok(())
+}
+
+/// Reads `--view` / `--views`; returns the views and whether OUT is a folder.
+fn read_views(args: &ViewArgs) -> Result<(Vec<View>, bool)> {
+    let (path, many) = match (&args.view, &args.views) {
+        (Some(p), _) => (p, false),
+        (None, Some(p)) => (p, true),
+        (None, None) => bail!("give --view VIEW.json or --views VIEWS.json"),
+    };
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read view file {}", path.display()))?;
+    let views = View::parse_many(&text).with_context(|| format!("bad view file {}", path.display()))?;
+    if views.is_empty() {
+        bail!("{} holds no views", path.display());
+    }
+    if !many && views.len() != 1 {
+        bail!("{} holds {} views: use --views for a list", path.display(), views.len());
+    }
+    for (i, v) in views.iter().enumerate() {
+        v.basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX).with_context(|| format!("view {i} in {}", path.display()))?;
+    }
+    Ok((views, many))
+}
+
+fn write_outputs(frame: &Frame, index: usize, many: bool, output: &Path, depth: &DepthArgs) -> Result<()> {
+    let (color_path, depth_path) = if many {
+        std::fs::create_dir_all(output).with_context(|| format!("cannot create {}", output.display()))?;
+        let depth_path = match &depth.depth {
+            Some(dir) => {
+                std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+                Some(dir.join(format!("{index:03}.{}", depth.depth_format)))
+            }
+            None => None,
+        };
+        (output.join(format!("{index:03}.png")), depth_path)
+    } else {
+        (output.to_path_buf(), depth.depth.clone())
+    };
+    lumigraph_core::image_io::write_png_rgba8(&color_path, frame.width, frame.height, &frame.color)
+        .with_context(|| format!("cannot write {}", color_path.display()))?;
+    if let Some(path) = depth_path {
+        lumigraph_core::image_io::write_depth(&path, frame.width, frame.height, &frame.depth)
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(())
+}
+
+fn check_depth_path(depth: &DepthArgs, many: bool) -> Result<()> {
+    if let (Some(path), false) = (&depth.depth, many) {
+        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+        if ext != "npy" && ext != "exr" {
+            bail!("--depth {}: use a .npy or .exr path", path.display());
+        }
+    }
+    Ok(())
+}
+
+fn render(args: &RenderArgs) -> Result<()> {
+    let (views, many) = read_views(&args.views)?;
+    check_depth_path(&args.depth, many)?;
+    let asset = AssetFile::open(&args.asset).with_context(|| format!("cannot open asset {}", args.asset.display()))?;
+    let options = args.quality.options();
+    options.resolve(u32::from(asset.header().geometry.camera_level))?;
+    let renderer = Renderer::new(gpu()?);
+    let field = renderer.upload(&asset).with_context(|| format!("cannot load asset {}", args.asset.display()))?;
+    for (i, view) in views.iter().enumerate() {
+        let frame = renderer.render(&field, view, &options)?;
+        write_outputs(&frame, i, many, &args.output, &args.depth)?;
+        println!("view {i:03}: {:.2} ms ({} px covered)", frame.stats.render_ms, frame.covered_count());
+    }
+    Ok(())
+}
+
+fn reference(args: &ReferenceArgs) -> Result<()> {
+    let shading = args.shading.to_shading()?;
+    let (views, many) = read_views(&args.views)?;
+    check_depth_path(&args.depth, many)?;
+    let (mesh, _) = load_source(args.mesh.as_deref(), args.demo)?;
+    let renderer = ReferenceRenderer::new(gpu()?);
+    let gpu_mesh = renderer.upload(&mesh)?;
+    for (i, view) in views.iter().enumerate() {
+        let frame = renderer.render(&gpu_mesh, view, &shading)?;
+        write_outputs(&frame, i, many, &args.output, &args.depth)?;
+        println!("view {i:03}: {:.2} ms ({} px covered)", frame.stats.render_ms, frame.covered_count());
+    }
+    Ok(())
+}
+
+/// Default eval views: eye on a sphere of 2.5× the bounding radius, looking at the centre.
+fn eval_views(args: &EvalArgs, asset: &AssetFile) -> Result<Vec<View>> {
+    if let Ok(n) = args.views.parse::<usize>() {
+        if n == 0 || n > 10_000 {
+            bail!("--views {n}: give 1 to 10000 random views or a JSON file");
+        }
+        if args.size == 0 || args.size > 4096 {
+            bail!("--size {}: give 1 to 4096 pixels", args.size);
+        }
+        let frame = &asset.header().frame;
+        return Ok(random_orbit_views(frame.center, 2.5 * frame.radius, n, args.seed, 40.0, args.size));
+    }
+    let path = Path::new(&args.views);
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read view file {}", path.display()))?;
+    let views = View::parse_many(&text).with_context(|| format!("bad view file {}", path.display()))?;
+    if views.is_empty() {
+        bail!("{} holds no views", path.display());
+    }
+    Ok(views)
+}
+
+/// Per-view and mean results of `eval`.
+#[derive(Debug, serde::Serialize)]
+struct EvalReport {
+    asset: String,
+    cameras: u32,
+    resolution: u32,
+    asset_bytes: u64,
+    settings: lumigraph_core::render::ResolvedOptions,
+    views: Vec<EvalView>,
+    mean: Option<metrics::MeanComparison>,
+    mean_ms: f64,
+}
+
+#[derive(Debug, serde::Serialize)]
+struct EvalView {
+    index: usize,
+    ms: f64,
+    #[serde(flatten)]
+    comparison: Comparison,
+}
+
+fn eval(args: &EvalArgs) -> Result<()> {
+    let asset = AssetFile::open(&args.asset).with_context(|| format!("cannot open asset {}", args.asset.display()))?;
+    let header = asset.header().clone();
+    let options = args.quality.options();
+    let settings = options.resolve(u32::from(header.geometry.camera_level))?;
+    let views = eval_views(args, &asset)?;
+    for (i, v) in views.iter().enumerate() {
+        v.basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX).with_context(|| format!("view {i}"))?;
+    }
+    // The reference must shade exactly as the bake did.
+    let bake_options: BakeOptions = serde_json::from_value(header.provenance.bake_options.clone()).unwrap_or_default();
+    let (mesh, _) = load_source(args.mesh.as_deref(), args.demo)?;
+    let gpu = gpu()?;
+    let renderer = Renderer::new(gpu.clone());
+    let reference = ReferenceRenderer::new(gpu);
+    let field = renderer.upload(&asset).with_context(|| format!("cannot load asset {}", args.asset.display()))?;
+    let gpu_mesh = reference.upload(&mesh)?;
+    // Warm up: the first dispatch pays shader compilation.
+    renderer.render(&field, &views[0], &options)?;
+    let bar = progress_bar(views.len() as u64, "evaluating views");
+    let mut rows = Vec::with_capacity(views.len());
+    for (index, view) in views.iter().enumerate() {
+        let frame = renderer.render(&field, view, &options)?;
+        let truth = reference.render(&gpu_mesh, view, &bake_options.shading)?;
+        let comparison = metrics::compare(&frame, &truth)?;
+        rows.push(EvalView { index, ms: frame.stats.render_ms, comparison });
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let comparisons: Vec<Comparison> = rows.iter().map(|r| r.comparison.clone()).collect();
+    let mean_ms = rows.iter().map(|r| r.ms).sum::<f64>() / rows.len() as f64;
+    let report = EvalReport {
+        asset: args.asset.display().to_string(),
+        cameras: header.geometry.camera_count,
+        resolution: header.geometry.resolution_px,
+        asset_bytes: asset.file_len(),
+        settings,
+        mean: metrics::mean_comparison(&comparisons),
+        views: rows,
+        mean_ms,
+    };
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print_eval_table(&report);
+    }
+    Ok(())
+}
+
+fn print_eval_table(report: &EvalReport) {
+    println!(
+        "{} — {} cameras (using {}), {} px maps, method {}, step {:.4}, tolerance {:.4}",
+        report.asset,
+        report.cameras,
+        report.settings.cameras,
+        report.resolution,
+        report.settings.method,
+        report.settings.step,
+        report.settings.tolerance
+    );
+    println!("view  masked_psnr  psnr    inter_psnr  ssim    mae    mismatch_px  depth_med     ms");
+    for row in &report.views {
+        let c = &row.comparison;
+        println!(
+            "{:>4}  {:>11.2}  {:>6.2}  {:>10.2}  {:>6.4}  {:>5.2}  {:>11}  {:>9.2e}  {:>7.2}",
+            row.index,
+            c.masked_psnr,
+            c.psnr,
+            c.intersection_psnr,
+            c.ssim,
+            c.mae,
+            c.mask_mismatch_px,
+            c.depth.median,
+            row.ms
+        );
+    }
+    if let Some(m) = &report.mean {
+        println!(
+            "mean  {:>11.2}  {:>6.2}  {:>10.2}  {:>6.4}  {:>5.2}  {:>11.1}  {:>9.2e}  {:>7.2}",
+            m.masked_psnr, m.psnr, m.intersection_psnr, m.ssim, m.mae, m.mask_mismatch_px, m.depth.median, report.mean_ms
+        );
+    }
+}
+
+fn info(args: &InfoArgs) -> Result<()> {
+    let asset = AssetFile::open(&args.asset).with_context(|| format!("cannot open asset {}", args.asset.display()))?;
+    // Every page's checksum is verified, so `info` doubles as an integrity check.
+    asset.verify_all().with_context(|| format!("asset {} is corrupt", args.asset.display()))?;
+    let h = asset.header();
+    println!("{}: lumigraph asset v{}, {} bytes, all page checksums ok", args.asset.display(), h.format_version, asset.file_len());
+    println!(
+        "spherical light field: {} cameras (level {}), {}×{} px parabolic maps",
+        h.geometry.camera_count, h.geometry.camera_level, h.geometry.resolution_px, h.geometry.resolution_px
+    );
+    println!("bounding sphere: centre {:?}, radius {}", h.frame.center, h.frame.radius);
+    println!("source: {} ({} triangles), baked in {:.0} ms", h.provenance.source_name, h.provenance.triangles, h.provenance.bake_ms);
+    println!("{}", serde_json::to_string_pretty(h)?);
+    Ok(())
+}

@@ -1,0 +1,195 @@
+//! The `lumigraph` CLI end to end: a small happy path (bake → info → render → reference → eval)
+//! and every malformed mesh, asset, view file or flag giving a one-line error and a non-zero
+//! exit status, never a panic.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+fn lumigraph(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_lumigraph")).args(args).output().expect("run lumigraph")
+}
+
+fn dir() -> &'static Path {
+    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    DIR.get_or_init(|| tempfile::tempdir().expect("tempdir")).path()
+}
+
+fn path(name: &str) -> PathBuf {
+    dir().join(name)
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+/// A small demo asset shared by the tests (12 cameras, 64 px: fast on lavapipe).
+fn demo_asset() -> &'static PathBuf {
+    static ASSET: OnceLock<PathBuf> = OnceLock::new();
+    ASSET.get_or_init(|| {
+        let out = path("demo.lfa");
+        let o = lumigraph(&["bake", "--demo", "-o", s(&out), "--cameras", "12", "--resolution", "64"]);
+        assert!(o.status.success(), "bake failed: {}", String::from_utf8_lossy(&o.stderr));
+        out
+    })
+}
+
+fn write(name: &str, contents: &[u8]) -> PathBuf {
+    let p = path(name);
+    std::fs::write(&p, contents).expect("write");
+    p
+}
+
+const VIEW: &str = r#"{"eye":[0,2,9],"target":[0,0,0],"up":[0,1,0],"yfov_deg":40,"width":48,"height":40}"#;
+
+/// Asserts a clean failure: non-zero exit, one `error:` line mentioning `needle`, no panic.
+fn assert_fails(args: &[&str], needle: &str) {
+    let o = lumigraph(args);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{args:?} succeeded");
+    assert!(!stderr.contains("panicked"), "{args:?} panicked: {stderr}");
+    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty() && !l.contains("XDG_RUNTIME_DIR")).collect();
+    let error_lines: Vec<&&str> = lines.iter().filter(|l| l.starts_with("error")).collect();
+    assert!(!error_lines.is_empty(), "{args:?}: no error line in {stderr}");
+    assert!(stderr.to_lowercase().contains(&needle.to_lowercase()), "{args:?}: `{needle}` not in {stderr}");
+}
+
+#[test]
+fn happy_path_bake_info_render_reference_eval() {
+    let asset = demo_asset();
+    let info = lumigraph(&["info", s(asset)]);
+    assert!(info.status.success());
+    assert!(String::from_utf8_lossy(&info.stdout).contains("12 cameras"));
+
+    let view = write("view.json", VIEW.as_bytes());
+    let png = path("one.png");
+    let npy = path("one.npy");
+    let o = lumigraph(&["render", s(asset), "--view", s(&view), "-o", s(&png), "--depth", s(&npy)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains(" ms"));
+    let (w, h, _) = lumigraph_core::image_io::read_png_rgba8(&png).expect("png");
+    assert_eq!((w, h), (48, 40));
+    let (_, _, depth) = lumigraph_core::image_io::read_depth(&npy).expect("npy");
+    assert!(depth.iter().any(|z| z.is_finite()) && depth.iter().any(|z| z.is_infinite()));
+
+    let views = write("views.json", format!("[{VIEW},{VIEW}]").as_bytes());
+    let folder = path("many");
+    let depth_folder = path("many_depth");
+    let o = lumigraph(&[
+        "render", s(asset), "--views", s(&views), "-o", s(&folder), "--depth", s(&depth_folder), "--depth-format", "exr",
+        "--method", "fixed", "--lod", "12",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for f in ["000.png", "001.png"] {
+        assert!(folder.join(f).exists());
+    }
+    assert!(depth_folder.join("001.exr").exists());
+
+    let reference = path("reference.png");
+    let o = lumigraph(&["reference", "--demo", "--view", s(&view), "-o", s(&reference), "--light", "-1,2,0.5", "--ambient", "0.3"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    let o = lumigraph(&["eval", s(asset), "--demo", "--views", "2", "--size", "64", "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("eval json");
+    let masked = report["mean"]["masked_psnr"].as_f64().expect("masked psnr");
+    assert!(masked > 15.0, "masked PSNR {masked}");
+    assert_eq!(report["views"].as_array().map(Vec::len), Some(2));
+}
+
+#[test]
+fn malformed_meshes_fail_cleanly() {
+    let out = path("never.lfa");
+    let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+        ("empty.obj", b"".to_vec(), "mesh"),
+        ("nan.obj", b"v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".to_vec(), "finite"),
+        ("index.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n".to_vec(), "mesh"),
+        ("degenerate.off", b"OFF\n3 1 0\n0 0 0\n0 0 0\n0 0 0\n3 0 1 2\n".to_vec(), "degenerate"),
+        ("garbage.glb", vec![0xff; 64], "gl"),
+        ("garbage.ply", b"ply\nformat nonsense\n".to_vec(), "ply"),
+        ("short.stl", vec![0; 10], "stl"),
+        ("mesh.xyz", b"1 2 3".to_vec(), "unknown mesh format"),
+    ];
+    for (name, bytes, needle) in cases {
+        let p = write(name, &bytes);
+        assert_fails(&["bake", s(&p), "-o", s(&out), "--cameras", "12", "--resolution", "16"], needle);
+    }
+    assert_fails(&["bake", s(&path("missing.obj")), "-o", s(&out)], "missing.obj");
+    assert!(!out.exists(), "a failed bake left a file behind");
+}
+
+#[test]
+fn malformed_flags_fail_cleanly() {
+    let out = path("never2.lfa");
+    let o = s(&out);
+    assert_fails(&["bake", "--demo", "-o", o, "--cameras", "100"], "12, 42, 162, 642");
+    assert_fails(&["bake", "--demo", "-o", o, "--resolution", "0"], "resolution");
+    assert_fails(&["bake", "--demo", "-o", o, "--resolution", "-5"], "error");
+    assert_fails(&["bake", "--demo", "-o", o, "--depth-bits", "12"], "depth bits");
+    assert_fails(&["bake", "--demo", "-o", o, "--light", "0,0,0"], "light");
+    assert_fails(&["bake", "--demo", "-o", o, "--light", "1,nan,0"], "finite");
+    assert_fails(&["bake", "--demo", "-o", o, "--ambient", "2"], "ambient");
+    assert_fails(&["bake", "--demo", "-o", o, "--specular", "0.5"], "2 comma-separated");
+    assert_fails(&["bake", "--demo", "-o", o, "--specular", "0.5,-3"], "specular");
+    assert_fails(&["bake", "-o", o], "error");
+    let asset = demo_asset();
+    let view = write("view2.json", VIEW.as_bytes());
+    let png = path("x.png");
+    let base = ["render", s(asset), "--view", s(&view), "-o", s(&png)];
+    for (extra, needle) in [
+        (&["--step", "nan"][..], "step"),
+        (&["--step", "0"][..], "step"),
+        (&["--tolerance", "-1"][..], "tolerance"),
+        (&["--lod", "42"][..], "exceeds"),
+        (&["--lod", "5"][..], "lod"),
+        (&["--method", "magic"][..], "method"),
+        (&["--depth", "depth.txt"][..], ".npy or .exr"),
+    ] {
+        let args: Vec<&str> = base.iter().copied().chain(extra.iter().copied()).collect();
+        assert_fails(&args, needle);
+    }
+    assert_fails(&["render", s(asset), "-o", s(&png)], "error");
+    assert!(!out.exists());
+}
+
+#[test]
+fn malformed_views_fail_cleanly() {
+    let asset = demo_asset();
+    let png = path("y.png");
+    let cases = [
+        ("v_json.json", "{not json", "json"),
+        ("v_unknown.json", r#"{"eye":[0,0,5],"target":[0,0,0],"yfov_deg":40,"width":8,"height":8,"zoom":2}"#, "unknown field"),
+        ("v_fov.json", r#"{"eye":[0,0,5],"target":[0,0,0],"yfov_deg":180,"width":8,"height":8}"#, "fov"),
+        ("v_same.json", r#"{"eye":[0,0,0],"target":[0,0,0],"yfov_deg":40,"width":8,"height":8}"#, "target"),
+        ("v_up.json", r#"{"eye":[0,0,5],"target":[0,0,0],"up":[0,0,1],"yfov_deg":40,"width":8,"height":8}"#, "up"),
+        ("v_size.json", r#"{"eye":[0,0,5],"target":[0,0,0],"yfov_deg":40,"width":0,"height":8}"#, "size"),
+        ("v_huge.json", r#"{"eye":[0,0,5],"target":[0,0,0],"yfov_deg":40,"width":100000,"height":8}"#, "size"),
+        ("v_inf.json", r#"{"eye":[0,0,1e999],"target":[0,0,0],"yfov_deg":40,"width":8,"height":8}"#, "error"),
+        ("v_empty.json", "[]", "no views"),
+    ];
+    for (name, text, needle) in cases {
+        let p = write(name, text.as_bytes());
+        assert_fails(&["render", s(asset), "--view", s(&p), "-o", s(&png)], needle);
+    }
+    assert_fails(&["render", s(asset), "--view", s(&path("nope.json")), "-o", s(&png)], "nope.json");
+    assert!(!png.exists());
+}
+
+#[test]
+fn malformed_assets_fail_cleanly() {
+    let bytes = std::fs::read(demo_asset()).expect("asset");
+    let view = write("view3.json", VIEW.as_bytes());
+    let png = path("z.png");
+    let truncated = write("truncated.lfa", &bytes[..bytes.len() / 2]);
+    let mut flipped = bytes.clone();
+    let mid = flipped.len() / 3;
+    flipped[mid] ^= 0x5a;
+    let flipped = write("flipped.lfa", &flipped);
+    let garbage = write("garbage.lfa", b"definitely not a light field");
+    let empty = write("empty.lfa", b"");
+    for p in [&truncated, &flipped, &garbage, &empty] {
+        assert_fails(&["render", s(p), "--view", s(&view), "-o", s(&png)], "asset");
+        assert_fails(&["info", s(p)], "asset");
+    }
+    assert_fails(&["info", s(&path("missing.lfa"))], "missing.lfa");
+}
