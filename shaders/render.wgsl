@@ -17,6 +17,10 @@ struct RenderParams {
     depth_scale: f32,
     edge_gap: f32,
     refine_iterations: u32,
+    front_mass: f32,
+    pad0: f32,
+    pad1: f32,
+    pad2: f32,
 }
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
@@ -87,7 +91,7 @@ fn probe(cam: Camera, k: u32, x: vec3<f32>, edge_aware: bool) -> Probe {
             }
             let front = vec4<f32>(d <= vec4<f32>(split));
             let front_mass = dot(bw, front);
-            let layer = select(vec4<f32>(1.0) - front, front, front_mass >= 0.5);
+            let layer = select(vec4<f32>(1.0) - front, front, front_mass >= params.front_mass);
             bw = bw * layer;
             bw = bw / max(bw.x + bw.y + bw.z + bw.w, 1e-12);
         }
@@ -157,7 +161,7 @@ fn probe_camera(cams: vec3<u32>, c0: Camera, c1: Camera, c2: Camera, i: u32, x: 
 // front (f < 0) to behind (f ≥ 0) brackets a crossing, refined by bisection; the crossing is
 // accepted only where that camera's f is continuous across the final bracket (its jump is below
 // the tolerance) — a silhouette jump is a phantom, not a surface.
-fn march_refined(o: vec3<f32>, d: vec3<f32>, t_in: f32, t_out: f32, cams: vec3<u32>, c0: Camera, c1: Camera, c2: Camera) -> March {
+fn march_refined(o: vec3<f32>, d: vec3<f32>, t_in: f32, t_out: f32, cams: vec3<u32>, weights: vec3<f32>, c0: Camera, c1: Camera, c2: Camera) -> March {
     var m = March(t_in, false, 0u, 0u);
     var t_prev = t_in;
     let x0 = o + t_in * d;
@@ -240,7 +244,7 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if params.method == METHOD_FIXED {
         m = march_fixed(o, d, t_in, t_out, loc.cameras, c0, c1, c2);
     } else {
-        m = march_refined(o, d, t_in, t_out, loc.cameras, c0, c1, c2);
+        m = march_refined(o, d, t_in, t_out, loc.cameras, loc.weights, c0, c1, c2);
     }
     var fetches = m.fetches;
     if m.hit {

@@ -31,6 +31,13 @@ pub const MIN_STEP: f32 = 1.0 / 4096.0;
 const REFINE_ITERATIONS: u32 = 8;
 /// Depth gap (in normalized map depth) above which a 2×2 footprint is split into layers.
 const EDGE_GAP: f32 = 0.05;
+/// Bilinear weight the front layer of a split footprint needs to be chosen. Above 0.5 because a
+/// pixel is covered when any of its three cameras finds a crossing: the union of three
+/// half-texel-accurate silhouettes is biased outwards, and a front layer that must hold 60 % of
+/// the weight cancels that bias. Measured (12 views, 256-px maps, masked PSNR, 0.5 → 0.6):
+/// bunny 162 cams 25.45 → 26.23 dB, bunny 42 25.63 → 26.03, cow 162 22.64 → 23.16,
+/// demo 162 26.85 → 27.46; 0.7 and 0.8 were worse again on the bunny (26.14, 25.24).
+const FRONT_MASS: f32 = 0.6;
 
 /// Errors while rendering.
 #[derive(Debug, thiserror::Error)]
@@ -194,8 +201,10 @@ struct RenderParams {
     depth_scale: f32,
     edge_gap: f32,
     refine_iterations: u32,
+    front_mass: f32,
+    pad: [f32; 3],
 }
-const _: () = assert!(std::mem::size_of::<RenderParams>() == 96);
+const _: () = assert!(std::mem::size_of::<RenderParams>() == 112);
 
 /// Per-size output buffers, reused between frames of the same size.
 struct Targets {
@@ -563,6 +572,8 @@ impl Renderer {
             depth_scale: field.scale as f32,
             edge_gap: EDGE_GAP,
             refine_iterations: REFINE_ITERATIONS,
+            front_mass: FRONT_MASS,
+            pad: [0.0; 3],
         };
         let pixels = u64::from(view.width) * u64::from(view.height);
         let mut guard = self

@@ -134,7 +134,12 @@ pub struct QualityArgs {
 
 impl QualityArgs {
     fn options(&self) -> RenderOptions {
-        RenderOptions { lod: self.lod, step: self.step, tolerance: self.tolerance, method: self.method }
+        RenderOptions {
+            lod: self.lod,
+            step: self.step,
+            tolerance: self.tolerance,
+            method: self.method,
+        }
     }
 }
 
@@ -283,17 +288,37 @@ fn load_source(mesh: Option<&Path>, demo: bool) -> Result<(Mesh, Provenance)> {
     if demo || mesh.is_none() {
         let mesh = demo_mesh()?;
         let bytes = bytemuck_positions(&mesh);
-        return Ok((mesh, Provenance { source_name: "demo:trefoil".to_owned(), source_sha256: sha256_hex(&bytes), ..Default::default() }));
+        return Ok((
+            mesh,
+            Provenance {
+                source_name: "demo:trefoil".to_owned(),
+                source_sha256: sha256_hex(&bytes),
+                ..Default::default()
+            },
+        ));
     }
     let path = mesh.unwrap_or(Path::new(""));
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
     let mesh = load_mesh(path)?;
-    let name = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
-    Ok((mesh, Provenance { source_name: name, source_sha256: sha256_hex(&bytes), ..Default::default() }))
+    let name = path.file_name().map_or_else(
+        || path.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    );
+    Ok((
+        mesh,
+        Provenance {
+            source_name: name,
+            source_sha256: sha256_hex(&bytes),
+            ..Default::default()
+        },
+    ))
 }
 
 fn bytemuck_positions(mesh: &Mesh) -> Vec<u8> {
-    mesh.positions.iter().flat_map(|p| p.iter().flat_map(|c| c.to_le_bytes())).collect()
+    mesh.positions
+        .iter()
+        .flat_map(|p| p.iter().flat_map(|c| c.to_le_bytes()))
+        .collect()
 }
 
 fn bake(args: &BakeArgs) -> Result<()> {
@@ -307,7 +332,13 @@ fn bake(args: &BakeArgs) -> Result<()> {
     let (mesh, provenance) = load_source(args.mesh.as_deref(), args.demo)?;
     let baker = Baker::new(gpu()?);
     let bar = progress_bar(u64::from(options.cameras), "baking cameras");
-    let report = baker.bake_to_file(&mesh, &options, &provenance, &args.output, &mut |done, _| bar.set_position(u64::from(done)))?;
+    let report = baker.bake_to_file(
+        &mesh,
+        &options,
+        &provenance,
+        &args.output,
+        &mut |done, _| bar.set_position(u64::from(done)),
+    )?;
     bar.finish_and_clear();
     println!(
         "baked {} cameras at {} px from {} triangles in {:.0} ms: {} ({:.1} MiB)",
@@ -328,26 +359,41 @@ fn read_views(args: &ViewArgs) -> Result<(Vec<View>, bool)> {
         (None, Some(p)) => (p, true),
         (None, None) => bail!("give --view VIEW.json or --views VIEWS.json"),
     };
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read view file {}", path.display()))?;
-    let views = View::parse_many(&text).with_context(|| format!("bad view file {}", path.display()))?;
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read view file {}", path.display()))?;
+    let views =
+        View::parse_many(&text).with_context(|| format!("bad view file {}", path.display()))?;
     if views.is_empty() {
         bail!("{} holds no views", path.display());
     }
     if !many && views.len() != 1 {
-        bail!("{} holds {} views: use --views for a list", path.display(), views.len());
+        bail!(
+            "{} holds {} views: use --views for a list",
+            path.display(),
+            views.len()
+        );
     }
     for (i, v) in views.iter().enumerate() {
-        v.basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX).with_context(|| format!("view {i} in {}", path.display()))?;
+        v.basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX)
+            .with_context(|| format!("view {i} in {}", path.display()))?;
     }
     Ok((views, many))
 }
 
-fn write_outputs(frame: &Frame, index: usize, many: bool, output: &Path, depth: &DepthArgs) -> Result<()> {
+fn write_outputs(
+    frame: &Frame,
+    index: usize,
+    many: bool,
+    output: &Path,
+    depth: &DepthArgs,
+) -> Result<()> {
     let (color_path, depth_path) = if many {
-        std::fs::create_dir_all(output).with_context(|| format!("cannot create {}", output.display()))?;
+        std::fs::create_dir_all(output)
+            .with_context(|| format!("cannot create {}", output.display()))?;
         let depth_path = match &depth.depth {
             Some(dir) => {
-                std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("cannot create {}", dir.display()))?;
                 Some(dir.join(format!("{index:03}.{}", depth.depth_format)))
             }
             None => None,
@@ -378,15 +424,22 @@ fn check_depth_path(depth: &DepthArgs, many: bool) -> Result<()> {
 fn render(args: &RenderArgs) -> Result<()> {
     let (views, many) = read_views(&args.views)?;
     check_depth_path(&args.depth, many)?;
-    let asset = AssetFile::open(&args.asset).with_context(|| format!("cannot open asset {}", args.asset.display()))?;
+    let asset = AssetFile::open(&args.asset)
+        .with_context(|| format!("cannot open asset {}", args.asset.display()))?;
     let options = args.quality.options();
     options.resolve(u32::from(asset.header().geometry.camera_level))?;
     let renderer = Renderer::new(gpu()?);
-    let field = renderer.upload(&asset).with_context(|| format!("cannot load asset {}", args.asset.display()))?;
+    let field = renderer
+        .upload(&asset)
+        .with_context(|| format!("cannot load asset {}", args.asset.display()))?;
     for (i, view) in views.iter().enumerate() {
         let frame = renderer.render(&field, view, &options)?;
         write_outputs(&frame, i, many, &args.output, &args.depth)?;
-        println!("view {i:03}: {:.2} ms ({} px covered)", frame.stats.render_ms, frame.covered_count());
+        println!(
+            "view {i:03}: {:.2} ms ({} px covered)",
+            frame.stats.render_ms,
+            frame.covered_count()
+        );
     }
     Ok(())
 }
@@ -401,7 +454,11 @@ fn reference(args: &ReferenceArgs) -> Result<()> {
     for (i, view) in views.iter().enumerate() {
         let frame = renderer.render(&gpu_mesh, view, &shading)?;
         write_outputs(&frame, i, many, &args.output, &args.depth)?;
-        println!("view {i:03}: {:.2} ms ({} px covered)", frame.stats.render_ms, frame.covered_count());
+        println!(
+            "view {i:03}: {:.2} ms ({} px covered)",
+            frame.stats.render_ms,
+            frame.covered_count()
+        );
     }
     Ok(())
 }
@@ -416,11 +473,20 @@ fn eval_views(args: &EvalArgs, asset: &AssetFile) -> Result<Vec<View>> {
             bail!("--size {}: give 1 to 4096 pixels", args.size);
         }
         let frame = &asset.header().frame;
-        return Ok(random_orbit_views(frame.center, 2.5 * frame.radius, n, args.seed, 40.0, args.size));
+        return Ok(random_orbit_views(
+            frame.center,
+            2.5 * frame.radius,
+            n,
+            args.seed,
+            40.0,
+            args.size,
+        ));
     }
     let path = Path::new(&args.views);
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read view file {}", path.display()))?;
-    let views = View::parse_many(&text).with_context(|| format!("bad view file {}", path.display()))?;
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read view file {}", path.display()))?;
+    let views =
+        View::parse_many(&text).with_context(|| format!("bad view file {}", path.display()))?;
     if views.is_empty() {
         bail!("{} holds no views", path.display());
     }
@@ -434,36 +500,45 @@ struct EvalReport {
     cameras: u32,
     resolution: u32,
     asset_bytes: u64,
+    /// Bounding radius in world units (depth errors are in world units).
+    radius: f64,
     settings: lumigraph_core::render::ResolvedOptions,
     views: Vec<EvalView>,
     mean: Option<metrics::MeanComparison>,
     mean_ms: f64,
+    mean_fetches_per_pixel: f64,
 }
 
 #[derive(Debug, serde::Serialize)]
 struct EvalView {
     index: usize,
     ms: f64,
+    fetches_per_pixel: f64,
     #[serde(flatten)]
     comparison: Comparison,
 }
 
 fn eval(args: &EvalArgs) -> Result<()> {
-    let asset = AssetFile::open(&args.asset).with_context(|| format!("cannot open asset {}", args.asset.display()))?;
+    let asset = AssetFile::open(&args.asset)
+        .with_context(|| format!("cannot open asset {}", args.asset.display()))?;
     let header = asset.header().clone();
     let options = args.quality.options();
     let settings = options.resolve(u32::from(header.geometry.camera_level))?;
     let views = eval_views(args, &asset)?;
     for (i, v) in views.iter().enumerate() {
-        v.basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX).with_context(|| format!("view {i}"))?;
+        v.basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX)
+            .with_context(|| format!("view {i}"))?;
     }
     // The reference must shade exactly as the bake did.
-    let bake_options: BakeOptions = serde_json::from_value(header.provenance.bake_options.clone()).unwrap_or_default();
+    let bake_options: BakeOptions =
+        serde_json::from_value(header.provenance.bake_options.clone()).unwrap_or_default();
     let (mesh, _) = load_source(args.mesh.as_deref(), args.demo)?;
     let gpu = gpu()?;
     let renderer = Renderer::new(gpu.clone());
     let reference = ReferenceRenderer::new(gpu);
-    let field = renderer.upload(&asset).with_context(|| format!("cannot load asset {}", args.asset.display()))?;
+    let field = renderer
+        .upload(&asset)
+        .with_context(|| format!("cannot load asset {}", args.asset.display()))?;
     let gpu_mesh = reference.upload(&mesh)?;
     // Warm up: the first dispatch pays shader compilation.
     renderer.render(&field, &views[0], &options)?;
@@ -473,21 +548,32 @@ fn eval(args: &EvalArgs) -> Result<()> {
         let frame = renderer.render(&field, view, &options)?;
         let truth = reference.render(&gpu_mesh, view, &bake_options.shading)?;
         let comparison = metrics::compare(&frame, &truth)?;
-        rows.push(EvalView { index, ms: frame.stats.render_ms, comparison });
+        let fetches_per_pixel =
+            frame.stats.fetches as f64 / (f64::from(view.width) * f64::from(view.height));
+        rows.push(EvalView {
+            index,
+            ms: frame.stats.render_ms,
+            fetches_per_pixel,
+            comparison,
+        });
         bar.inc(1);
     }
     bar.finish_and_clear();
     let comparisons: Vec<Comparison> = rows.iter().map(|r| r.comparison.clone()).collect();
     let mean_ms = rows.iter().map(|r| r.ms).sum::<f64>() / rows.len() as f64;
+    let mean_fetches_per_pixel =
+        rows.iter().map(|r| r.fetches_per_pixel).sum::<f64>() / rows.len() as f64;
     let report = EvalReport {
         asset: args.asset.display().to_string(),
         cameras: header.geometry.camera_count,
         resolution: header.geometry.resolution_px,
         asset_bytes: asset.file_len(),
+        radius: header.frame.radius,
         settings,
         mean: metrics::mean_comparison(&comparisons),
         views: rows,
         mean_ms,
+        mean_fetches_per_pixel,
     };
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -527,23 +613,47 @@ fn print_eval_table(report: &EvalReport) {
     if let Some(m) = &report.mean {
         println!(
             "mean  {:>11.2}  {:>6.2}  {:>10.2}  {:>6.4}  {:>5.2}  {:>11.1}  {:>9.2e}  {:>7.2}",
-            m.masked_psnr, m.psnr, m.intersection_psnr, m.ssim, m.mae, m.mask_mismatch_px, m.depth.median, report.mean_ms
+            m.masked_psnr,
+            m.psnr,
+            m.intersection_psnr,
+            m.ssim,
+            m.mae,
+            m.mask_mismatch_px,
+            m.depth.median,
+            report.mean_ms
         );
     }
 }
 
 fn info(args: &InfoArgs) -> Result<()> {
-    let asset = AssetFile::open(&args.asset).with_context(|| format!("cannot open asset {}", args.asset.display()))?;
+    let asset = AssetFile::open(&args.asset)
+        .with_context(|| format!("cannot open asset {}", args.asset.display()))?;
     // Every page's checksum is verified, so `info` doubles as an integrity check.
-    asset.verify_all().with_context(|| format!("asset {} is corrupt", args.asset.display()))?;
+    asset
+        .verify_all()
+        .with_context(|| format!("asset {} is corrupt", args.asset.display()))?;
     let h = asset.header();
-    println!("{}: lumigraph asset v{}, {} bytes, all page checksums ok", args.asset.display(), h.format_version, asset.file_len());
+    println!(
+        "{}: lumigraph asset v{}, {} bytes, all page checksums ok",
+        args.asset.display(),
+        h.format_version,
+        asset.file_len()
+    );
     println!(
         "spherical light field: {} cameras (level {}), {}×{} px parabolic maps",
-        h.geometry.camera_count, h.geometry.camera_level, h.geometry.resolution_px, h.geometry.resolution_px
+        h.geometry.camera_count,
+        h.geometry.camera_level,
+        h.geometry.resolution_px,
+        h.geometry.resolution_px
     );
-    println!("bounding sphere: centre {:?}, radius {}", h.frame.center, h.frame.radius);
-    println!("source: {} ({} triangles), baked in {:.0} ms", h.provenance.source_name, h.provenance.triangles, h.provenance.bake_ms);
+    println!(
+        "bounding sphere: centre {:?}, radius {}",
+        h.frame.center, h.frame.radius
+    );
+    println!(
+        "source: {} ({} triangles), baked in {:.0} ms",
+        h.provenance.source_name, h.provenance.triangles, h.provenance.bake_ms
+    );
     println!("{}", serde_json::to_string_pretty(h)?);
     Ok(())
 }
