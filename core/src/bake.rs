@@ -244,12 +244,16 @@ pub(crate) fn mesh_bind_group(
 pub fn sha256_hex(bytes: &[u8]) -> String {
     use sha2::Digest;
     let digest = sha2::Sha256::digest(bytes);
-    digest.iter().map(|b| format!("{b:02x}")).collect()
+    digest.iter().fold(String::with_capacity(64), |mut hex, b| {
+        use std::fmt::Write;
+        let _ = write!(hex, "{b:02x}");
+        hex
+    })
 }
 
 /// Where the baked images go.
 enum Sink {
-    File(AssetWriter),
+    File(Box<AssetWriter>),
     Memory(Vec<(ImageKey, Vec<u8>)>),
 }
 
@@ -323,7 +327,7 @@ impl Baker {
     ) -> Result<BakeReport, BakeError> {
         let start = Instant::now();
         let (header, gpu_mesh) = self.prepare(mesh, options, source)?;
-        let mut sink = Sink::File(AssetWriter::create(path, header)?);
+        let mut sink = Sink::File(Box::new(AssetWriter::create(path, header)?));
         self.trace_all(&gpu_mesh, options, &mut sink, progress)?;
         let Sink::File(mut writer) = sink else {
             unreachable!("sink kind is fixed above")
@@ -331,7 +335,7 @@ impl Baker {
         let bake_ms = start.elapsed().as_secs_f64() * 1e3;
         writer.set_bake_ms(bake_ms);
         writer.finish()?;
-        let asset_bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+        let asset_bytes = std::fs::metadata(path).map_or(0, |m| m.len());
         Ok(BakeReport {
             cameras: options.cameras,
             resolution: options.resolution,
@@ -378,8 +382,7 @@ impl Baker {
             vertices: mesh.positions.len() as u64,
             created_unix: std::time::SystemTime::now()
                 .duration_since(std::time::UNIX_EPOCH)
-                .map(|d| d.as_secs())
-                .unwrap_or(0),
+                .map_or(0, |d| d.as_secs()),
             ..source.clone()
         };
         let depth = if options.depth_bits == 8 {

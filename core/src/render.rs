@@ -150,7 +150,7 @@ impl RenderOptions {
             )));
         }
         let tolerance = self.tolerance.unwrap_or(step / 2.0);
-        if !tolerance.is_finite() || !(tolerance > 0.0 && tolerance <= 1.0) {
+        if !(tolerance.is_finite() && tolerance > 0.0 && tolerance <= 1.0) {
             return Err(RenderError::Option(format!(
                 "tolerance {tolerance} must be finite and in (0, 1] bounding diameters"
             )));

@@ -62,7 +62,9 @@ pub fn build(corners: &[[Vec3; 3]]) -> Bvh {
         .iter()
         .map(|t| {
             let mut b = Aabb::EMPTY;
-            t.iter().for_each(|p| b.grow(*p));
+            for p in t {
+                b.grow(*p);
+            }
             b
         })
         .collect();
@@ -119,6 +121,10 @@ pub fn build(corners: &[[Vec3; 3]]) -> Bvh {
 }
 
 /// The SAH-best (axis, centroid position) split, or `None` when a leaf is cheaper.
+#[allow(
+    clippy::needless_range_loop,
+    reason = "axis indexes Vec3 components, not a slice"
+)]
 fn best_split(
     tris: &[u32],
     boxes: &[Aabb],
@@ -162,7 +168,9 @@ fn best_split(
     }
     let (cost, axis, pos) = best?;
     let mut parent = Aabb::EMPTY;
-    tris.iter().for_each(|&t| parent.merge(&boxes[t as usize]));
+    for &t in tris {
+        parent.merge(&boxes[t as usize]);
+    }
     // Leaf cost = intersecting every triangle; traversal cost ~1 triangle test.
     let leaf_cost = parent.area() * tris.len() as f32;
     if tris.len() > 32 || cost + parent.area() < leaf_cost {

@@ -240,7 +240,7 @@ impl Gpu {
     pub fn padded_layers(layers: u32) -> u32 {
         if layers <= 1 {
             2
-        } else if layers % 6 == 0 {
+        } else if layers.is_multiple_of(6) {
             layers + 1
         } else {
             layers
@@ -269,7 +269,9 @@ impl Gpu {
     /// [`GpuError::Limit`].
     pub fn check_storage(&self, what: &'static str, bytes: u64) -> Result<(), GpuError> {
         let limits = self.device.limits();
-        let limit = u64::from(limits.max_storage_buffer_binding_size).min(limits.max_buffer_size);
+        let limit = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
         if bytes > limit {
             return Err(GpuError::Limit {
                 what,

@@ -76,7 +76,11 @@ fn checker_texture() -> Texture {
         for x in 0..TEXTURE_W {
             let cx = x * CHECKS_ALONG / TEXTURE_W;
             let cy = y * CHECKS_AROUND / TEXTURE_H;
-            let value = if (cx + cy) % 2 == 0 { 255 } else { 140 };
+            let value = if (cx + cy).is_multiple_of(2) {
+                255
+            } else {
+                140
+            };
             rgba8.extend_from_slice(&[value, value, value, 255]);
         }
     }
