@@ -30,6 +30,7 @@ struct RenderParams {
 
 @group(1) @binding(0) var<storage, read> cameras: array<Camera>;
 @group(1) @binding(1) var<storage, read> hierarchy: array<HierTriangle>;
+@group(1) @binding(5) var<storage, read> split_normals: array<vec4<f32>>;
 @group(1) @binding(2) var color_maps: texture_2d_array<f32>;
 @group(1) @binding(3) var footprints: texture_2d_array<u32>;
 @group(1) @binding(4) var linear_sampler: sampler;

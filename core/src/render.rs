@@ -226,6 +226,7 @@ pub struct Renderer {
     linear: wgpu::Sampler,
     camera_buffer: wgpu::Buffer,
     hierarchy_buffer: wgpu::Buffer,
+    split_buffer: wgpu::Buffer,
     /// Reusable targets; the lock also serializes frames on the one queue.
     targets: Mutex<Option<Targets>>,
     max_px: u32,
@@ -263,7 +264,7 @@ impl Renderer {
         let device = &gpu.device;
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("render.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(crate::shaders::RENDER.into()),
+            source: wgpu::ShaderSource::Wgsl(crate::shaders::render_source().into()),
         });
         let storage = wgpu::BufferBindingType::Storage { read_only: false };
         let read_only = wgpu::BufferBindingType::Storage { read_only: true };
@@ -298,6 +299,7 @@ impl Renderer {
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
                     count: None,
                 },
+                buffer_entry(5, read_only),
             ],
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -344,6 +346,12 @@ impl Renderer {
             bytemuck::cast_slice(&hierarchy),
             none,
         );
+        let split_buffer = storage_buffer(
+            &gpu,
+            "icosphere split normals",
+            bytemuck::cast_slice(&split_normals()),
+            none,
+        );
         let max_px = DEFAULT_MAX_VIEW_PX.min(gpu.device.limits().max_texture_dimension_2d);
         Renderer {
             gpu,
@@ -353,6 +361,7 @@ impl Renderer {
             linear,
             camera_buffer,
             hierarchy_buffer,
+            split_buffer,
             targets: Mutex::new(None),
             max_px,
         }
@@ -463,6 +472,10 @@ impl Renderer {
                     wgpu::BindGroupEntry {
                         binding: 4,
                         resource: wgpu::BindingResource::Sampler(&self.linear),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 5,
+                        resource: self.split_buffer.as_entire_binding(),
                     },
                 ],
             });
@@ -658,4 +671,101 @@ fn footprint_texels(codes: &[u16], n: usize) -> Vec<u8> {
         }
     }
     out
+}
+
+/// For every triangle of levels 0–2, the unit normals of its middle child's edges that it shares
+/// with corner children 0, 1, 2 (`shaders/shared/lightfield.wgsl`, `locate`), as `vec4`s.
+fn split_normals() -> Vec<[f32; 4]> {
+    let set = geometry::camera_set();
+    let parents = set.level_range(0).start..set.level_range(2).end;
+    let mut out = Vec::with_capacity(parents.len() * 3);
+    for t in &set.triangles[parents] {
+        // Children: (v0, m01, m20), (m01, v1, m12), (m20, m12, v2), middle (m01, m12, m20).
+        let middle = set.triangles[t.first_child as usize + 3]
+            .v
+            .map(|i| set.positions[i as usize].as_dvec3());
+        let [m01, m12, m20] = middle;
+        for (a, b) in [(m20, m01), (m01, m12), (m12, m20)] {
+            let n = a.cross(b).normalize().as_vec3();
+            out.push([n.x, n.y, n.z, 0.0]);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    /// The shader's `locate` descent, replayed on the CPU with the same tables.
+    fn locate_like_shader(p: Vec3, level: u32) -> u32 {
+        let set = geometry::camera_set();
+        let split = split_normals();
+        let mut best = 0;
+        let mut best_score = f32::NEG_INFINITY;
+        for (i, t) in set.level_triangles(0).iter().enumerate() {
+            let [a, b, c] = t.v.map(|k| set.positions[k as usize].as_dvec3());
+            let s = [(a, b), (b, c), (c, a)]
+                .iter()
+                .map(|(x, y)| x.cross(*y).normalize().as_vec3().dot(p))
+                .fold(f32::INFINITY, f32::min);
+            if s > best_score {
+                best_score = s;
+                best = i as u32;
+            }
+        }
+        let (mut start, mut local, mut count) = (0u32, best, 20u32);
+        for _ in 0..level {
+            let t = (start + local) as usize;
+            let s: Vec<f32> = (0..3)
+                .map(|e| Vec3::from_slice(&split[3 * t + e][..3]).dot(p))
+                .collect();
+            let child = if s.iter().copied().fold(f32::INFINITY, f32::min) < 0.0 {
+                if s[0] <= s[1] && s[0] <= s[2] {
+                    0
+                } else if s[1] <= s[2] {
+                    1
+                } else {
+                    2
+                }
+            } else {
+                3
+            };
+            start += count;
+            count *= 4;
+            local = 4 * local + child;
+        }
+        start + local
+    }
+
+    #[test]
+    fn shader_lookup_tables_find_the_containing_triangle() {
+        // Same triangle as the CPU geometry, or (on a shared edge, within 1e-6) a neighbour
+        // that contains the point as well.
+        let set = geometry::camera_set();
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f32 / (1u64 << 53) as f32 * 2.0 - 1.0
+        };
+        for _ in 0..20_000 {
+            let p = Vec3::new(next(), next(), next()).normalize();
+            for level in 0..=3 {
+                let t = locate_like_shader(p, level) as usize;
+                let [a, b, c] = set.triangles[t].v.map(|k| set.positions[k as usize]);
+                let worst = [(a, b), (b, c), (c, a)]
+                    .iter()
+                    .map(|(x, y)| x.cross(*y).normalize().dot(p))
+                    .fold(f32::INFINITY, f32::min);
+                assert!(
+                    worst > -1e-5,
+                    "level {level}: {p} is {worst} outside triangle {t}"
+                );
+                assert!(set.level_range(level).contains(&t));
+            }
+        }
+    }
 }

@@ -16,11 +16,47 @@ pub const REFERENCE: &str = concat!(
     include_str!("../../shaders/shared/mesh.wgsl"),
     include_str!("../../shaders/reference.wgsl")
 );
-/// The light-field marcher (compute).
+/// The light-field marcher (compute), without its generated constants (see [`render_source`]).
 pub const RENDER: &str = concat!(
     include_str!("../../shaders/shared/lightfield.wgsl"),
     include_str!("../../shaders/render.wgsl")
 );
 
-/// Every pipeline module, by name (validated by a CPU-only naga test).
-pub const ALL: [(&str, &str); 3] = [("bake", BAKE), ("reference", REFERENCE), ("render", RENDER)];
+/// The marcher's full source: [`RENDER`] plus `locate_level0`, an unrolled test of the 20
+/// level-0 icosphere triangles against their unit edge normals as literals (generated from
+/// [`crate::geometry::camera_set`], so GPU lookup and CPU geometry cannot disagree; a constant
+/// array indexed in a loop is copied per access by some drivers, which cost lavapipe 6×).
+pub fn render_source() -> String {
+    use std::fmt::Write;
+    let set = crate::geometry::camera_set();
+    let mut out = String::from(
+        "fn locate_level0(p: vec3<f32>) -> u32 {\n    var best = 0u;\n    var best_score = -1e30;\n    var s: f32;\n",
+    );
+    for (index, t) in set.level_triangles(0).iter().enumerate() {
+        let [a, b, c] = t.v.map(|i| set.positions[i as usize].as_dvec3());
+        let dots: Vec<String> = [(a, b), (b, c), (c, a)]
+            .iter()
+            .map(|(p, q)| {
+                let n = p.cross(*q).normalize();
+                format!("dot(vec3<f32>({:e}, {:e}, {:e}), p)", n.x, n.y, n.z)
+            })
+            .collect();
+        let _ = writeln!(
+            out,
+            "    s = min(min({}, {}), {});\n    if s > best_score {{ best_score = s; best = {index}u; }}",
+            dots[0], dots[1], dots[2]
+        );
+    }
+    out.push_str("    return best;\n}\n");
+    out.push_str(RENDER);
+    out
+}
+
+/// Every pipeline module, by name and full source (validated by a CPU-only naga test).
+pub fn all() -> Vec<(&'static str, String)> {
+    vec![
+        ("bake", BAKE.to_owned()),
+        ("reference", REFERENCE.to_owned()),
+        ("render", render_source()),
+    ]
+}

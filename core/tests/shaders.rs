@@ -3,7 +3,8 @@
 
 #[test]
 fn every_shader_validates_with_naga() {
-    for (name, source) in lumigraph_core::shaders::ALL {
+    for (name, source) in lumigraph_core::shaders::all() {
+        let source = source.as_str();
         let module = naga::front::wgsl::parse_str(source).unwrap_or_else(|e| {
             panic!("{name}.wgsl does not parse:\n{}", e.emit_to_string(source))
         });
@@ -22,7 +23,7 @@ fn every_shader_validates_with_naga() {
 
 #[test]
 fn every_shader_file_is_embedded() {
-    // A new .wgsl file must be added to `shaders::ALL` (or be shared code included by one).
+    // A new .wgsl file must be added to `shaders::all()` (or be shared code included by one).
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shaders");
     for entry in std::fs::read_dir(&dir).expect("shaders dir") {
         let path = entry.expect("entry").path();
@@ -33,8 +34,10 @@ fn every_shader_file_is_embedded() {
                 .unwrap_or_default()
                 .to_owned();
             assert!(
-                lumigraph_core::shaders::ALL.iter().any(|(n, _)| *n == stem),
-                "{stem}.wgsl is not in shaders::ALL"
+                lumigraph_core::shaders::all()
+                    .iter()
+                    .any(|(n, _)| *n == stem),
+                "{stem}.wgsl is not in shaders::all()"
             );
         }
     }

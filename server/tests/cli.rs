@@ -7,12 +7,16 @@ use std::process::{Command, Output};
 use std::sync::OnceLock;
 
 fn lumigraph(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_lumigraph")).args(args).output().expect("run lumigraph")
+    Command::new(env!("CARGO_BIN_EXE_lumigraph"))
+        .args(args)
+        .output()
+        .expect("run lumigraph")
 }
 
 fn dir() -> &'static Path {
     static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
-    DIR.get_or_init(|| tempfile::tempdir().expect("tempdir")).path()
+    DIR.get_or_init(|| tempfile::tempdir().expect("tempdir"))
+        .path()
 }
 
 fn path(name: &str) -> PathBuf {
@@ -28,8 +32,21 @@ fn demo_asset() -> &'static PathBuf {
     static ASSET: OnceLock<PathBuf> = OnceLock::new();
     ASSET.get_or_init(|| {
         let out = path("demo.lfa");
-        let o = lumigraph(&["bake", "--demo", "-o", s(&out), "--cameras", "12", "--resolution", "64"]);
-        assert!(o.status.success(), "bake failed: {}", String::from_utf8_lossy(&o.stderr));
+        let o = lumigraph(&[
+            "bake",
+            "--demo",
+            "-o",
+            s(&out),
+            "--cameras",
+            "12",
+            "--resolution",
+            "64",
+        ]);
+        assert!(
+            o.status.success(),
+            "bake failed: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
         out
     })
 }
@@ -40,7 +57,8 @@ fn write(name: &str, contents: &[u8]) -> PathBuf {
     p
 }
 
-const VIEW: &str = r#"{"eye":[0,2,9],"target":[0,0,0],"up":[0,1,0],"yfov_deg":40,"width":48,"height":40}"#;
+const VIEW: &str =
+    r#"{"eye":[0,2,9],"target":[0,0,0],"up":[0,1,0],"yfov_deg":40,"width":48,"height":40}"#;
 
 /// Asserts a clean failure: non-zero exit, one `error:` line mentioning `needle`, no panic.
 fn assert_fails(args: &[&str], needle: &str) {
@@ -48,10 +66,19 @@ fn assert_fails(args: &[&str], needle: &str) {
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "{args:?} succeeded");
     assert!(!stderr.contains("panicked"), "{args:?} panicked: {stderr}");
-    let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty() && !l.contains("XDG_RUNTIME_DIR")).collect();
+    let lines: Vec<&str> = stderr
+        .lines()
+        .filter(|l| !l.trim().is_empty() && !l.contains("XDG_RUNTIME_DIR"))
+        .collect();
     let error_lines: Vec<&&str> = lines.iter().filter(|l| l.starts_with("error")).collect();
-    assert!(!error_lines.is_empty(), "{args:?}: no error line in {stderr}");
-    assert!(stderr.to_lowercase().contains(&needle.to_lowercase()), "{args:?}: `{needle}` not in {stderr}");
+    assert!(
+        !error_lines.is_empty(),
+        "{args:?}: no error line in {stderr}"
+    );
+    assert!(
+        stderr.to_lowercase().contains(&needle.to_lowercase()),
+        "{args:?}: `{needle}` not in {stderr}"
+    );
 }
 
 #[test]
@@ -64,7 +91,16 @@ fn happy_path_bake_info_render_reference_eval() {
     let view = write("view.json", VIEW.as_bytes());
     let png = path("one.png");
     let npy = path("one.npy");
-    let o = lumigraph(&["render", s(asset), "--view", s(&view), "-o", s(&png), "--depth", s(&npy)]);
+    let o = lumigraph(&[
+        "render",
+        s(asset),
+        "--view",
+        s(&view),
+        "-o",
+        s(&png),
+        "--depth",
+        s(&npy),
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(String::from_utf8_lossy(&o.stdout).contains(" ms"));
     let (w, h, _) = lumigraph_core::image_io::read_png_rgba8(&png).expect("png");
@@ -76,8 +112,20 @@ fn happy_path_bake_info_render_reference_eval() {
     let folder = path("many");
     let depth_folder = path("many_depth");
     let o = lumigraph(&[
-        "render", s(asset), "--views", s(&views), "-o", s(&folder), "--depth", s(&depth_folder), "--depth-format", "exr",
-        "--method", "fixed", "--lod", "12",
+        "render",
+        s(asset),
+        "--views",
+        s(&views),
+        "-o",
+        s(&folder),
+        "--depth",
+        s(&depth_folder),
+        "--depth-format",
+        "exr",
+        "--method",
+        "fixed",
+        "--lod",
+        "12",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     for f in ["000.png", "001.png"] {
@@ -86,10 +134,30 @@ fn happy_path_bake_info_render_reference_eval() {
     assert!(depth_folder.join("001.exr").exists());
 
     let reference = path("reference.png");
-    let o = lumigraph(&["reference", "--demo", "--view", s(&view), "-o", s(&reference), "--light", "-1,2,0.5", "--ambient", "0.3"]);
+    let o = lumigraph(&[
+        "reference",
+        "--demo",
+        "--view",
+        s(&view),
+        "-o",
+        s(&reference),
+        "--light",
+        "-1,2,0.5",
+        "--ambient",
+        "0.3",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 
-    let o = lumigraph(&["eval", s(asset), "--demo", "--views", "2", "--size", "64", "--json"]);
+    let o = lumigraph(&[
+        "eval",
+        s(asset),
+        "--demo",
+        "--views",
+        "2",
+        "--size",
+        "64",
+        "--json",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("eval json");
     let masked = report["mean"]["masked_psnr"].as_f64().expect("masked psnr");
@@ -102,9 +170,21 @@ fn malformed_meshes_fail_cleanly() {
     let out = path("never.lfa");
     let cases: Vec<(&str, Vec<u8>, &str)> = vec![
         ("empty.obj", b"".to_vec(), "mesh"),
-        ("nan.obj", b"v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".to_vec(), "finite"),
-        ("index.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n".to_vec(), "mesh"),
-        ("degenerate.off", b"OFF\n3 1 0\n0 0 0\n0 0 0\n0 0 0\n3 0 1 2\n".to_vec(), "degenerate"),
+        (
+            "nan.obj",
+            b"v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n".to_vec(),
+            "finite",
+        ),
+        (
+            "index.obj",
+            b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n".to_vec(),
+            "mesh",
+        ),
+        (
+            "degenerate.off",
+            b"OFF\n3 1 0\n0 0 0\n0 0 0\n0 0 0\n3 0 1 2\n".to_vec(),
+            "degenerate",
+        ),
         ("garbage.glb", vec![0xff; 64], "gl"),
         ("garbage.ply", b"ply\nformat nonsense\n".to_vec(), "ply"),
         ("short.stl", vec![0; 10], "stl"),
@@ -112,9 +192,24 @@ fn malformed_meshes_fail_cleanly() {
     ];
     for (name, bytes, needle) in cases {
         let p = write(name, &bytes);
-        assert_fails(&["bake", s(&p), "-o", s(&out), "--cameras", "12", "--resolution", "16"], needle);
+        assert_fails(
+            &[
+                "bake",
+                s(&p),
+                "-o",
+                s(&out),
+                "--cameras",
+                "12",
+                "--resolution",
+                "16",
+            ],
+            needle,
+        );
     }
-    assert_fails(&["bake", s(&path("missing.obj")), "-o", s(&out)], "missing.obj");
+    assert_fails(
+        &["bake", s(&path("missing.obj")), "-o", s(&out)],
+        "missing.obj",
+    );
     assert!(!out.exists(), "a failed bake left a file behind");
 }
 
@@ -122,15 +217,30 @@ fn malformed_meshes_fail_cleanly() {
 fn malformed_flags_fail_cleanly() {
     let out = path("never2.lfa");
     let o = s(&out);
-    assert_fails(&["bake", "--demo", "-o", o, "--cameras", "100"], "12, 42, 162, 642");
-    assert_fails(&["bake", "--demo", "-o", o, "--resolution", "0"], "resolution");
+    assert_fails(
+        &["bake", "--demo", "-o", o, "--cameras", "100"],
+        "12, 42, 162, 642",
+    );
+    assert_fails(
+        &["bake", "--demo", "-o", o, "--resolution", "0"],
+        "resolution",
+    );
     assert_fails(&["bake", "--demo", "-o", o, "--resolution", "-5"], "error");
-    assert_fails(&["bake", "--demo", "-o", o, "--depth-bits", "12"], "depth bits");
+    assert_fails(
+        &["bake", "--demo", "-o", o, "--depth-bits", "12"],
+        "depth bits",
+    );
     assert_fails(&["bake", "--demo", "-o", o, "--light", "0,0,0"], "light");
     assert_fails(&["bake", "--demo", "-o", o, "--light", "1,nan,0"], "finite");
     assert_fails(&["bake", "--demo", "-o", o, "--ambient", "2"], "ambient");
-    assert_fails(&["bake", "--demo", "-o", o, "--specular", "0.5"], "2 comma-separated");
-    assert_fails(&["bake", "--demo", "-o", o, "--specular", "0.5,-3"], "specular");
+    assert_fails(
+        &["bake", "--demo", "-o", o, "--specular", "0.5"],
+        "2 comma-separated",
+    );
+    assert_fails(
+        &["bake", "--demo", "-o", o, "--specular", "0.5,-3"],
+        "specular",
+    );
     assert_fails(&["bake", "-o", o], "error");
     let asset = demo_asset();
     let view = write("view2.json", VIEW.as_bytes());
@@ -158,20 +268,61 @@ fn malformed_views_fail_cleanly() {
     let png = path("y.png");
     let cases = [
         ("v_json.json", "{not json", "json"),
-        ("v_unknown.json", r#"{"eye":[0,0,5],"target":[0,0,0],"yfov_deg":40,"width":8,"height":8,"zoom":2}"#, "unknown field"),
-        ("v_fov.json", r#"{"eye":[0,0,5],"target":[0,0,0],"yfov_deg":180,"width":8,"height":8}"#, "fov"),
-        ("v_same.json", r#"{"eye":[0,0,0],"target":[0,0,0],"yfov_deg":40,"width":8,"height":8}"#, "target"),
-        ("v_up.json", r#"{"eye":[0,0,5],"target":[0,0,0],"up":[0,0,1],"yfov_deg":40,"width":8,"height":8}"#, "up"),
-        ("v_size.json", r#"{"eye":[0,0,5],"target":[0,0,0],"yfov_deg":40,"width":0,"height":8}"#, "size"),
-        ("v_huge.json", r#"{"eye":[0,0,5],"target":[0,0,0],"yfov_deg":40,"width":100000,"height":8}"#, "size"),
-        ("v_inf.json", r#"{"eye":[0,0,1e999],"target":[0,0,0],"yfov_deg":40,"width":8,"height":8}"#, "error"),
+        (
+            "v_unknown.json",
+            r#"{"eye":[0,0,5],"target":[0,0,0],"yfov_deg":40,"width":8,"height":8,"zoom":2}"#,
+            "unknown field",
+        ),
+        (
+            "v_fov.json",
+            r#"{"eye":[0,0,5],"target":[0,0,0],"yfov_deg":180,"width":8,"height":8}"#,
+            "fov",
+        ),
+        (
+            "v_same.json",
+            r#"{"eye":[0,0,0],"target":[0,0,0],"yfov_deg":40,"width":8,"height":8}"#,
+            "target",
+        ),
+        (
+            "v_up.json",
+            r#"{"eye":[0,0,5],"target":[0,0,0],"up":[0,0,1],"yfov_deg":40,"width":8,"height":8}"#,
+            "up",
+        ),
+        (
+            "v_size.json",
+            r#"{"eye":[0,0,5],"target":[0,0,0],"yfov_deg":40,"width":0,"height":8}"#,
+            "size",
+        ),
+        (
+            "v_huge.json",
+            r#"{"eye":[0,0,5],"target":[0,0,0],"yfov_deg":40,"width":100000,"height":8}"#,
+            "size",
+        ),
+        (
+            "v_inf.json",
+            r#"{"eye":[0,0,1e999],"target":[0,0,0],"yfov_deg":40,"width":8,"height":8}"#,
+            "error",
+        ),
         ("v_empty.json", "[]", "no views"),
     ];
     for (name, text, needle) in cases {
         let p = write(name, text.as_bytes());
-        assert_fails(&["render", s(asset), "--view", s(&p), "-o", s(&png)], needle);
+        assert_fails(
+            &["render", s(asset), "--view", s(&p), "-o", s(&png)],
+            needle,
+        );
     }
-    assert_fails(&["render", s(asset), "--view", s(&path("nope.json")), "-o", s(&png)], "nope.json");
+    assert_fails(
+        &[
+            "render",
+            s(asset),
+            "--view",
+            s(&path("nope.json")),
+            "-o",
+            s(&png),
+        ],
+        "nope.json",
+    );
     assert!(!png.exists());
 }
 
@@ -188,8 +339,50 @@ fn malformed_assets_fail_cleanly() {
     let garbage = write("garbage.lfa", b"definitely not a light field");
     let empty = write("empty.lfa", b"");
     for p in [&truncated, &flipped, &garbage, &empty] {
-        assert_fails(&["render", s(p), "--view", s(&view), "-o", s(&png)], "asset");
+        assert_fails(
+            &["render", s(p), "--view", s(&view), "-o", s(&png)],
+            "asset",
+        );
         assert_fails(&["info", s(p)], "asset");
     }
     assert_fails(&["info", s(&path("missing.lfa"))], "missing.lfa");
+}
+
+#[test]
+fn gl_and_vulkan_backends_render_the_same_frame() {
+    // PLATFORM.md: wgpu's GL backend treats square arrays with a multiple of 6 layers as cube
+    // maps and silently renders wrong data; our arrays are padded. 12 cameras = 12 layers is
+    // exactly that case. Tolerance: identical shaders on the same llvmpipe may still differ by
+    // float evaluation order, so allow ≤ 2 levels per channel on ≤ 0.5 % of pixels.
+    let asset = demo_asset();
+    let view = write("view_gl.json", VIEW.as_bytes());
+    let mut images = Vec::new();
+    for backend in ["vulkan", "gl"] {
+        let png = path(&format!("backend_{backend}.png"));
+        let o = Command::new(env!("CARGO_BIN_EXE_lumigraph"))
+            .args(["render", s(asset), "--view", s(&view), "-o", s(&png)])
+            .env("LUMIGRAPH_BACKEND", backend)
+            .output()
+            .expect("run");
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        if !o.status.success() && stderr.contains("no GPU adapter") {
+            eprintln!("skipping: no {backend} adapter on this machine: {stderr}");
+            return;
+        }
+        assert!(o.status.success(), "{backend}: {stderr}");
+        images.push(
+            lumigraph_core::image_io::read_png_rgba8(&png)
+                .expect("png")
+                .2,
+        );
+    }
+    let differing = images[0]
+        .chunks_exact(4)
+        .zip(images[1].chunks_exact(4))
+        .filter(|(a, b)| a.iter().zip(b.iter()).any(|(x, y)| x.abs_diff(*y) > 2))
+        .count();
+    assert!(
+        differing * 200 <= images[0].len() / 4,
+        "{differing} pixels differ between Vulkan and GL"
+    );
 }

@@ -17,41 +17,29 @@ struct Located {
     weights: vec3<f32>,
 }
 
-// Smallest signed edge test of p against the spherical triangle (a, b, c), each normalised to the
-// sine of the angular distance so that scores of different triangles compare (largest = best).
-fn containment(a: vec3<f32>, b: vec3<f32>, c: vec3<f32>, p: vec3<f32>) -> f32 {
-    let nab = cross(a, b);
-    let nbc = cross(b, c);
-    let nca = cross(c, a);
-    return min(min(dot(nab, p) / length(nab), dot(nbc, p) / length(nbc)), dot(nca, p) / length(nca));
-}
-
-// The triangle of `level` met by unit direction p (descending from the 20 level-0 triangles), with
-// central-projection barycentric weights.
+// The triangle of `level` met by unit direction p, with central-projection barycentric weights.
+// Level 0: the best of the 20 icosahedron faces by their unit edge normals (`locate_level0`,
+// generated from the same camera set the CPU uses, see shaders.rs). Each finer
+// level: the parent's middle child unless p lies outside one of its edges, then the corner child
+// across that edge (`split_normals`, 3 per parent). No camera data is read until the end —
+// storage loads are what a lookup costs on lavapipe.
 fn locate(p: vec3<f32>, level: u32) -> Located {
-    var best = 0u;
-    var best_score = -1e30;
-    for (var i = 0u; i < 20u; i++) {
-        let t = hierarchy[i];
-        let s = containment(cameras[t.v.x].position.xyz, cameras[t.v.y].position.xyz, cameras[t.v.z].position.xyz, p);
-        if s > best_score {
-            best_score = s;
-            best = i;
-        }
-    }
+    let best = locate_level0(p);
+    var level_start = 0u;
+    var local = best;
+    var count = 20u;
     for (var l = 0u; l < level; l++) {
-        let first = hierarchy[best].first_child;
-        best_score = -1e30;
-        for (var c = 0u; c < 4u; c++) {
-            let t = hierarchy[first + c];
-            let s = containment(cameras[t.v.x].position.xyz, cameras[t.v.y].position.xyz, cameras[t.v.z].position.xyz, p);
-            if s > best_score {
-                best_score = s;
-                best = first + c;
-            }
+        let t = level_start + local;
+        let s = vec3<f32>(dot(split_normals[3u * t].xyz, p), dot(split_normals[3u * t + 1u].xyz, p), dot(split_normals[3u * t + 2u].xyz, p));
+        var child = 3u;
+        if min(min(s.x, s.y), s.z) < 0.0 {
+            child = select(select(2u, 1u, s.y <= s.z), 0u, s.x <= s.y && s.x <= s.z);
         }
+        level_start += count;
+        count *= 4u;
+        local = 4u * local + child;
     }
-    let t = hierarchy[best];
+    let t = hierarchy[level_start + local];
     let v0 = cameras[t.v.x].position.xyz;
     let v1 = cameras[t.v.y].position.xyz;
     let v2 = cameras[t.v.z].position.xyz;

@@ -58,6 +58,8 @@ pub struct Gpu {
     pub adapter_info: wgpu::AdapterInfo,
     /// Whether the adapter is a software rasterizer (lavapipe/llvmpipe).
     pub is_software: bool,
+    /// The first uncaptured device error since the last check (wgpu would otherwise panic).
+    device_error: Arc<std::sync::Mutex<Option<String>>>,
 }
 
 static SHARED: OnceLock<Result<Arc<Gpu>, String>> = OnceLock::new();
@@ -146,11 +148,25 @@ impl Gpu {
             adapter: adapter_info.name.clone(),
             detail: e.to_string(),
         })?;
+        // Validation or out-of-memory errors become `GpuError`s at the next wait instead of a
+        // panic inside wgpu's default handler.
+        let device_error: Arc<std::sync::Mutex<Option<String>>> = Arc::default();
+        let sink = device_error.clone();
+        device.on_uncaptured_error(Arc::new(move |error: wgpu::Error| {
+            tracing::error!("GPU error: {error}");
+            let mut slot = sink
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            if slot.is_none() {
+                *slot = Some(error.to_string());
+            }
+        }));
         let gpu = Gpu {
             device,
             queue,
             adapter_info,
             is_software,
+            device_error,
         };
         tracing::info!("{}", gpu.adapter_summary());
         if gpu.is_software {
@@ -184,8 +200,16 @@ impl Gpu {
     pub fn wait(&self) -> Result<(), GpuError> {
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
-            .map(|_| ())
-            .map_err(|e| GpuError::Operation(e.to_string()))
+            .map_err(|e| GpuError::Operation(e.to_string()))?;
+        let error = self
+            .device_error
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .take();
+        match error {
+            Some(message) => Err(GpuError::Operation(message)),
+            None => Ok(()),
+        }
     }
 
     /// Copies `size` bytes of `source` (which needs `COPY_SRC`) back to the CPU.
