@@ -156,6 +156,24 @@ fn baked_depth_is_exact_per_texel() {
     );
 }
 
+/// The unit cube baked at `cameras` × `resolution` and uploaded.
+fn unit_cube(
+    cameras: u32,
+    resolution: u32,
+) -> (Mesh, AssetFile, lumigraph_core::render::GpuLightField) {
+    let mesh = cube([0.0, 0.0, 0.0], 0.5);
+    let asset = bake(
+        &mesh,
+        &BakeOptions {
+            cameras,
+            resolution,
+            ..Default::default()
+        },
+    );
+    let field = ctx().renderer.upload(&asset).expect("upload");
+    (mesh, asset, field)
+}
+
 fn cube_view(size: u32) -> View {
     View::look_at([2.2, 1.4, 2.9], [0.3, -0.2, 0.1], 40.0, size, size)
 }
@@ -284,16 +302,7 @@ fn interior_holes(frame: &Frame, truth: &Frame) -> usize {
 fn seed_000_tolerance_below_half_step_leaves_gaps() {
     // Seed 000 §3.1: with fixed steps, a sample always falls within step/2 of the surface, so a
     // tolerance of at least step/2 finds every surface; a smaller one lets rays skip it.
-    let mesh = cube([0.0, 0.0, 0.0], 0.5);
-    let asset = bake(
-        &mesh,
-        &BakeOptions {
-            cameras: 162,
-            resolution: 128,
-            ..Default::default()
-        },
-    );
-    let field = ctx().renderer.upload(&asset).expect("upload");
+    let (mesh, _asset, field) = unit_cube(162, 128);
     let gpu_mesh = ctx().reference.upload(&mesh).expect("upload mesh");
     let view = View::look_at([0.4, 0.3, 2.6], [0.0, 0.0, 0.0], 40.0, 128, 128);
     let truth = ctx()
@@ -336,16 +345,7 @@ fn seed_000_tolerance_below_half_step_leaves_gaps() {
 
 #[test]
 fn extreme_views_render_without_error() {
-    let mesh = cube([0.0, 0.0, 0.0], 0.5);
-    let asset = bake(
-        &mesh,
-        &BakeOptions {
-            cameras: 42,
-            resolution: 64,
-            ..Default::default()
-        },
-    );
-    let field = ctx().renderer.upload(&asset).expect("upload");
+    let (_mesh, asset, field) = unit_cube(42, 64);
     let r = asset.header().frame.radius; // √3/2
     let s = r * std::f64::consts::SQRT_2; // camera sphere radius in world units
     let cases = [
@@ -411,16 +411,7 @@ fn extreme_views_render_without_error() {
 
 #[test]
 fn lod_prefixes_render_from_one_asset() {
-    let mesh = cube([0.0, 0.0, 0.0], 0.5);
-    let asset = bake(
-        &mesh,
-        &BakeOptions {
-            cameras: 162,
-            resolution: 64,
-            ..Default::default()
-        },
-    );
-    let field = ctx().renderer.upload(&asset).expect("upload");
+    let (_mesh, _asset, field) = unit_cube(162, 64);
     let view = cube_view(64);
     let covered: Vec<usize> = [12, 42, 162]
         .iter()
