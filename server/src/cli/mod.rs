@@ -40,8 +40,27 @@ pub enum Command {
     Reference(ReferenceArgs),
     /// Compare light-field renders against reference renders of the source mesh.
     Eval(EvalArgs),
-    /// Print an asset's header.
+    /// Print an asset's header (and verify every page).
     Info(InfoArgs),
+    /// Serve the HTTP/WebSocket render service and the web viewer (bakes the demo on first start).
+    Serve(ServeArgs),
+}
+
+/// `lumigraph serve`.
+#[derive(Debug, Args)]
+pub struct ServeArgs {
+    /// Folder of `.lfa` assets (created if missing; the demo is baked into it when empty).
+    #[arg(long, default_value = "assets")]
+    pub assets: PathBuf,
+    /// Address to listen on (without LUMIGRAPH_TOKEN only loopback addresses are allowed).
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    pub addr: std::net::SocketAddr,
+    /// Most concurrent WebSocket sessions.
+    #[arg(long, default_value_t = 64)]
+    pub max_sessions: usize,
+    /// Largest rendered width or height in pixels.
+    #[arg(long, default_value_t = 4096)]
+    pub max_px: u32,
 }
 
 /// Shading flags shared by `bake` and `reference` (DESIGN §3).
@@ -266,6 +285,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Reference(args) => reference(&args),
         Command::Eval(args) => eval(&args),
         Command::Info(args) => info(&args),
+        Command::Serve(args) => serve(&args),
     }
 }
 
@@ -656,4 +676,15 @@ fn info(args: &InfoArgs) -> Result<()> {
     );
     println!("{}", serde_json::to_string_pretty(h)?);
     Ok(())
+}
+
+fn serve(args: &ServeArgs) -> Result<()> {
+    let mut config = crate::service::ServeConfig::from_env(&args.assets, args.addr);
+    config.max_sessions = args.max_sessions;
+    config.max_px = args.max_px;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    runtime.block_on(crate::service::serve(config))
 }

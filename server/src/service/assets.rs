@@ -1,0 +1,302 @@
+//! The asset store: `.lfa` files in one folder, each uploaded to the GPU once and shared by every
+//! request and session through an `Arc`.
+//!
+//! An asset's id is its file stem. Ids are restricted to `[A-Za-z0-9][A-Za-z0-9_-]{0,63}`, so
+//! no id can name a path outside the folder, a hidden file or a temporary file.
+
+use std::collections::{BTreeMap, HashSet};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, PoisonError, RwLock};
+
+use lumigraph_core::asset::{AssetFile, AssetHeader};
+use lumigraph_core::render::{GpuLightField, Renderer};
+use serde::Serialize;
+
+use super::error::AppError;
+
+/// Longest accepted asset id.
+pub const MAX_ID_LEN: usize = 64;
+
+/// Checks an asset or job id: 1..=64 characters of `[A-Za-z0-9_-]`, starting alphanumeric.
+pub fn validate_id(id: &str) -> Result<(), AppError> {
+    let ok = !id.is_empty()
+        && id.len() <= MAX_ID_LEN
+        && id.as_bytes()[0].is_ascii_alphanumeric()
+        && id
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-');
+    if ok {
+        Ok(())
+    } else {
+        Err(AppError::Invalid(format!(
+            "invalid id {:?}: ids are 1..={MAX_ID_LEN} characters of [A-Za-z0-9_-] starting with a \
+             letter or digit",
+            truncate(id, 80)
+        )))
+    }
+}
+
+fn truncate(s: &str, max: usize) -> &str {
+    match s.char_indices().nth(max) {
+        Some((i, _)) => &s[..i],
+        None => s,
+    }
+}
+
+/// An asset ready to render: its header and its images on the GPU.
+pub struct LoadedAsset {
+    /// The id (file stem).
+    pub id: String,
+    /// The `.lfa` file.
+    pub path: PathBuf,
+    /// The validated header.
+    pub header: AssetHeader,
+    /// File size in bytes.
+    pub file_bytes: u64,
+    /// Colour and depth texture arrays.
+    pub field: GpuLightField,
+}
+
+/// One line of `GET /v1/assets`.
+#[derive(Clone, Debug, Serialize, utoipa::ToSchema)]
+pub struct AssetSummary {
+    /// Asset id, usable in `/v1/assets/{id}` and `/v1/stream?asset=`.
+    pub id: String,
+    /// Light-field kind, e.g. `spherical`.
+    pub kind: String,
+    /// Number of cameras (12, 42, 162 or 642); every smaller count is available as `lod`.
+    pub camera_count: u32,
+    /// Side of each camera image in pixels.
+    pub resolution_px: u32,
+    /// Layer names.
+    pub layers: Vec<String>,
+    /// State names.
+    pub states: Vec<String>,
+    /// Bounding sphere centre in world units (a good orbit target).
+    pub center: [f64; 3],
+    /// Bounding sphere radius in world units.
+    pub radius: f64,
+    /// File size in bytes.
+    pub file_bytes: u64,
+}
+
+impl LoadedAsset {
+    /// The summary shown in listings.
+    pub fn summary(&self) -> AssetSummary {
+        let h = &self.header;
+        AssetSummary {
+            id: self.id.clone(),
+            kind: serde_json::to_value(h.kind)
+                .ok()
+                .and_then(|v| v.as_str().map(str::to_owned))
+                .unwrap_or_default(),
+            camera_count: h.geometry.camera_count,
+            resolution_px: h.geometry.resolution_px,
+            layers: h.layers.iter().map(|l| l.name.clone()).collect(),
+            states: h.states.iter().map(|s| s.name.clone()).collect(),
+            center: h.frame.center,
+            radius: h.frame.radius,
+            file_bytes: self.file_bytes,
+        }
+    }
+}
+
+/// Why a file could not be loaded.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum LoadError {
+    /// The file is not a valid asset.
+    #[error(transparent)]
+    Asset(#[from] lumigraph_core::asset::AssetError),
+    /// The asset could not be uploaded to the GPU.
+    #[error(transparent)]
+    Render(#[from] lumigraph_core::render::RenderError),
+}
+
+/// Opens, fully verifies and uploads one file (blocking: call from `spawn_blocking`).
+pub fn load_file(renderer: &Renderer, id: &str, path: &Path) -> Result<LoadedAsset, LoadError> {
+    let file = AssetFile::open(path)?;
+    file.verify_all()?;
+    let field = renderer.upload(&file)?;
+    Ok(LoadedAsset {
+        id: id.to_owned(),
+        path: path.to_path_buf(),
+        header: file.header().clone(),
+        file_bytes: file.file_len(),
+        field,
+    })
+}
+
+/// The loaded assets, by id.
+pub struct AssetStore {
+    dir: PathBuf,
+    assets: RwLock<BTreeMap<String, Arc<LoadedAsset>>>,
+    /// Ids an upload or bake is writing right now.
+    reserved: Arc<Mutex<HashSet<String>>>,
+}
+
+/// A claim on a new asset id, released on drop.
+pub struct Reservation {
+    id: String,
+    reserved: Arc<Mutex<HashSet<String>>>,
+}
+
+impl Reservation {
+    /// The reserved id.
+    pub fn id(&self) -> &str {
+        &self.id
+    }
+}
+
+impl Drop for Reservation {
+    fn drop(&mut self) {
+        self.reserved
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .remove(&self.id);
+    }
+}
+
+impl AssetStore {
+    /// An empty store over `dir`.
+    pub fn new(dir: PathBuf) -> Self {
+        Self {
+            dir,
+            assets: RwLock::new(BTreeMap::new()),
+            reserved: Arc::default(),
+        }
+    }
+
+    /// Claims `id` for a new asset: 409 if an asset, a file or another upload already has it.
+    pub fn reserve(&self, id: &str) -> Result<Reservation, AppError> {
+        validate_id(id)?;
+        let mut reserved = self.reserved.lock().unwrap_or_else(PoisonError::into_inner);
+        if self.contains(id) || reserved.contains(id) || self.path_for(id).exists() {
+            return Err(AppError::Conflict(format!(
+                "asset id {id:?} is taken: delete it first or choose another id"
+            )));
+        }
+        reserved.insert(id.to_owned());
+        Ok(Reservation {
+            id: id.to_owned(),
+            reserved: Arc::clone(&self.reserved),
+        })
+    }
+
+    /// The assets folder.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Where the asset `id` lives (the id must be valid).
+    pub fn path_for(&self, id: &str) -> PathBuf {
+        self.dir.join(format!("{id}.lfa"))
+    }
+
+    /// The asset `id`, or 404.
+    pub fn get(&self, id: &str) -> Result<Arc<LoadedAsset>, AppError> {
+        validate_id(id)?;
+        self.assets
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .get(id)
+            .cloned()
+            .ok_or_else(|| AppError::NotFound(format!("no asset with id {id:?}")))
+    }
+
+    /// The first asset in id order, if any.
+    pub fn first(&self) -> Option<Arc<LoadedAsset>> {
+        self.assets
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .values()
+            .next()
+            .cloned()
+    }
+
+    /// Whether `id` is loaded.
+    pub fn contains(&self, id: &str) -> bool {
+        self.assets
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .contains_key(id)
+    }
+
+    /// Summaries of every asset, in id order.
+    pub fn list(&self) -> Vec<AssetSummary> {
+        self.assets
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .values()
+            .map(|a| a.summary())
+            .collect()
+    }
+
+    /// Number of loaded assets.
+    pub fn len(&self) -> usize {
+        self.assets
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .len()
+    }
+
+    /// Whether no asset is loaded.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Adds (or replaces) an asset.
+    pub fn insert(&self, asset: LoadedAsset) {
+        self.assets
+            .write()
+            .unwrap_or_else(PoisonError::into_inner)
+            .insert(asset.id.clone(), Arc::new(asset));
+    }
+
+    /// Removes an asset from the store; renders holding it finish first.
+    pub fn remove(&self, id: &str) -> Option<Arc<LoadedAsset>> {
+        self.assets
+            .write()
+            .unwrap_or_else(PoisonError::into_inner)
+            .remove(id)
+    }
+
+    /// `(id, path)` of every `*.lfa` file in the folder whose stem is a valid id, sorted.
+    pub fn scan(&self) -> std::io::Result<Vec<(String, PathBuf)>> {
+        let mut found = Vec::new();
+        for entry in std::fs::read_dir(&self.dir)? {
+            let path = entry?.path();
+            if path.extension().and_then(|e| e.to_str()) != Some("lfa") || !path.is_file() {
+                continue;
+            }
+            let Some(stem) = path.file_stem().and_then(|s| s.to_str()) else {
+                continue;
+            };
+            if validate_id(stem).is_ok() {
+                found.push((stem.to_owned(), path));
+            } else {
+                tracing::warn!(path = %path.display(), "skipping asset file: its name is not a valid id");
+            }
+        }
+        found.sort();
+        Ok(found)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ids_cannot_escape_the_folder() {
+        for bad in [
+            "", "..", "../x", "a/b", "a\\b", ".hidden", "-x", "a.lfa", "a b", "ä", "%2e%2e",
+        ] {
+            assert!(validate_id(bad).is_err(), "{bad:?}");
+        }
+        assert!(validate_id(&"a".repeat(65)).is_err());
+        for good in ["demo", "a", "A_1-b", &"a".repeat(64)] {
+            assert!(validate_id(good).is_ok(), "{good:?}");
+        }
+    }
+}

@@ -1,0 +1,631 @@
+//! The HTTP handlers of `/v1`, health, readiness and metrics.
+
+use std::path::{Path as FsPath, PathBuf};
+use std::sync::Arc;
+
+use axum::Json;
+use axum::body::{Body, Bytes};
+use axum::extract::multipart::MultipartRejection;
+use axum::extract::rejection::{BytesRejection, QueryRejection};
+use axum::extract::{Multipart, Path, Query, Request, State};
+use axum::http::{HeaderMap, HeaderName, HeaderValue, StatusCode, Uri, header};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+use futures_util::StreamExt as _;
+use lumigraph_core::bake::BakeOptions;
+use lumigraph_core::mesh::{MeshFormat, load_mesh_from_bytes};
+use lumigraph_core::view::View;
+use serde::{Deserialize, Serialize};
+use tokio::io::AsyncWriteExt as _;
+
+use super::assets::{AssetSummary, LoadedAsset, load_file, validate_id};
+use super::error::{AppError, ErrorBody, ErrorKind};
+use super::frames::{
+    ColorFormat, DepthFormat, Encoding, Knobs, encode_blocking, encode_color, encode_depth,
+};
+use super::jobs::{JobState, JobStatus};
+use super::{AppState, random_id};
+
+/// Counts error responses by kind for `/metrics`.
+pub async fn count_errors(State(state): State<AppState>, request: Request, next: Next) -> Response {
+    let response = next.run(request).await;
+    if let Some(ErrorKind(kind)) = response.extensions().get::<ErrorKind>() {
+        state.metrics().error(kind);
+    }
+    response
+}
+
+/// 404 for unknown routes.
+pub async fn not_found(uri: Uri) -> AppError {
+    AppError::NotFound(format!("no route for {}", uri.path()))
+}
+
+/// 405 for known routes with the wrong method.
+pub async fn method_not_allowed() -> AppError {
+    AppError::Rejected {
+        status: StatusCode::METHOD_NOT_ALLOWED,
+        message: "method not allowed on this route".to_owned(),
+    }
+}
+
+fn body_error(rejection: &BytesRejection, limit: usize) -> AppError {
+    AppError::from_rejection(rejection.status(), rejection.body_text(), limit as u64)
+}
+
+/// Health of the process (always 200 while it answers).
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct Health {
+    /// `ok`.
+    pub status: &'static str,
+}
+
+/// Liveness: the process answers.
+#[utoipa::path(get, path = "/healthz", tag = "ops", responses((status = 200, body = Health)))]
+pub async fn healthz() -> Json<Health> {
+    Json(Health { status: "ok" })
+}
+
+/// Readiness of the service.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct Readiness {
+    /// Whether the device is up and the assets folder has been loaded.
+    pub ready: bool,
+    /// Assets loaded.
+    pub assets: usize,
+    /// The GPU adapter in use.
+    pub adapter: String,
+}
+
+/// Readiness: 200 once the device is up and the assets are loaded (the demo baked if needed).
+#[utoipa::path(get, path = "/readyz", tag = "ops", responses(
+    (status = 200, body = Readiness), (status = 503, body = ErrorBody)))]
+pub async fn readyz(State(state): State<AppState>) -> Result<Json<Readiness>, AppError> {
+    if !state.is_ready() {
+        return Err(AppError::Unavailable(
+            "loading assets (baking the demo scene on first start)".to_owned(),
+        ));
+    }
+    Ok(Json(Readiness {
+        ready: true,
+        assets: state.assets().len(),
+        adapter: state.inner.adapter.clone(),
+    }))
+}
+
+/// Prometheus metrics in the OpenMetrics text format.
+#[utoipa::path(get, path = "/metrics", tag = "ops", responses((status = 200, content_type = "application/openmetrics-text", body = String)))]
+pub async fn metrics(State(state): State<AppState>) -> impl IntoResponse {
+    (
+        [(
+            header::CONTENT_TYPE,
+            "application/openmetrics-text; version=1.0.0; charset=utf-8",
+        )],
+        state.metrics().encode(),
+    )
+}
+
+/// Every asset.
+#[utoipa::path(get, path = "/v1/assets", tag = "assets", responses((status = 200, body = [AssetSummary])))]
+pub async fn list_assets(State(state): State<AppState>) -> Json<Vec<AssetSummary>> {
+    Json(state.assets().list())
+}
+
+/// One asset with its full header.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct AssetDetail {
+    /// The summary.
+    #[serde(flatten)]
+    pub summary: AssetSummary,
+    /// The `.lfa` header: kind, geometry, channels, layers, states, provenance, quality report.
+    #[schema(value_type = Object)]
+    pub header: serde_json::Value,
+}
+
+fn detail(asset: &LoadedAsset) -> Result<AssetDetail, AppError> {
+    let header = serde_json::to_value(&asset.header).map_err(|e| AppError::Internal(e.into()))?;
+    Ok(AssetDetail {
+        summary: asset.summary(),
+        header,
+    })
+}
+
+/// One asset: header (kind, cameras, resolution, layers, states, quality report).
+#[utoipa::path(get, path = "/v1/assets/{id}", tag = "assets",
+    params(("id" = String, Path, description = "asset id")),
+    responses((status = 200, body = AssetDetail), (status = 404, body = ErrorBody), (status = 422, body = ErrorBody)))]
+pub async fn get_asset(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Json<AssetDetail>, AppError> {
+    let asset = state.assets().get(&id)?;
+    Ok(Json(detail(&asset)?))
+}
+
+/// Deletes an asset and its file (token-protected when a token is configured).
+#[utoipa::path(delete, path = "/v1/assets/{id}", tag = "assets",
+    params(("id" = String, Path, description = "asset id")),
+    security(("bearer" = [])),
+    responses((status = 204), (status = 401, body = ErrorBody), (status = 404, body = ErrorBody)))]
+pub async fn delete_asset(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    Path(id): Path<String>,
+) -> Result<StatusCode, AppError> {
+    state.authorize(&headers)?;
+    state.assets().get(&id)?;
+    let Some(asset) = state.assets().remove(&id) else {
+        return Err(AppError::NotFound(format!("no asset with id {id:?}")));
+    };
+    state.metrics().set_assets(state.assets().len());
+    if let Err(err) = tokio::fs::remove_file(&asset.path).await
+        && err.kind() != std::io::ErrorKind::NotFound
+    {
+        return Err(AppError::Internal(
+            anyhow::Error::new(err).context(format!("removing {}", asset.path.display())),
+        ));
+    }
+    tracing::info!(id, "asset deleted");
+    Ok(StatusCode::NO_CONTENT)
+}
+
+/// Query of `POST /v1/assets`.
+#[derive(Deserialize, utoipa::IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct UploadQuery {
+    /// Id of the new asset (default: a random `asset-…` id).
+    pub id: Option<String>,
+}
+
+/// Removes a temporary upload file unless disarmed.
+struct TempFile(Option<PathBuf>);
+
+impl TempFile {
+    fn path(&self) -> Option<&FsPath> {
+        self.0.as_deref()
+    }
+}
+
+impl Drop for TempFile {
+    fn drop(&mut self) {
+        if let Some(path) = self.0.take() {
+            let _ = std::fs::remove_file(path);
+        }
+    }
+}
+
+/// Uploads an `.lfa` file (the raw request body). The file is streamed to a temporary file,
+/// fully verified (every page checksum) and loaded onto the GPU before it is renamed into the
+/// assets folder, so a bad upload leaves nothing behind.
+#[utoipa::path(post, path = "/v1/assets", tag = "assets",
+    params(UploadQuery),
+    request_body(content = Vec<u8>, content_type = "application/octet-stream", description = "an .lfa file"),
+    security(("bearer" = [])),
+    responses((status = 201, body = AssetSummary), (status = 401, body = ErrorBody), (status = 409, body = ErrorBody),
+        (status = 413, body = ErrorBody), (status = 422, body = ErrorBody)))]
+pub async fn upload_asset(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    query: Result<Query<UploadQuery>, QueryRejection>,
+    body: Body,
+) -> Result<Response, AppError> {
+    state.authorize(&headers)?;
+    let Query(query) = query.map_err(|e| AppError::Invalid(e.body_text()))?;
+    let limit = state.config().max_upload_bytes;
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    if declared.is_some_and(|len| len > limit) {
+        return Err(AppError::TooLarge { limit });
+    }
+    let id = query.id.unwrap_or_else(|| random_id("asset"));
+    let reservation = state.assets().reserve(&id)?;
+    let temp = TempFile(Some(
+        state
+            .assets()
+            .dir()
+            .join(format!(".upload-{}.part", random_id("tmp"))),
+    ));
+    let temp_path = temp.path().map(FsPath::to_path_buf).unwrap_or_default();
+    let internal =
+        |e: std::io::Error| AppError::Internal(anyhow::Error::new(e).context("writing the upload"));
+    let mut file = tokio::fs::File::create(&temp_path)
+        .await
+        .map_err(internal)?;
+    let mut stream = body.into_data_stream();
+    let mut written = 0u64;
+    while let Some(chunk) = stream.next().await {
+        let chunk = chunk.map_err(|e| AppError::Rejected {
+            status: StatusCode::BAD_REQUEST,
+            message: format!("reading the upload failed: {e}"),
+        })?;
+        written += chunk.len() as u64;
+        if written > limit {
+            return Err(AppError::TooLarge { limit });
+        }
+        file.write_all(&chunk).await.map_err(internal)?;
+    }
+    file.sync_all().await.map_err(internal)?;
+    drop(file);
+    let loader = state.clone();
+    let check_path = temp_path.clone();
+    let check_id = id.clone();
+    let loaded = tokio::task::spawn_blocking(move || {
+        load_file(loader.pool().renderer(), &check_id, &check_path)
+    })
+    .await
+    .map_err(|e| AppError::Internal(e.into()))?
+    .map_err(|e| AppError::BadUpload(format!("not a usable .lfa asset: {e}")))?;
+    let final_path = state.assets().path_for(&id);
+    tokio::fs::rename(&temp_path, &final_path)
+        .await
+        .map_err(internal)?;
+    let mut temp = temp;
+    temp.0 = None;
+    let asset = LoadedAsset {
+        path: final_path,
+        ..loaded
+    };
+    let summary = asset.summary();
+    state.assets().insert(asset);
+    drop(reservation);
+    state.metrics().set_assets(state.assets().len());
+    tracing::info!(id, bytes = written, "asset uploaded");
+    let location = HeaderValue::from_str(&format!("/v1/assets/{id}"))
+        .map_err(|e| AppError::Internal(e.into()))?;
+    Ok((
+        StatusCode::CREATED,
+        [(header::LOCATION, location)],
+        Json(summary),
+    )
+        .into_response())
+}
+
+/// Body of `POST /v1/assets/{id}/render`.
+#[derive(Debug, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct RenderRequest {
+    /// The view (DESIGN §3), in the asset's world coordinates.
+    #[schema(value_type = super::openapi::ViewSchema)]
+    pub view: View,
+    /// Cameras: 12, 42, 162, 642 (or level 0-3); default all of the asset's.
+    pub lod: Option<u32>,
+    /// March step in bounding-sphere diameters.
+    pub step: Option<f32>,
+    /// Depth agreement tolerance in bounding-sphere diameters.
+    pub tolerance: Option<f32>,
+    /// `default` or `fixed`.
+    #[schema(value_type = Option<String>)]
+    pub method: Option<lumigraph_core::render::Method>,
+    /// RGBA8 background where nothing is hit; default transparent black.
+    pub background: Option<[u8; 4]>,
+    /// Colour codec; default `png`. `none` returns only the depth image.
+    #[serde(default)]
+    pub format: ColorFormat,
+    /// JPEG quality 1..=100, default 90.
+    pub quality: Option<u8>,
+    /// Also return depth in this format (see the response description).
+    pub depth: Option<DepthFormat>,
+}
+
+fn ms_header(value: f64) -> HeaderValue {
+    HeaderValue::from_str(&format!("{value:.3}")).unwrap_or(HeaderValue::from_static("0"))
+}
+
+/// Renders one view. Colour only: the image is the body. With `depth` and `format: none`: the
+/// depth image is the body. With both: a `multipart/mixed` body whose first part is the colour
+/// image and second the depth image (each with `Content-Type`). `X-Render-Ms`, `X-Encode-Ms`,
+/// `X-Frame-Width`, `X-Frame-Height` come with every answer; `X-Depth-Near`/`X-Depth-Far` with
+/// `png16` depth.
+#[utoipa::path(post, path = "/v1/assets/{id}/render", tag = "render",
+    params(("id" = String, Path, description = "asset id")),
+    request_body = RenderRequest,
+    responses(
+        (status = 200, description = "image/png, image/jpeg, image/webp, a depth image or multipart/mixed"),
+        (status = 400, body = ErrorBody, description = "malformed JSON"),
+        (status = 404, body = ErrorBody), (status = 413, body = ErrorBody),
+        (status = 422, body = ErrorBody, description = "invalid view or knobs"),
+        (status = 503, body = ErrorBody, description = "render queue full")))]
+pub async fn render_asset(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    body: Result<Bytes, BytesRejection>,
+) -> Result<Response, AppError> {
+    let body = body.map_err(|e| body_error(&e, state.config().max_json_bytes))?;
+    let asset = state.assets().get(&id)?;
+    let request: RenderRequest =
+        serde_json::from_slice(&body).map_err(|e| AppError::from_json(&e))?;
+    request
+        .view
+        .basis(state.config().max_px)
+        .map_err(|e| AppError::Invalid(e.to_string()))?;
+    let quality = request.quality.unwrap_or(90);
+    if !(1..=100).contains(&quality) {
+        return Err(AppError::Invalid(format!(
+            "quality must be in 1..=100, got {quality}"
+        )));
+    }
+    if request.format == ColorFormat::None && request.depth.is_none() {
+        return Err(AppError::Invalid(
+            "format `none` needs a `depth` format".to_owned(),
+        ));
+    }
+    let knobs = Knobs {
+        lod: request.lod,
+        step: request.step,
+        tolerance: request.tolerance,
+        method: request.method,
+    };
+    let options = knobs.to_options(&asset)?;
+    let rendered = state
+        .pool()
+        .render(Arc::clone(&asset), request.view.clone(), options)
+        .await?;
+    let encoding = Encoding {
+        format: request.format,
+        quality,
+        background: request.background.unwrap_or([0; 4]),
+    };
+    let depth_format = request.depth;
+    let frame = rendered.frame;
+    let (width, height) = (frame.width, frame.height);
+    let ((color, depth), encode_ms) = encode_blocking(move || {
+        let color = encode_color(&frame, encoding)
+            .map_err(|e| AppError::Internal(anyhow::Error::new(e).context("encoding colour")))?;
+        let depth = depth_format.map(|f| encode_depth(&frame, f)).transpose()?;
+        Ok((color, depth))
+    })
+    .await?;
+    let bytes = color.len() + depth.as_ref().map_or(0, |d| d.bytes.len());
+    state.metrics().frame(
+        "http",
+        "full",
+        bytes,
+        rendered.render_ms,
+        encode_ms,
+        encoding.format.name(),
+    );
+    let mut headers = HeaderMap::new();
+    headers.insert(
+        HeaderName::from_static("x-render-ms"),
+        ms_header(rendered.render_ms),
+    );
+    headers.insert(HeaderName::from_static("x-encode-ms"), ms_header(encode_ms));
+    headers.insert(
+        HeaderName::from_static("x-frame-width"),
+        HeaderValue::from(width),
+    );
+    headers.insert(
+        HeaderName::from_static("x-frame-height"),
+        HeaderValue::from(height),
+    );
+    headers.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    let body = if let (Some(depth), Some(depth_format)) = (depth, depth_format) {
+        if let Some((near, far)) = depth.range {
+            headers.insert(
+                HeaderName::from_static("x-depth-near"),
+                ms_header(f64::from(near)),
+            );
+            headers.insert(
+                HeaderName::from_static("x-depth-far"),
+                ms_header(f64::from(far)),
+            );
+        }
+        if request.format == ColorFormat::None {
+            headers.insert(
+                header::CONTENT_TYPE,
+                HeaderValue::from_static(depth_format.mime()),
+            );
+            depth.bytes
+        } else {
+            let boundary = format!("lumigraph-{:032x}", rand::random::<u128>());
+            let content_type =
+                HeaderValue::from_str(&format!("multipart/mixed; boundary={boundary}"))
+                    .map_err(|e| AppError::Internal(e.into()))?;
+            headers.insert(header::CONTENT_TYPE, content_type);
+            multipart_mixed(
+                &boundary,
+                &[
+                    ("color", request.format.mime(), &color),
+                    ("depth", depth_format.mime(), &depth.bytes),
+                ],
+            )
+        }
+    } else {
+        headers.insert(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static(request.format.mime()),
+        );
+        color
+    };
+    Ok((headers, body).into_response())
+}
+
+fn multipart_mixed(boundary: &str, parts: &[(&str, &str, &[u8])]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(parts.iter().map(|p| p.2.len() + 160).sum());
+    for (name, mime, bytes) in parts {
+        out.extend_from_slice(
+            format!("--{boundary}\r\nContent-Type: {mime}\r\nContent-Disposition: inline; name=\"{name}\"\r\nContent-Length: {}\r\n\r\n", bytes.len())
+                .as_bytes(),
+        );
+        out.extend_from_slice(bytes);
+        out.extend_from_slice(b"\r\n");
+    }
+    out.extend_from_slice(format!("--{boundary}--\r\n").as_bytes());
+    out
+}
+
+/// Multipart form of `POST /v1/bake` (for the OpenAPI document).
+#[derive(utoipa::ToSchema)]
+#[allow(dead_code)]
+pub struct BakeForm {
+    /// The mesh file; its extension (.gltf .glb .obj .ply .stl .off) names the format unless
+    /// `format` is given. glTF must embed its buffers and images.
+    #[schema(value_type = String, format = Binary)]
+    pub mesh: Vec<u8>,
+    /// Mesh format, overriding the file name's extension.
+    pub format: Option<String>,
+    /// Bake options as JSON, e.g. `{"cameras": 42, "resolution": 128}`.
+    pub options: Option<String>,
+    /// Id of the asset to create (default: a random `mesh-…` id).
+    pub id: Option<String>,
+}
+
+/// Uploads a mesh and starts a bake job (token-protected when a token is configured). The
+/// mesh and options are checked before the job starts: bad ones are answered 422 at once.
+#[utoipa::path(post, path = "/v1/bake", tag = "bake",
+    request_body(content = BakeForm, content_type = "multipart/form-data"),
+    security(("bearer" = [])),
+    responses((status = 202, body = JobStatus), (status = 400, body = ErrorBody), (status = 401, body = ErrorBody),
+        (status = 409, body = ErrorBody), (status = 413, body = ErrorBody), (status = 422, body = ErrorBody)))]
+pub async fn bake(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    multipart: Result<Multipart, MultipartRejection>,
+) -> Result<Response, AppError> {
+    state.authorize(&headers)?;
+    let mut multipart = multipart.map_err(|e| AppError::Rejected {
+        status: e.status(),
+        message: e.body_text(),
+    })?;
+    let limit = state.config().max_mesh_bytes;
+    let field_error = |e: axum::extract::multipart::MultipartError| {
+        AppError::from_rejection(e.status(), e.body_text(), limit)
+    };
+    let mut mesh: Option<(Option<String>, Bytes)> = None;
+    let mut format = None;
+    let mut options_json = None;
+    let mut id = None;
+    while let Some(field) = multipart.next_field().await.map_err(field_error)? {
+        let name = field.name().unwrap_or_default().to_owned();
+        match name.as_str() {
+            "mesh" => {
+                let file_name = field.file_name().map(str::to_owned);
+                mesh = Some((file_name, field.bytes().await.map_err(field_error)?));
+            }
+            "format" => format = Some(field.text().await.map_err(field_error)?),
+            "options" => options_json = Some(field.text().await.map_err(field_error)?),
+            "id" => id = Some(field.text().await.map_err(field_error)?),
+            other => {
+                return Err(AppError::Invalid(format!(
+                    "unknown form field {other:?}: expected mesh, format, options, id"
+                )));
+            }
+        }
+    }
+    let Some((file_name, mesh_bytes)) = mesh else {
+        return Err(AppError::Invalid(
+            "the form needs a `mesh` file field".to_owned(),
+        ));
+    };
+    let options: BakeOptions = match options_json.as_deref().map(str::trim) {
+        None | Some("") => BakeOptions::default(),
+        Some(json) => serde_json::from_str(json).map_err(|e| AppError::from_json(&e))?,
+    };
+    options
+        .validate()
+        .map_err(|e| AppError::Invalid(format!("invalid bake options: {e}")))?;
+    let format_name = format.or_else(|| {
+        file_name
+            .as_deref()
+            .and_then(|n| FsPath::new(n).extension())
+            .and_then(|e| e.to_str())
+            .map(str::to_owned)
+    });
+    let mesh_format = format_name.as_deref().and_then(MeshFormat::from_extension).ok_or_else(|| {
+        AppError::Invalid(format!(
+            "unknown mesh format {:?}: name the file with a .gltf .glb .obj .ply .stl or .off extension or send a `format` field",
+            format_name.unwrap_or_default()
+        ))
+    })?;
+    let id = id
+        .map(|s| s.trim().to_owned())
+        .filter(|s| !s.is_empty())
+        .unwrap_or_else(|| random_id("mesh"));
+    validate_id(&id)?;
+    let reservation = state.assets().reserve(&id)?;
+    let parsed = tokio::task::spawn_blocking(move || {
+        load_mesh_from_bytes(&mesh_bytes, mesh_format)
+            .map(|mesh| (mesh, lumigraph_core::bake::sha256_hex(&mesh_bytes)))
+    })
+    .await
+    .map_err(|e| AppError::Internal(e.into()))?;
+    let (mesh, sha256) = parsed.map_err(|e| AppError::BadUpload(e.to_string()))?;
+    let job = state.jobs().create(id.clone(), options.cameras);
+    let status = job.status();
+    let worker = state.clone();
+    let source = lumigraph_core::asset::Provenance {
+        source_name: file_name.unwrap_or_else(|| format!("upload.{}", mesh_format.extension())),
+        source_sha256: sha256,
+        ..Default::default()
+    };
+    tokio::spawn(async move {
+        let _reservation = reservation;
+        let Ok(_slot) = worker.inner.bake_slot.acquire().await else {
+            job.fail("the service is shutting down".to_owned());
+            return;
+        };
+        job.set_state(JobState::Running);
+        let path = worker.assets().path_for(&job.asset);
+        let baker = worker.clone();
+        let progress_job = Arc::clone(&job);
+        let result = tokio::task::spawn_blocking(move || {
+            let mut progress = |done, total| progress_job.progress(done, total);
+            let report = baker
+                .inner
+                .baker
+                .bake_to_file(&mesh, &options, &source, &path, &mut progress)
+                .map_err(|e| format!("bake failed: {e}"))?;
+            let asset = load_file(baker.pool().renderer(), &progress_job.asset, &path)
+                .map_err(|e| format!("the baked asset cannot be loaded: {e}"))?;
+            Ok::<_, String>((report, asset))
+        })
+        .await;
+        match result {
+            Ok(Ok((report, asset))) => {
+                worker.assets().insert(asset);
+                worker.metrics().set_assets(worker.assets().len());
+                tracing::info!(
+                    job = job.id,
+                    asset = job.asset,
+                    bake_ms = report.bake_ms,
+                    "bake job done"
+                );
+                job.finish(serde_json::to_value(&report).unwrap_or_default());
+            }
+            Ok(Err(message)) => {
+                tracing::warn!(job = job.id, message, "bake job failed");
+                job.fail(message);
+            }
+            Err(err) => {
+                tracing::error!(job = job.id, %err, "bake task panicked");
+                job.fail("internal error while baking".to_owned());
+            }
+        }
+    });
+    let location = HeaderValue::from_str(&format!("/v1/jobs/{}", status.id))
+        .map_err(|e| AppError::Internal(e.into()))?;
+    Ok((
+        StatusCode::ACCEPTED,
+        [(header::LOCATION, location)],
+        Json(status),
+    )
+        .into_response())
+}
+
+/// Progress and result of a bake job.
+#[utoipa::path(get, path = "/v1/jobs/{id}", tag = "bake",
+    params(("id" = String, Path, description = "job id")),
+    responses((status = 200, body = JobStatus), (status = 404, body = ErrorBody)))]
+pub async fn get_job(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Json<JobStatus>, AppError> {
+    validate_id(&id)?;
+    let job = state
+        .jobs()
+        .get(&id)
+        .ok_or_else(|| AppError::NotFound(format!("no job with id {id:?}")))?;
+    Ok(Json(job.status()))
+}

@@ -1,0 +1,155 @@
+//! Prometheus metrics of the service, served at `/metrics` in the text exposition format.
+
+use prometheus_client::encoding::text::encode;
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::family::Family;
+use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::metrics::histogram::{Histogram, exponential_buckets};
+use prometheus_client::registry::Registry;
+
+type Labels = Vec<(&'static str, String)>;
+
+fn latency_histogram() -> Histogram {
+    // 0.5 ms .. ~16 s in factors of two: covers a cached 64² JPEG up to a 4K lavapipe render.
+    Histogram::new(exponential_buckets(0.0005, 2.0, 16))
+}
+
+/// Every metric the service exports; cheap to update from any task.
+pub struct Metrics {
+    registry: Registry,
+    frames: Family<Labels, Counter>,
+    render_seconds: Family<Labels, Histogram, fn() -> Histogram>,
+    encode_seconds: Family<Labels, Histogram, fn() -> Histogram>,
+    sessions: Gauge,
+    dropped_frames: Counter,
+    bytes_sent: Family<Labels, Counter>,
+    errors: Family<Labels, Counter>,
+    assets: Gauge,
+}
+
+impl Default for Metrics {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Metrics {
+    /// Creates and registers every metric under the `lumigraph_` prefix.
+    pub fn new() -> Self {
+        let mut registry = Registry::with_prefix("lumigraph");
+        let frames = Family::<Labels, Counter>::default();
+        let render_seconds =
+            Family::<Labels, Histogram, fn() -> Histogram>::new_with_constructor(latency_histogram);
+        let encode_seconds =
+            Family::<Labels, Histogram, fn() -> Histogram>::new_with_constructor(latency_histogram);
+        let sessions = Gauge::default();
+        let dropped_frames = Counter::default();
+        let bytes_sent = Family::<Labels, Counter>::default();
+        let errors = Family::<Labels, Counter>::default();
+        let assets = Gauge::default();
+        registry.register(
+            "frames",
+            "Frames rendered and sent, by source (http, stream) and quality (interactive, full)",
+            frames.clone(),
+        );
+        registry.register(
+            "render_seconds",
+            "Render latency (GPU work plus readback) by source",
+            render_seconds.clone(),
+        );
+        registry.register(
+            "encode_seconds",
+            "Image encode latency by codec",
+            encode_seconds.clone(),
+        );
+        registry.register(
+            "stream_sessions",
+            "Open WebSocket stream sessions",
+            sessions.clone(),
+        );
+        registry.register(
+            "dropped_frames",
+            "Stream requests superseded by a newer one before they were rendered",
+            dropped_frames.clone(),
+        );
+        registry.register(
+            "bytes_sent",
+            "Image bytes sent, by source",
+            bytes_sent.clone(),
+        );
+        registry.register(
+            "errors",
+            "Errors answered to clients, by kind",
+            errors.clone(),
+        );
+        registry.register("assets", "Assets loaded and servable", assets.clone());
+        Self {
+            registry,
+            frames,
+            render_seconds,
+            encode_seconds,
+            sessions,
+            dropped_frames,
+            bytes_sent,
+            errors,
+            assets,
+        }
+    }
+
+    /// Counts one frame delivered to a client.
+    pub fn frame(
+        &self,
+        source: &'static str,
+        quality: &'static str,
+        bytes: usize,
+        render_ms: f64,
+        encode_ms: f64,
+        codec: &'static str,
+    ) {
+        self.frames
+            .get_or_create(&vec![
+                ("source", source.to_owned()),
+                ("quality", quality.to_owned()),
+            ])
+            .inc();
+        self.render_seconds
+            .get_or_create(&vec![("source", source.to_owned())])
+            .observe(render_ms / 1e3);
+        self.encode_seconds
+            .get_or_create(&vec![("codec", codec.to_owned())])
+            .observe(encode_ms / 1e3);
+        self.bytes_sent
+            .get_or_create(&vec![("source", source.to_owned())])
+            .inc_by(bytes as u64);
+    }
+
+    /// Counts one error by kind.
+    pub fn error(&self, kind: &str) {
+        self.errors
+            .get_or_create(&vec![("kind", kind.to_owned())])
+            .inc();
+    }
+
+    /// Counts frames dropped for a slow client or superseded by a newer request.
+    pub fn dropped(&self, count: u64) {
+        self.dropped_frames.inc_by(count);
+    }
+
+    /// Adds `delta` to the open sessions gauge.
+    pub fn sessions_add(&self, delta: i64) {
+        self.sessions.inc_by(delta);
+    }
+
+    /// Sets the number of loaded assets.
+    pub fn set_assets(&self, count: usize) {
+        self.assets.set(count as i64);
+    }
+
+    /// The text exposition of every metric.
+    pub fn encode(&self) -> String {
+        let mut out = String::new();
+        // Writing into a String cannot fail.
+        let _ = encode(&mut out, &self.registry);
+        out
+    }
+}

@@ -1,0 +1,272 @@
+// lumigraph web viewer: an orbit camera that streams views to /v1/stream and draws the frames
+// it gets back (protocol: docs/protocol.md). Plain JS, no build step.
+"use strict";
+
+(() => {
+  const $ = (id) => document.getElementById(id);
+  const canvas = $("view");
+  const ctx = canvas.getContext("2d");
+  const statsEl = $("stats");
+  const errorEl = $("error");
+  const CODECS = ["image/png", "image/jpeg", "image/webp"];
+  const QUALITY = ["interactive", "full"];
+
+  const state = {
+    ws: null,
+    asset: null,
+    maxPx: 4096,
+    // Orbit camera around `target`: azimuth/elevation in radians, distance in world units.
+    target: [0, 0, 0],
+    azimuth: 0.6,
+    elevation: 0.35,
+    distance: 3,
+    yfovDeg: 40,
+    requestId: 0,
+    sentAt: new Map(),
+    frames: 0,
+    frameTimes: [],
+    last: null,
+    dirty: false,
+    drawing: Promise.resolve(),
+  };
+  // Exposed for tests and for poking at from the console.
+  window.lumigraphViewer = state;
+
+  function showError(message) {
+    errorEl.textContent = message;
+    errorEl.style.display = message ? "block" : "none";
+    if (message) setTimeout(() => { if (errorEl.textContent === message) showError(""); }, 5000);
+  }
+
+  function viewSize() {
+    const dpr = Math.min(window.devicePixelRatio || 1, 2);
+    const w = Math.max(1, Math.min(state.maxPx, Math.round(canvas.clientWidth * dpr)));
+    const h = Math.max(1, Math.min(state.maxPx, Math.round(canvas.clientHeight * dpr)));
+    return [w, h];
+  }
+
+  function currentView() {
+    const [w, h] = viewSize();
+    const ce = Math.cos(state.elevation), se = Math.sin(state.elevation);
+    const dir = [ce * Math.sin(state.azimuth), se, ce * Math.cos(state.azimuth)];
+    const t = state.target;
+    const eye = [t[0] + dir[0] * state.distance, t[1] + dir[1] * state.distance, t[2] + dir[2] * state.distance];
+    return { eye, target: t.slice(), up: [0, 1, 0], yfov_deg: state.yfovDeg, width: w, height: h };
+  }
+
+  function send(message) {
+    if (state.ws && state.ws.readyState === WebSocket.OPEN) state.ws.send(JSON.stringify(message));
+  }
+
+  // Views are sent at most once per animation frame; the server keeps only the latest anyway.
+  function requestView(still) {
+    if (still) { sendView(true); return; }
+    if (state.dirty) return;
+    state.dirty = true;
+    requestAnimationFrame(() => { state.dirty = false; sendView(false); });
+  }
+
+  function sendView(still) {
+    state.requestId = (state.requestId + 1) >>> 0;
+    state.sentAt.set(state.requestId, performance.now());
+    if (state.sentAt.size > 256) state.sentAt.delete(state.sentAt.keys().next().value);
+    send({ type: "view", id: state.requestId, view: currentView(), still: !!still });
+  }
+
+  function numberOrNull(el) {
+    const v = parseFloat(el.value);
+    return Number.isFinite(v) ? v : null;
+  }
+
+  function sendSettings() {
+    const bg = $("background").value;
+    const rgb = [1, 3, 5].map((i) => parseInt(bg.slice(i, i + 2), 16));
+    send({
+      type: "settings",
+      lod: parseInt($("lod").value, 10) || null,
+      method: $("method").value,
+      step: numberOrNull($("step")),
+      tolerance: numberOrNull($("tolerance")),
+      still_codec: $("still_codec").value,
+      interactive: $("interactive").checked,
+      target_fps: numberOrNull($("target_fps")) || 20,
+      rest_ms: Math.round(numberOrNull($("rest_ms")) ?? 250),
+      background: [rgb[0], rgb[1], rgb[2], 255],
+    });
+  }
+
+  function parseHeader(buf) {
+    const dv = new DataView(buf);
+    const magic = String.fromCharCode(dv.getUint8(0), dv.getUint8(1), dv.getUint8(2), dv.getUint8(3));
+    if (magic !== "LGF1") throw new Error("bad frame magic " + magic);
+    return {
+      headerLen: dv.getUint16(4, true),
+      codec: dv.getUint8(6),
+      quality: dv.getUint8(7),
+      frameId: dv.getUint32(8, true),
+      requestId: dv.getUint32(12, true),
+      width: dv.getUint32(16, true),
+      height: dv.getUint32(20, true),
+      renderMs: dv.getFloat32(24, true),
+      encodeMs: dv.getFloat32(28, true),
+      dropped: dv.getUint32(32, true),
+      cameras: dv.getUint16(36, true),
+      bytes: buf.byteLength,
+    };
+  }
+
+  async function onFrame(buf) {
+    const h = parseHeader(buf);
+    // Ack at once: the server renders the next frame while this one is decoded and drawn.
+    send({ type: "ack", frame: h.frameId });
+    const blob = new Blob([buf.slice(h.headerLen)], { type: CODECS[h.codec] || "image/png" });
+    const bitmap = await createImageBitmap(blob);
+    const [w, h2] = [canvas.clientWidth, canvas.clientHeight];
+    if (canvas.width !== w || canvas.height !== h2) { canvas.width = w; canvas.height = h2; }
+    ctx.imageSmoothingEnabled = true;
+    ctx.clearRect(0, 0, canvas.width, canvas.height);
+    ctx.drawImage(bitmap, 0, 0, canvas.width, canvas.height);
+    bitmap.close();
+    const now = performance.now();
+    state.frames += 1;
+    state.frameTimes.push(now);
+    while (state.frameTimes.length && now - state.frameTimes[0] > 1000) state.frameTimes.shift();
+    const sent = state.sentAt.get(h.requestId);
+    h.latencyMs = sent === undefined ? null : now - sent;
+    state.last = h;
+    updateStats();
+  }
+
+  function updateStats() {
+    const h = state.last;
+    statsEl.dataset.frames = String(state.frames);
+    if (!h) { statsEl.textContent = "waiting for the first frame…"; return; }
+    statsEl.dataset.quality = QUALITY[h.quality] || String(h.quality);
+    statsEl.textContent = [
+      `fps       ${state.frameTimes.length}`,
+      `render    ${h.renderMs.toFixed(1)} ms`,
+      `encode    ${h.encodeMs.toFixed(1)} ms`,
+      `latency   ${h.latencyMs === null ? "-" : h.latencyMs.toFixed(0) + " ms"}`,
+      `bytes     ${(h.bytes / 1024).toFixed(1)} KiB`,
+      `quality   ${QUALITY[h.quality] || h.quality} ${h.width}x${h.height} ${CODECS[h.codec] || "?"}`,
+      `cameras   ${h.cameras}`,
+      `frames    ${state.frames} (dropped ${h.dropped})`,
+    ].join("\n");
+  }
+
+  function fillLod(count) {
+    const lod = $("lod");
+    lod.innerHTML = "";
+    for (const n of [12, 42, 162, 642].filter((n) => n <= count)) {
+      const o = document.createElement("option");
+      o.value = String(n); o.textContent = String(n);
+      lod.appendChild(o);
+    }
+    lod.value = String(count);
+  }
+
+  function resetCamera() {
+    const a = state.asset;
+    state.target = a ? a.center.slice() : [0, 0, 0];
+    state.distance = a ? a.radius * 2.8 : 3;
+    state.azimuth = 0.6;
+    state.elevation = 0.35;
+  }
+
+  function connect(assetId) {
+    if (state.ws) { state.ws.onclose = null; state.ws.close(); }
+    const proto = location.protocol === "https:" ? "wss:" : "ws:";
+    const ws = new WebSocket(`${proto}//${location.host}/v1/stream?asset=${encodeURIComponent(assetId)}`);
+    ws.binaryType = "arraybuffer";
+    state.ws = ws;
+    statsEl.textContent = "connecting…";
+    ws.onmessage = (ev) => {
+      if (typeof ev.data !== "string") {
+        state.drawing = state.drawing.then(() => onFrame(ev.data)).catch((e) => showError(String(e)));
+        return;
+      }
+      const msg = JSON.parse(ev.data);
+      if (msg.type === "hello") {
+        state.asset = msg.asset;
+        state.maxPx = msg.max_px;
+        fillLod(msg.asset.camera_count);
+        resetCamera();
+        sendSettings();
+        sendView(true);
+      } else if (msg.type === "error") {
+        showError(`${msg.kind}: ${msg.message}`);
+      }
+    };
+    ws.onclose = (ev) => {
+      if (state.ws !== ws) return;
+      statsEl.textContent = `disconnected (${ev.code}${ev.reason ? " " + ev.reason : ""}); reconnecting…`;
+      setTimeout(() => { if (state.ws === ws) connect(assetId); }, 1500);
+    };
+  }
+
+  async function loadAssets() {
+    const res = await fetch("/v1/assets");
+    if (!res.ok) throw new Error(`GET /v1/assets: ${res.status}`);
+    const assets = await res.json();
+    const sel = $("asset");
+    sel.innerHTML = "";
+    for (const a of assets) {
+      const o = document.createElement("option");
+      o.value = a.id;
+      o.textContent = `${a.id} (${a.camera_count} cams, ${a.resolution_px}px)`;
+      sel.appendChild(o);
+    }
+    if (!assets.length) { statsEl.textContent = "no assets yet (the demo may still be baking)…"; setTimeout(boot, 2000); return; }
+    connect(assets[0].id);
+  }
+
+  function boot() { loadAssets().catch((e) => { showError(String(e)); setTimeout(boot, 2000); }); }
+
+  // --- input: orbit, pan, zoom -------------------------------------------------------------
+  let drag = null;
+  canvas.addEventListener("contextmenu", (e) => e.preventDefault());
+  canvas.addEventListener("pointerdown", (e) => {
+    drag = { x: e.clientX, y: e.clientY, pan: e.button === 2 || e.shiftKey };
+    canvas.setPointerCapture(e.pointerId);
+    canvas.classList.add("dragging");
+  });
+  canvas.addEventListener("pointermove", (e) => {
+    if (!drag) return;
+    const dx = e.clientX - drag.x, dy = e.clientY - drag.y;
+    drag.x = e.clientX; drag.y = e.clientY;
+    if (drag.pan) {
+      // Move the target in the view plane, scaled so the object follows the pointer.
+      const v = currentView();
+      const f = norm(sub(v.target, v.eye));
+      const r = norm(cross(f, [0, 1, 0]));
+      const u = cross(r, f);
+      const perPx = (2 * state.distance * Math.tan((state.yfovDeg * Math.PI) / 360)) / Math.max(1, canvas.clientHeight);
+      for (let i = 0; i < 3; i++) state.target[i] += (-dx * r[i] + dy * u[i]) * perPx;
+    } else {
+      state.azimuth -= dx * 0.008;
+      state.elevation = Math.max(-1.55, Math.min(1.55, state.elevation + dy * 0.008));
+    }
+    requestView(false);
+  });
+  const endDrag = () => { drag = null; canvas.classList.remove("dragging"); };
+  canvas.addEventListener("pointerup", endDrag);
+  canvas.addEventListener("pointercancel", endDrag);
+  canvas.addEventListener("wheel", (e) => {
+    e.preventDefault();
+    state.distance = Math.max(1e-3, state.distance * Math.exp(e.deltaY * 0.001));
+    requestView(false);
+  }, { passive: false });
+  canvas.addEventListener("dblclick", () => { resetCamera(); requestView(false); });
+  window.addEventListener("resize", () => requestView(false));
+
+  for (const id of ["lod", "method", "step", "tolerance", "still_codec", "interactive", "target_fps", "rest_ms", "background"]) {
+    $(id).addEventListener("change", () => { sendSettings(); requestView(false); });
+  }
+  $("asset").addEventListener("change", (e) => connect(e.target.value));
+
+  function sub(a, b) { return [a[0] - b[0], a[1] - b[1], a[2] - b[2]]; }
+  function cross(a, b) { return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]; }
+  function norm(a) { const l = Math.hypot(a[0], a[1], a[2]) || 1; return [a[0] / l, a[1] / l, a[2] / l]; }
+
+  boot();
+})();

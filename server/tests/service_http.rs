@@ -1,0 +1,961 @@
+//! Service tests: the router driven with `oneshot` (every endpoint, every bad input of issue 3)
+//! and one real server on port 0 driven over a WebSocket. GPU work runs on lavapipe here; the
+//! asset is tiny (12 cameras, 32 px maps) so the whole file runs in seconds.
+
+use std::fmt::Write as _;
+use std::sync::{Arc, OnceLock};
+use std::time::Duration;
+
+use axum::body::Body;
+use axum::http::{Request, StatusCode, header};
+use futures_util::{SinkExt as _, StreamExt as _};
+use lumigraph_core::bake::{BakeOptions, Baker};
+use lumigraph_core::gpu::Gpu;
+use lumigraph_core::mesh::Mesh;
+use lumigraph_server::service::{AppState, ServeConfig, app, run};
+use tokio_tungstenite::tungstenite::Message;
+use tower::ServiceExt as _;
+
+pub const TOKEN: &str = "test-token";
+
+/// A unit sphere approximated by the level-1 icosphere of the core's camera set (42 vertices,
+/// 80 triangles; winding counter-clockwise seen from outside).
+pub fn icosahedron() -> Mesh {
+    let set = lumigraph_core::geometry::camera_set();
+    let positions = set
+        .positions_for_level(1)
+        .iter()
+        .map(|p| [p.x, p.y, p.z])
+        .collect();
+    let triangles = set.level_triangles(1).iter().map(|t| t.v).collect();
+    Mesh::from_arrays(positions, triangles, None).expect("valid icosphere")
+}
+
+/// The same icosahedron as OBJ text, for bake uploads.
+pub fn icosahedron_obj() -> String {
+    let mesh = icosahedron();
+    let mut out = String::new();
+    for p in &mesh.positions {
+        let _ = writeln!(out, "v {} {} {}", p[0], p[1], p[2]);
+    }
+    for t in &mesh.triangles {
+        let _ = writeln!(out, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    out
+}
+
+pub fn gpu() -> Arc<Gpu> {
+    Gpu::shared().expect("a GPU adapter (lavapipe: apt install mesa-vulkan-drivers)")
+}
+
+pub fn tiny_options() -> BakeOptions {
+    BakeOptions {
+        cameras: 12,
+        resolution: 32,
+        ..BakeOptions::default()
+    }
+}
+
+/// The tiny asset's bytes, baked once per test binary.
+pub fn tiny_asset() -> &'static [u8] {
+    static BYTES: OnceLock<Vec<u8>> = OnceLock::new();
+    BYTES.get_or_init(|| {
+        let baker = Baker::new(gpu());
+        baker
+            .bake_to_bytes(
+                &icosahedron(),
+                &tiny_options(),
+                &lumigraph_core::asset::Provenance::default(),
+                &mut |_, _| {},
+            )
+            .expect("baking the tiny asset")
+    })
+}
+
+/// A fresh assets folder holding `tiny.lfa` and a loaded state over it.
+pub async fn setup(
+    token: Option<&str>,
+    tweak: impl FnOnce(&mut ServeConfig),
+) -> (tempfile::TempDir, AppState) {
+    let dir = tempfile::tempdir().expect("temp dir");
+    std::fs::write(dir.path().join("tiny.lfa"), tiny_asset()).expect("writing the asset");
+    let mut config = ServeConfig::new(dir.path(), "127.0.0.1:0".parse().expect("addr"));
+    config.token = token.map(str::to_owned);
+    config.bake_demo_if_empty = false;
+    config.max_px = 512;
+    tweak(&mut config);
+    let state = tokio::task::spawn_blocking(move || AppState::new(config, gpu()))
+        .await
+        .expect("join")
+        .expect("state");
+    state.load_assets().await.expect("loading assets");
+    (dir, state)
+}
+
+/// A view of the unit icosahedron from distance 3.
+pub fn view_json(width: u32, height: u32) -> serde_json::Value {
+    serde_json::json!({"eye": [0.3, 0.5, 3.0], "target": [0, 0, 0], "up": [0, 1, 0], "yfov_deg": 40,
+                       "width": width, "height": height})
+}
+
+struct Reply {
+    status: StatusCode,
+    headers: axum::http::HeaderMap,
+    body: Vec<u8>,
+}
+
+impl Reply {
+    fn json(&self) -> serde_json::Value {
+        serde_json::from_slice(&self.body)
+            .unwrap_or_else(|e| panic!("not JSON ({e}): {}", String::from_utf8_lossy(&self.body)))
+    }
+
+    fn error_kind(&self) -> String {
+        self.json()["error"]["kind"]
+            .as_str()
+            .unwrap_or_default()
+            .to_owned()
+    }
+
+    fn header(&self, name: &str) -> &str {
+        self.headers
+            .get(name)
+            .and_then(|v| v.to_str().ok())
+            .unwrap_or_default()
+    }
+}
+
+async fn send(state: &AppState, request: Request<Body>) -> Reply {
+    let response = app(state.clone())
+        .oneshot(request)
+        .await
+        .expect("infallible");
+    let status = response.status();
+    let headers = response.headers().clone();
+    let body = axum::body::to_bytes(response.into_body(), usize::MAX)
+        .await
+        .expect("body")
+        .to_vec();
+    Reply {
+        status,
+        headers,
+        body,
+    }
+}
+
+async fn get(state: &AppState, uri: &str) -> Reply {
+    send(
+        state,
+        Request::get(uri).body(Body::empty()).expect("request"),
+    )
+    .await
+}
+
+async fn post_json(state: &AppState, uri: &str, body: impl Into<Body>) -> Reply {
+    let request = Request::post(uri)
+        .header(header::CONTENT_TYPE, "application/json")
+        .body(body.into())
+        .expect("request");
+    send(state, request).await
+}
+
+async fn render(state: &AppState, body: &serde_json::Value) -> Reply {
+    post_json(state, "/v1/assets/tiny/render", body.to_string()).await
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn ops_endpoints_and_viewer() {
+    let (_dir, state) = setup(None, |_| {}).await;
+    assert_eq!(get(&state, "/healthz").await.status, StatusCode::OK);
+    let ready = get(&state, "/readyz").await;
+    assert_eq!(ready.status, StatusCode::OK);
+    assert_eq!(ready.json()["assets"], 1);
+    let openapi = get(&state, "/openapi.json").await.json();
+    for path in [
+        "/v1/assets",
+        "/v1/assets/{id}",
+        "/v1/assets/{id}/render",
+        "/v1/bake",
+        "/v1/jobs/{id}",
+        "/v1/stream",
+    ] {
+        assert!(
+            openapi["paths"][path].is_object(),
+            "{path} missing from the OpenAPI document"
+        );
+    }
+    let page = get(&state, "/").await;
+    assert!(String::from_utf8_lossy(&page.body).contains("viewer.js"));
+    let script = get(&state, "/viewer.js").await;
+    assert!(script.header("content-type").starts_with("text/javascript"));
+    // One render so the histograms have samples, then the metrics.
+    assert_eq!(
+        render(&state, &serde_json::json!({"view": view_json(16, 16)}))
+            .await
+            .status,
+        StatusCode::OK
+    );
+    assert_eq!(
+        get(&state, "/v1/assets/nope").await.status,
+        StatusCode::NOT_FOUND
+    );
+    let metrics = String::from_utf8(get(&state, "/metrics").await.body).expect("utf-8");
+    for name in [
+        "lumigraph_frames_total",
+        "lumigraph_render_seconds",
+        "lumigraph_encode_seconds",
+        "lumigraph_stream_sessions",
+        "lumigraph_dropped_frames_total",
+        "lumigraph_bytes_sent_total",
+        "lumigraph_errors_total",
+        "lumigraph_assets",
+    ] {
+        assert!(
+            metrics.contains(name),
+            "{name} missing from /metrics:\n{metrics}"
+        );
+    }
+    assert!(metrics.contains("kind=\"not_found\""), "{metrics}");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn not_ready_until_loaded() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut config = ServeConfig::new(dir.path(), "127.0.0.1:0".parse().expect("addr"));
+    config.bake_demo_if_empty = false;
+    let state = tokio::task::spawn_blocking(move || AppState::new(config, gpu()))
+        .await
+        .expect("join")
+        .expect("state");
+    let reply = get(&state, "/readyz").await;
+    assert_eq!(reply.status, StatusCode::SERVICE_UNAVAILABLE);
+    assert_eq!(reply.error_kind(), "unavailable");
+    state.load_assets().await.expect("load");
+    assert_eq!(get(&state, "/readyz").await.status, StatusCode::OK);
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn lists_and_inspects_assets() {
+    let (_dir, state) = setup(None, |_| {}).await;
+    let list = get(&state, "/v1/assets").await.json();
+    assert_eq!(list[0]["id"], "tiny");
+    assert_eq!(list[0]["camera_count"], 12);
+    assert_eq!(list[0]["resolution_px"], 32);
+    let detail = get(&state, "/v1/assets/tiny").await;
+    assert_eq!(detail.status, StatusCode::OK);
+    let detail = detail.json();
+    assert_eq!(detail["header"]["geometry"]["camera_count"], 12);
+    assert_eq!(detail["header"]["kind"], "spherical");
+    assert!(detail["header"]["layers"].is_array());
+    let missing = get(&state, "/v1/assets/other").await;
+    assert_eq!(missing.status, StatusCode::NOT_FOUND);
+    assert_eq!(missing.error_kind(), "not_found");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn path_traversal_ids_are_rejected() {
+    let (dir, state) = setup(None, |_| {}).await;
+    std::fs::write(dir.path().join(".hidden.lfa"), tiny_asset()).expect("write");
+    for uri in [
+        "/v1/assets/..%2F..%2Fetc%2Fpasswd",
+        "/v1/assets/.hidden",
+        "/v1/assets/%2e%2e",
+        "/v1/assets/a.lfa",
+        "/v1/jobs/..%2Fx",
+    ] {
+        let reply = get(&state, uri).await;
+        assert_eq!(reply.status, StatusCode::UNPROCESSABLE_ENTITY, "{uri}");
+        assert_eq!(reply.error_kind(), "invalid", "{uri}");
+    }
+    let reply = send(
+        &state,
+        Request::post("/v1/assets?id=..%2Fescape")
+            .body(Body::from(tiny_asset().to_vec()))
+            .expect("request"),
+    )
+    .await;
+    assert_eq!(reply.status, StatusCode::UNPROCESSABLE_ENTITY);
+    assert!(
+        !dir.path()
+            .parent()
+            .expect("parent")
+            .join("escape.lfa")
+            .exists()
+    );
+    // The router never decodes `..` into a path: plain `..` segments do not reach a handler.
+    assert_ne!(
+        get(&state, "/v1/assets/../../etc/passwd").await.status,
+        StatusCode::OK
+    );
+}
+
+fn is_png(bytes: &[u8]) -> bool {
+    bytes.starts_with(b"\x89PNG\r\n\x1a\n")
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn renders_every_codec() {
+    let (_dir, state) = setup(None, |_| {}).await;
+    let png = render(&state, &serde_json::json!({"view": view_json(48, 32)})).await;
+    assert_eq!(
+        png.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&png.body)
+    );
+    assert_eq!(png.header("content-type"), "image/png");
+    assert!(is_png(&png.body));
+    assert!(png.header("x-render-ms").parse::<f64>().is_ok());
+    assert!(png.header("x-encode-ms").parse::<f64>().is_ok());
+    assert_eq!(png.header("x-frame-width"), "48");
+    let (w, h, rgba) = lumigraph_core::image_io::decode_png_rgba8(&png.body).expect("decode");
+    assert_eq!((w, h), (48, 32));
+    assert!(
+        rgba.chunks_exact(4).any(|p| p[3] == 255),
+        "the object is in view"
+    );
+    assert!(
+        rgba.chunks_exact(4).any(|p| p[3] == 0),
+        "the background is transparent"
+    );
+
+    let jpeg = render(&state, &serde_json::json!({"view": view_json(32, 32), "format": "jpeg", "quality": 50, "background": [255, 0, 0, 255]})).await;
+    assert_eq!(jpeg.header("content-type"), "image/jpeg");
+    assert!(jpeg.body.starts_with(&[0xff, 0xd8]));
+    let webp = render(&state, &serde_json::json!({"view": view_json(32, 32), "format": "webp", "lod": 12, "method": "fixed"})).await;
+    assert_eq!(webp.header("content-type"), "image/webp");
+    assert_eq!(&webp.body[8..12], b"WEBP");
+
+    let npy = render(
+        &state,
+        &serde_json::json!({"view": view_json(16, 8), "format": "none", "depth": "npy"}),
+    )
+    .await;
+    assert_eq!(npy.header("content-type"), "application/x-npy");
+    let (dw, dh, depth) = lumigraph_core::image_io::decode_depth_npy(&npy.body).expect("npy");
+    assert_eq!((dw, dh), (16, 8));
+    assert!(depth.iter().any(|d| d.is_finite()) && depth.iter().any(|d| d.is_infinite()));
+
+    let both = render(
+        &state,
+        &serde_json::json!({"view": view_json(16, 16), "depth": "png16"}),
+    )
+    .await;
+    let content_type = both.header("content-type").to_owned();
+    let boundary = content_type
+        .strip_prefix("multipart/mixed; boundary=")
+        .expect("multipart");
+    let text = String::from_utf8_lossy(&both.body);
+    assert_eq!(text.matches(&format!("--{boundary}\r\n")).count(), 2);
+    assert!(text.contains("Content-Type: image/png"));
+    assert!(text.ends_with(&format!("--{boundary}--\r\n")));
+    let near: f64 = both.header("x-depth-near").parse().expect("near");
+    let far: f64 = both.header("x-depth-far").parse().expect("far");
+    assert!(near > 0.0 && far >= near);
+
+    let exr = render(
+        &state,
+        &serde_json::json!({"view": view_json(8, 8), "format": "none", "depth": "exr"}),
+    )
+    .await;
+    assert_eq!(exr.status, StatusCode::OK);
+    assert_eq!(
+        lumigraph_core::image_io::decode_depth_exr(&exr.body)
+            .expect("exr")
+            .2
+            .len(),
+        64
+    );
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn bad_render_requests_get_json_errors() {
+    let (_dir, state) = setup(None, |c| c.max_json_bytes = 4096).await;
+    let view = view_json(16, 16);
+    let with = |key: &str, value: serde_json::Value| {
+        let mut v = view.clone();
+        v[key] = value;
+        serde_json::json!({"view": v})
+    };
+    let cases: Vec<(String, StatusCode, &str)> = vec![
+        ("{\"view\": ".to_owned(), StatusCode::BAD_REQUEST, "malformed_json"),
+        ("not json".to_owned(), StatusCode::BAD_REQUEST, "malformed_json"),
+        (r#"{"view": {"eye": [NaN, 0, 3], "target": [0,0,0], "yfov_deg": 40, "width": 8, "height": 8}}"#.to_owned(), StatusCode::BAD_REQUEST, "malformed_json"),
+        (r#"{"view": {"eye": [1e999, 0, 3], "target": [0,0,0], "yfov_deg": 40, "width": 8, "height": 8}}"#.to_owned(), StatusCode::BAD_REQUEST, "malformed_json"),
+        (with("yfov_deg", 180.into()).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (with("yfov_deg", 0.into()).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (with("width", 513.into()).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (with("height", 0.into()).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (with("width", (-4).into()).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (with("target", serde_json::json!([0.3, 0.5, 3.0])).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (with("up", serde_json::json!([0, 0, 0])).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (with("zoom", 2.into()).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (serde_json::json!({"view": view, "lod": 13}).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (serde_json::json!({"view": view, "lod": 42}).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (serde_json::json!({"view": view, "step": 0}).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (serde_json::json!({"view": view, "format": "gif"}).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (serde_json::json!({"view": view, "format": "jpeg", "quality": 0}).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (serde_json::json!({"view": view, "background": [0, 0, 0, 256]}).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (serde_json::json!({"view": view, "format": "none"}).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (serde_json::json!({"view": view, "extra": 1}).to_string(), StatusCode::UNPROCESSABLE_ENTITY, "invalid"),
+        (format!("{{\"view\": {view}, \"pad\": \"{}\"}}", "x".repeat(5000)), StatusCode::PAYLOAD_TOO_LARGE, "too_large"),
+    ];
+    for (body, status, kind) in cases {
+        let reply = post_json(&state, "/v1/assets/tiny/render", body.clone()).await;
+        assert_eq!(
+            reply.status,
+            status,
+            "{body:.200}: {}",
+            String::from_utf8_lossy(&reply.body)
+        );
+        assert_eq!(reply.error_kind(), kind, "{body:.200}");
+        assert!(
+            !reply.json()["error"]["message"]
+                .as_str()
+                .unwrap_or_default()
+                .is_empty()
+        );
+    }
+    let unknown = post_json(
+        &state,
+        "/v1/assets/ghost/render",
+        serde_json::json!({"view": view}).to_string(),
+    )
+    .await;
+    assert_eq!(unknown.status, StatusCode::NOT_FOUND);
+    let wrong_method = get(&state, "/v1/assets/tiny/render").await;
+    assert_eq!(wrong_method.status, StatusCode::METHOD_NOT_ALLOWED);
+    assert_eq!(wrong_method.error_kind(), "rejected");
+    // The server is still fine.
+    assert_eq!(
+        render(&state, &serde_json::json!({"view": view}))
+            .await
+            .status,
+        StatusCode::OK
+    );
+}
+
+fn upload(uri: &str, token: Option<&str>, body: Vec<u8>) -> Request<Body> {
+    let mut request = Request::post(uri).header(header::CONTENT_TYPE, "application/octet-stream");
+    if let Some(token) = token {
+        request = request.header(header::AUTHORIZATION, format!("Bearer {token}"));
+    }
+    request.body(Body::from(body)).expect("request")
+}
+
+fn dir_names(dir: &std::path::Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .expect("dir")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn upload_and_delete_assets() {
+    let (dir, state) = setup(Some(TOKEN), |c| c.max_upload_bytes = 1 << 20).await;
+    let asset = tiny_asset().to_vec();
+    assert_eq!(
+        send(&state, upload("/v1/assets?id=copy", None, asset.clone()))
+            .await
+            .status,
+        StatusCode::UNAUTHORIZED
+    );
+    let wrong = send(
+        &state,
+        upload("/v1/assets?id=copy", Some("nope"), asset.clone()),
+    )
+    .await;
+    assert_eq!(wrong.status, StatusCode::UNAUTHORIZED);
+    assert_eq!(wrong.header("www-authenticate"), "Bearer");
+
+    // Corrupt uploads: 422 and nothing left on disk.
+    let mut corrupt = asset.clone();
+    let last = corrupt.len() - 10;
+    corrupt[last] ^= 0xff;
+    for bad in [
+        b"not an asset".to_vec(),
+        asset[..asset.len() / 2].to_vec(),
+        corrupt,
+        Vec::new(),
+    ] {
+        let reply = send(&state, upload("/v1/assets?id=bad", Some(TOKEN), bad)).await;
+        assert_eq!(
+            reply.status,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "{}",
+            String::from_utf8_lossy(&reply.body)
+        );
+        assert_eq!(reply.error_kind(), "bad_upload");
+        assert_eq!(dir_names(dir.path()), vec!["tiny.lfa"]);
+    }
+    let too_big = send(
+        &state,
+        upload("/v1/assets?id=big", Some(TOKEN), vec![0; (1 << 20) + 1]),
+    )
+    .await;
+    assert_eq!(too_big.status, StatusCode::PAYLOAD_TOO_LARGE);
+    assert_eq!(dir_names(dir.path()), vec!["tiny.lfa"]);
+
+    let created = send(
+        &state,
+        upload("/v1/assets?id=copy", Some(TOKEN), asset.clone()),
+    )
+    .await;
+    assert_eq!(
+        created.status,
+        StatusCode::CREATED,
+        "{}",
+        String::from_utf8_lossy(&created.body)
+    );
+    assert_eq!(created.header("location"), "/v1/assets/copy");
+    assert_eq!(dir_names(dir.path()), vec!["copy.lfa", "tiny.lfa"]);
+    assert_eq!(
+        send(
+            &state,
+            upload("/v1/assets?id=copy", Some(TOKEN), asset.clone())
+        )
+        .await
+        .status,
+        StatusCode::CONFLICT
+    );
+    let rendered = post_json(
+        &state,
+        "/v1/assets/copy/render",
+        serde_json::json!({"view": view_json(8, 8)}).to_string(),
+    )
+    .await;
+    assert_eq!(rendered.status, StatusCode::OK);
+
+    let delete = |token: Option<&str>| {
+        let mut request = Request::delete("/v1/assets/copy");
+        if let Some(token) = token {
+            request = request.header(header::AUTHORIZATION, format!("Bearer {token}"));
+        }
+        request.body(Body::empty()).expect("request")
+    };
+    assert_eq!(
+        send(&state, delete(None)).await.status,
+        StatusCode::UNAUTHORIZED
+    );
+    assert_eq!(
+        send(&state, delete(Some(TOKEN))).await.status,
+        StatusCode::NO_CONTENT
+    );
+    assert_eq!(
+        send(&state, delete(Some(TOKEN))).await.status,
+        StatusCode::NOT_FOUND
+    );
+    assert_eq!(
+        get(&state, "/v1/assets/copy").await.status,
+        StatusCode::NOT_FOUND
+    );
+    assert_eq!(dir_names(dir.path()), vec!["tiny.lfa"]);
+}
+
+fn bake_form(fields: &[(&str, Option<&str>, &[u8])]) -> (String, Vec<u8>) {
+    let boundary = "XtestBoundaryX".to_owned();
+    let mut body = Vec::new();
+    for (name, file_name, bytes) in fields {
+        body.extend_from_slice(format!("--{boundary}\r\n").as_bytes());
+        match file_name {
+            Some(f) => body.extend_from_slice(format!("Content-Disposition: form-data; name=\"{name}\"; filename=\"{f}\"\r\nContent-Type: application/octet-stream\r\n\r\n").as_bytes()),
+            None => body.extend_from_slice(format!("Content-Disposition: form-data; name=\"{name}\"\r\n\r\n").as_bytes()),
+        }
+        body.extend_from_slice(bytes);
+        body.extend_from_slice(b"\r\n");
+    }
+    body.extend_from_slice(format!("--{boundary}--\r\n").as_bytes());
+    (format!("multipart/form-data; boundary={boundary}"), body)
+}
+
+async fn post_bake(
+    state: &AppState,
+    token: Option<&str>,
+    fields: &[(&str, Option<&str>, &[u8])],
+) -> Reply {
+    let (content_type, body) = bake_form(fields);
+    let mut request = Request::post("/v1/bake").header(header::CONTENT_TYPE, content_type);
+    if let Some(token) = token {
+        request = request.header(header::AUTHORIZATION, format!("Bearer {token}"));
+    }
+    send(state, request.body(Body::from(body)).expect("request")).await
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn bake_jobs() {
+    let (dir, state) = setup(Some(TOKEN), |c| c.max_mesh_bytes = 64 << 10).await;
+    let obj = icosahedron_obj();
+    let options = br#"{"cameras": 12, "resolution": 16}"#;
+    let fields: [(&str, Option<&str>, &[u8]); 3] = [
+        ("mesh", Some("ico.obj"), obj.as_bytes()),
+        ("options", None, options),
+        ("id", None, b"baked"),
+    ];
+    assert_eq!(
+        post_bake(&state, None, &fields).await.status,
+        StatusCode::UNAUTHORIZED
+    );
+
+    let bad_mesh = post_bake(
+        &state,
+        Some(TOKEN),
+        &[("mesh", Some("x.obj"), b"v 0 0 0\nf 1 2 3\n")],
+    )
+    .await;
+    assert_eq!(
+        bad_mesh.status,
+        StatusCode::UNPROCESSABLE_ENTITY,
+        "{}",
+        String::from_utf8_lossy(&bad_mesh.body)
+    );
+    assert_eq!(bad_mesh.error_kind(), "bad_upload");
+    let bad_format = post_bake(
+        &state,
+        Some(TOKEN),
+        &[("mesh", Some("x.xyz"), obj.as_bytes())],
+    )
+    .await;
+    assert_eq!(bad_format.status, StatusCode::UNPROCESSABLE_ENTITY);
+    let bad_options = post_bake(
+        &state,
+        Some(TOKEN),
+        &[
+            ("mesh", Some("x.obj"), obj.as_bytes()),
+            ("options", None, br#"{"cameras": 13}"#),
+        ],
+    )
+    .await;
+    assert_eq!(bad_options.status, StatusCode::UNPROCESSABLE_ENTITY);
+    let malformed_options = post_bake(
+        &state,
+        Some(TOKEN),
+        &[
+            ("mesh", Some("x.obj"), obj.as_bytes()),
+            ("options", None, b"{cameras"),
+        ],
+    )
+    .await;
+    assert_eq!(malformed_options.status, StatusCode::BAD_REQUEST);
+    let too_big = post_bake(
+        &state,
+        Some(TOKEN),
+        &[("mesh", Some("x.obj"), &vec![b' '; 70 << 10])],
+    )
+    .await;
+    assert_eq!(
+        too_big.status,
+        StatusCode::PAYLOAD_TOO_LARGE,
+        "{}",
+        String::from_utf8_lossy(&too_big.body)
+    );
+    let traversal = post_bake(
+        &state,
+        Some(TOKEN),
+        &[
+            ("mesh", Some("x.obj"), obj.as_bytes()),
+            ("id", None, b"../up"),
+        ],
+    )
+    .await;
+    assert_eq!(traversal.status, StatusCode::UNPROCESSABLE_ENTITY);
+    assert_eq!(dir_names(dir.path()), vec!["tiny.lfa"]);
+
+    let accepted = post_bake(&state, Some(TOKEN), &fields).await;
+    assert_eq!(
+        accepted.status,
+        StatusCode::ACCEPTED,
+        "{}",
+        String::from_utf8_lossy(&accepted.body)
+    );
+    let job = accepted.json();
+    assert_eq!(job["asset"], "baked");
+    let job_uri = accepted.header("location").to_owned();
+    assert_eq!(
+        post_bake(&state, Some(TOKEN), &fields).await.status,
+        StatusCode::CONFLICT
+    );
+    let mut status = serde_json::Value::Null;
+    for _ in 0..600 {
+        status = get(&state, &job_uri).await.json();
+        if status["state"] == "done" || status["state"] == "failed" {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert_eq!(status["state"], "done", "{status}");
+    assert_eq!(status["cameras_done"], 12);
+    assert!(status["report"]["asset_bytes"].as_u64().unwrap_or(0) > 0);
+    let rendered = post_json(
+        &state,
+        "/v1/assets/baked/render",
+        serde_json::json!({"view": view_json(8, 8)}).to_string(),
+    )
+    .await;
+    assert_eq!(rendered.status, StatusCode::OK);
+    assert_eq!(
+        get(&state, "/v1/jobs/job-0000000000000000").await.status,
+        StatusCode::NOT_FOUND
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// A real server on port 0, driven over a WebSocket.
+
+struct FrameHeader {
+    codec: u8,
+    quality: u8,
+    frame_id: u32,
+    request_id: u32,
+    width: u32,
+    height: u32,
+    dropped: u32,
+}
+
+fn parse_frame(bytes: &[u8]) -> (FrameHeader, &[u8]) {
+    assert_eq!(&bytes[..4], b"LGF1");
+    let u32_at =
+        |i: usize| u32::from_le_bytes([bytes[i], bytes[i + 1], bytes[i + 2], bytes[i + 3]]);
+    let header_len = usize::from(u16::from_le_bytes([bytes[4], bytes[5]]));
+    let header = FrameHeader {
+        codec: bytes[6],
+        quality: bytes[7],
+        frame_id: u32_at(8),
+        request_id: u32_at(12),
+        width: u32_at(16),
+        height: u32_at(20),
+        dropped: u32_at(32),
+    };
+    (header, &bytes[header_len..])
+}
+
+type Ws =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+async fn next_message(ws: &mut Ws) -> Message {
+    loop {
+        let message = tokio::time::timeout(Duration::from_secs(60), ws.next())
+            .await
+            .expect("a message in time")
+            .expect("open")
+            .expect("ok");
+        if !matches!(message, Message::Ping(_) | Message::Pong(_)) {
+            return message;
+        }
+    }
+}
+
+async fn next_frame(ws: &mut Ws) -> (FrameHeader, Vec<u8>) {
+    match next_message(ws).await {
+        Message::Binary(bytes) => {
+            let (header, image) = parse_frame(&bytes);
+            (header, image.to_vec())
+        }
+        other => panic!("expected a frame, got {other:?}"),
+    }
+}
+
+async fn next_json(ws: &mut Ws) -> serde_json::Value {
+    match next_message(ws).await {
+        Message::Text(text) => serde_json::from_str(text.as_str()).expect("JSON"),
+        other => panic!("expected text, got {other:?}"),
+    }
+}
+
+async fn send_json(ws: &mut Ws, value: serde_json::Value) {
+    ws.send(Message::text(value.to_string()))
+        .await
+        .expect("send");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn websocket_stream_on_a_real_server() {
+    let (_dir, state) = setup(None, |c| c.max_sessions = 1).await;
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let addr = listener.local_addr().expect("addr");
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let server = tokio::spawn(run(listener, state, async move {
+        let _ = stop_rx.await;
+    }));
+    let url = format!("ws://{addr}/v1/stream?asset=tiny");
+
+    // Unknown asset: 404 before the upgrade.
+    match tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset=ghost")).await {
+        Err(tokio_tungstenite::tungstenite::Error::Http(response)) => {
+            assert_eq!(response.status(), StatusCode::NOT_FOUND);
+        }
+        other => panic!("expected 404, got {other:?}"),
+    }
+    let (mut ws, _) = tokio_tungstenite::connect_async(&url)
+        .await
+        .expect("connect");
+    // The session limit is 1: a second client gets 503 with a clear message.
+    match tokio_tungstenite::connect_async(&url).await {
+        Err(tokio_tungstenite::tungstenite::Error::Http(response)) => {
+            assert_eq!(response.status(), StatusCode::SERVICE_UNAVAILABLE);
+            let body = String::from_utf8_lossy(response.body().as_deref().unwrap_or_default())
+                .into_owned();
+            assert!(body.contains("session limit"), "{body}");
+        }
+        other => panic!("expected 503, got {other:?}"),
+    }
+
+    let hello = next_json(&mut ws).await;
+    assert_eq!(hello["type"], "hello");
+    assert_eq!(hello["asset"]["id"], "tiny");
+    assert_eq!(hello["header_len"], 40);
+
+    // Full quality only, lossless: each view gets exactly one matching frame.
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "settings", "interactive": false, "still_codec": "png"}),
+    )
+    .await;
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "view", "id": 1, "view": view_json(40, 24)}),
+    )
+    .await;
+    let (header, image) = next_frame(&mut ws).await;
+    assert_eq!(
+        (
+            header.request_id,
+            header.frame_id,
+            header.quality,
+            header.codec
+        ),
+        (1, 1, 1, 0)
+    );
+    let (w, h, _) = lumigraph_core::image_io::decode_png_rgba8(&image).expect("png");
+    assert_eq!((w, h, header.width, header.height), (40, 24, 40, 24));
+    send_json(&mut ws, serde_json::json!({"type": "ack", "frame": 1})).await;
+
+    // Errors come back as messages and the socket stays usable.
+    let mut bad = view_json(16, 16);
+    bad["yfov_deg"] = 180.into();
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "view", "id": 2, "view": bad}),
+    )
+    .await;
+    let error = next_json(&mut ws).await;
+    assert_eq!(
+        (
+            error["type"].as_str(),
+            error["request"].as_u64(),
+            error["kind"].as_str()
+        ),
+        (Some("error"), Some(2), Some("invalid"))
+    );
+    ws.send(Message::text("{not json")).await.expect("send");
+    assert_eq!(next_json(&mut ws).await["kind"], "malformed_json");
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "settings", "max_in_flight": 5}),
+    )
+    .await;
+    assert_eq!(next_json(&mut ws).await["kind"], "invalid");
+    send_json(&mut ws, serde_json::json!({"type": "warp"})).await;
+    assert_eq!(next_json(&mut ws).await["kind"], "invalid");
+
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "view", "id": 3, "view": view_json(16, 16)}),
+    )
+    .await;
+    let (header, _) = next_frame(&mut ws).await;
+    assert_eq!((header.request_id, header.frame_id), (3, 2));
+    send_json(&mut ws, serde_json::json!({"type": "ack", "frame": 2})).await;
+
+    // Interactive then full: a reduced JPEG at once, the full frame after the rest time.
+    send_json(&mut ws, serde_json::json!({"type": "settings", "interactive": true, "interactive_scale": 0.5, "rest_ms": 50})).await;
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "view", "id": 4, "view": view_json(64, 32)}),
+    )
+    .await;
+    let mut frames = Vec::new();
+    while frames
+        .last()
+        .is_none_or(|h: &FrameHeader| h.quality != 1 || h.request_id != 4)
+    {
+        let (header, _) = next_frame(&mut ws).await;
+        send_json(
+            &mut ws,
+            serde_json::json!({"type": "ack", "frame": header.frame_id}),
+        )
+        .await;
+        frames.push(header);
+    }
+    let interactive = frames
+        .iter()
+        .find(|h| h.request_id == 4 && h.quality == 0)
+        .expect("an interactive frame for request 4");
+    assert_eq!(
+        (interactive.width, interactive.height, interactive.codec),
+        (32, 16, 1)
+    );
+    let full = frames.last().expect("full");
+    assert_eq!((full.width, full.height, full.codec), (64, 32, 0));
+
+    // Flow control: without acks at most two frames arrive; the latest view wins and the
+    // skipped ones are counted as dropped.
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "settings", "interactive": false}),
+    )
+    .await;
+    let (settings_frame, _) = next_frame(&mut ws).await;
+    let mut last_frame = settings_frame.frame_id;
+    for id in 10..30 {
+        send_json(
+            &mut ws,
+            serde_json::json!({"type": "view", "id": id, "view": view_json(16, 16)}),
+        )
+        .await;
+    }
+    let (second, _) = next_frame(&mut ws).await;
+    last_frame = last_frame.max(second.frame_id);
+    // Window (2) is full now: nothing more may arrive until we ack.
+    assert!(
+        tokio::time::timeout(Duration::from_millis(500), ws.next())
+            .await
+            .is_err(),
+        "a third unacknowledged frame arrived"
+    );
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "ack", "frame": last_frame}),
+    )
+    .await;
+    // If the render was slow enough that view 29 was already the second frame, there is
+    // nothing newer to send.
+    let latest = if second.request_id == 29 {
+        second
+    } else {
+        next_frame(&mut ws).await.0
+    };
+    assert_eq!(latest.request_id, 29, "latest view wins");
+    assert!(latest.dropped > 0, "skipped views are counted");
+
+    // Graceful shutdown: the session gets a Close frame and the server returns.
+    stop_tx.send(()).expect("stop");
+    let closed = tokio::time::timeout(Duration::from_secs(20), async {
+        while let Some(Ok(message)) = ws.next().await {
+            if matches!(message, Message::Close(_)) {
+                return true;
+            }
+        }
+        true
+    })
+    .await;
+    assert!(closed.is_ok(), "session did not close on shutdown");
+    tokio::time::timeout(Duration::from_secs(20), server)
+        .await
+        .expect("server stops")
+        .expect("join")
+        .expect("serve");
+}
