@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs every test on a fresh machine: installs the software Vulkan driver, fetches the real-mesh
 # fixtures (cached in ./fixtures), checks formatting and lints, then runs the Rust test suite
-# (GPU tests on lavapipe where there is no GPU).
+# (GPU tests on lavapipe where there is no GPU), then the Python bindings' suite.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
@@ -20,4 +20,6 @@ echo "== cargo clippy"
 cargo clippy --workspace --all-targets --locked -q -- -D warnings
 echo "== cargo test"
 cargo test --workspace --locked -- --test-threads=2
+echo "== Python bindings (maturin build, stubtest, pytest, examples)"
+bash scripts/test_python.sh
 echo "== all tests passed"

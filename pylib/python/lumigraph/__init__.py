@@ -1,0 +1,281 @@
+"""lumigraph: bake meshes into spherical light fields and render them on the GPU.
+
+Quick start::
+
+    import lumigraph as lg
+    lf = lg.bake_mesh("bunny.ply", cameras=162, resolution=256)   # or a trimesh.Trimesh
+    view = {"eye": [0, 0, 3], "target": [0, 0, 0], "up": [0, 1, 0],
+            "yfov_deg": 40, "width": 256, "height": 256}
+    frame = lf.render(view)            # frame.color (H, W, 4) uint8, frame.depth (H, W) float32
+    ref = lg.reference_render("bunny.ply", view, **lf.shading)
+    print(lg.metrics.masked_psnr(frame, ref))
+
+Everything runs on the same core as the ``lumigraph`` CLI and service (one device per process,
+Mesa lavapipe on CPU-only machines). Bake and render release the GIL; every object may be used
+from several threads. Options are keyword-only. Conventions (DESIGN §3): right-handed world,
+views in the mesh's own world coordinates, depth is z-depth along the view direction in world
+units (+inf where nothing is hit).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, TypeAlias
+
+import numpy as np
+
+from . import metrics
+from ._lumigraph import (
+    AssetError,
+    BakeError,
+    Frame,
+    LightField,
+    LumigraphError,
+    Mesh,
+    MeshError,
+    RenderError,
+    View,
+    __version__,
+    device_info,
+    orbit_views,
+)
+from ._lumigraph import bake as _bake
+from ._lumigraph import reference_render as _reference_render
+
+__all__ = [
+    "AssetError",
+    "BakeError",
+    "DEFAULT_AMBIENT",
+    "DEFAULT_LIGHT",
+    "Frame",
+    "LightField",
+    "LumigraphError",
+    "Mesh",
+    "MeshError",
+    "MeshLike",
+    "RenderError",
+    "View",
+    "ViewLike",
+    "__version__",
+    "as_mesh",
+    "bake_mesh",
+    "device_info",
+    "metrics",
+    "orbit_views",
+    "reference_render",
+]
+
+#: Default light direction (normalized when used), DESIGN §3.
+DEFAULT_LIGHT: tuple[float, float, float] = (0.3, 1.0, 0.5)
+#: Default ambient term, DESIGN §3.
+DEFAULT_AMBIENT: float = 0.25
+
+#: What the functions accept as a mesh: a :class:`Mesh`, a ``trimesh.Trimesh``, a path, or
+#: ``(vertices, faces)`` / ``(vertices, faces, colors)`` arrays.
+MeshLike: TypeAlias = "Mesh | str | os.PathLike[str] | Sequence[Any] | Any"
+#: A :class:`View` or a dict with keys eye, target, up, yfov_deg, width, height.
+ViewLike: TypeAlias = "View | Mapping[str, Any]"
+
+
+def as_mesh(mesh: MeshLike, *, name: str | None = None) -> Mesh:
+    """Converts any accepted mesh input into a validated :class:`Mesh`.
+
+    Args:
+        mesh: one of
+            - a :class:`Mesh` (returned as is);
+            - a path (``str`` or ``os.PathLike``) to glTF/GLB, OBJ (+MTL), PLY, STL or OFF,
+              loaded by lumigraph's own loaders (the CLI's);
+            - a ``trimesh.Trimesh``: vertex colours, face colours (vertices are split per face)
+              and texture visuals (``SimpleMaterial.image`` × ``diffuse`` or
+              ``PBRMaterial.baseColorTexture`` × ``baseColorFactor``; trimesh's v-up UVs are
+              flipped to lumigraph's glTF convention) are honoured; normals are recomputed
+              (area-weighted), as for every source without explicit normals;
+            - ``(vertices, faces)`` or ``(vertices, faces, colors)``: (N, 3) real, (M, 3)
+              integer, and (N, 3|4) uint8 0..255 or float 0..1 arrays.
+        name: source name recorded in a baked asset's provenance (default: the file name,
+            ``"trimesh"`` or ``"arrays"``).
+
+    Raises:
+        TypeError: an unsupported type, or arrays of the wrong dtype kind.
+        ValueError: arrays of the wrong shape; MeshError (a ValueError): invalid mesh data.
+        FileNotFoundError: a path that does not exist.
+    """
+    if isinstance(mesh, Mesh):
+        return mesh
+    if isinstance(mesh, (str, os.PathLike)):
+        return Mesh.load(os.fspath(mesh))
+    module = type(mesh).__module__ or ""
+    if module.startswith("trimesh"):
+        if type(mesh).__name__ == "Scene":
+            raise TypeError(
+                "a trimesh.Scene holds several meshes: load with trimesh.load(path, force='mesh') "
+                "or concatenate with scene.to_geometry()"
+            )
+        return _from_trimesh(mesh, name)
+    if isinstance(mesh, (tuple, list)) and len(mesh) in (2, 3):
+        colors = mesh[2] if len(mesh) == 3 else None
+        return Mesh(mesh[0], mesh[1], colors, name=name or "arrays")
+    raise TypeError(
+        "mesh must be a lumigraph.Mesh, a trimesh.Trimesh, a file path, or a "
+        f"(vertices, faces[, colors]) tuple of arrays; got {type(mesh).__name__}"
+    )
+
+
+def _from_trimesh(tm: Any, name: str | None) -> Mesh:
+    vertices = np.asarray(tm.vertices)
+    faces = np.asarray(tm.faces)
+    if name is None:
+        name = str(getattr(tm, "metadata", {}).get("file_name") or "trimesh")
+    visual: Any = getattr(tm, "visual", None)
+    kind = getattr(visual, "kind", None)
+    if kind == "vertex":
+        return Mesh(vertices, faces, np.asarray(visual.vertex_colors), name=name)
+    if kind == "face":
+        # Per-face colours have no per-vertex form: give every face its own three vertices.
+        face_colors = np.asarray(visual.face_colors)
+        split = vertices[faces].reshape(-1, 3)
+        return Mesh(
+            split,
+            np.arange(len(split), dtype=np.int64).reshape(-1, 3),
+            np.repeat(face_colors, 3, axis=0),
+            name=name,
+        )
+    if kind == "texture" and getattr(visual, "uv", None) is not None:
+        material = visual.material
+        image = getattr(material, "baseColorTexture", None)
+        factor = getattr(material, "baseColorFactor", None)
+        if image is None and factor is None:
+            image = getattr(material, "image", None)
+            factor = getattr(material, "diffuse", None)
+        base_color = None
+        if factor is not None:
+            f = np.asarray(factor, dtype=np.float64).reshape(-1)
+            if np.asarray(factor).dtype == np.uint8 or f.max(initial=0.0) > 1.0:
+                f = f / 255.0
+            base_color = tuple(float(c) for c in np.clip(np.resize(f, 4), 0.0, 1.0))
+            if f.size == 3:
+                base_color = (*base_color[:3], 1.0)
+        uv = np.asarray(visual.uv, dtype=np.float64)
+        uv_gltf = np.column_stack([uv[:, 0], 1.0 - uv[:, 1]])
+        texture = None if image is None else np.asarray(image.convert("RGBA"))
+        return Mesh(
+            vertices,
+            faces,
+            uvs=uv_gltf if texture is not None else None,
+            texture=texture,
+            base_color=base_color,
+            name=name,
+        )
+    return Mesh(vertices, faces, name=name)
+
+
+def _progress_printer() -> Callable[[int, int], None]:
+    def report(done: int, total: int) -> None:
+        end = "\n" if done >= total else ""
+        print(f"\rbaking cameras {done}/{total}", end=end, file=sys.stderr, flush=True)
+
+    return report
+
+
+def bake_mesh(
+    mesh: MeshLike,
+    *,
+    cameras: int = 162,
+    resolution: int = 256,
+    light: Sequence[float] = DEFAULT_LIGHT,
+    ambient: float = DEFAULT_AMBIENT,
+    specular: tuple[float, float] | None = None,
+    unlit: bool = False,
+    depth_bits: int = 16,
+    progress: bool | Callable[[int, int], object] = True,
+) -> LightField:
+    """Bakes a mesh into a spherical light field on the GPU (GIL released).
+
+    Every camera of an icosphere camera set records a parabolic colour + depth map of the
+    hemisphere opposite to it; depth is exact per texel (ray traced). Shading (DESIGN §3):
+    ``color = albedo * (ambient + (1 - ambient) * max(0, n·light)) + ks * max(0, n·h)**shininess``.
+
+    Args:
+        mesh: a :class:`Mesh`, ``trimesh.Trimesh``, path, or ``(vertices, faces[, colors])``
+            (see :func:`as_mesh`).
+        cameras: 12, 42, 162 or 642 (icosphere levels 0-3; coarser sets are prefixes, so the
+            asset also renders at every lower ``lod``).
+        resolution: side of each camera's parabolic map in pixels, 8..4096 (silhouette accuracy
+            grows with it; size and bake time with its square).
+        light: world-space light direction (x, y, z), non-zero; normalized.
+        ambient: ambient term in [0, 1].
+        specular: ``(ks, shininess)`` with 0 <= ks <= 1 and 0 < shininess <= 10000, or None for
+            view-independent (Lambertian) shading.
+        unlit: if True, ``color = albedo``.
+        depth_bits: depth precision, 16 (default) or 8.
+        progress: True prints "baking cameras k/n" to stderr; a callable gets
+            ``(cameras_done, cameras_total)`` (its first exception is raised after the bake);
+            False is silent.
+
+    Returns:
+        The baked :class:`LightField` (in memory; :meth:`LightField.save` writes it).
+
+    Raises:
+        ValueError: an option out of range (the message names it); MeshError: invalid mesh.
+        TypeError: an argument of the wrong type.
+        BakeError: the GPU device failed or is missing (the message names the driver package).
+    """
+    native = as_mesh(mesh)
+    if progress is True:
+        callback: Callable[[int, int], object] | None = _progress_printer()
+    elif progress is False or progress is None:
+        callback = None
+    else:
+        callback = progress
+    return _bake(
+        native,
+        cameras=cameras,
+        resolution=resolution,
+        light=tuple(light),
+        ambient=ambient,
+        specular=specular,
+        unlit=unlit,
+        depth_bits=depth_bits,
+        progress=callback,
+    )
+
+
+def reference_render(
+    mesh: MeshLike,
+    view: ViewLike,
+    *,
+    light: Sequence[float] = DEFAULT_LIGHT,
+    ambient: float = DEFAULT_AMBIENT,
+    specular: tuple[float, float] | None = None,
+    unlit: bool = False,
+    background: Sequence[int] | None = None,
+) -> Frame:
+    """Rasterizes the mesh itself with the bake's shading: the ground truth for quality numbers.
+
+    Same view convention, shading function and texture sampling as the baker (GIL released).
+    Pass ``**lf.shading`` to shade exactly as a light field was baked. For repeated renders of
+    one mesh, convert it once with :func:`as_mesh`: a :class:`Mesh` keeps its GPU upload.
+
+    Args:
+        mesh: a :class:`Mesh`, ``trimesh.Trimesh``, path, or ``(vertices, faces[, colors])``.
+        view: a :class:`View` or a dict with keys eye, target, up, yfov_deg, width, height.
+        light, ambient, specular, unlit: shading, as in :func:`bake_mesh`.
+        background: RGB or RGBA integers 0..255 outside coverage (default transparent black).
+
+    Returns:
+        A :class:`Frame` (``stats`` has ``render_ms``; ``steps``/``fetches`` are 0).
+
+    Raises:
+        ValueError: a bad view or shading option. RenderError: the device failed.
+    """
+    return _reference_render(
+        as_mesh(mesh),
+        view,
+        light=tuple(light),
+        ambient=ambient,
+        specular=specular,
+        unlit=unlit,
+        background=background,
+    )

@@ -1,0 +1,193 @@
+# Type stubs of the native module (pylib/src); checked against it by mypy.stubtest.
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from os import PathLike
+from typing import Any, final
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+__all__ = [
+    "AssetError", "BakeError", "Frame", "LightField", "LumigraphError", "Mesh", "MeshError",
+    "RenderError", "View", "bake", "compare", "depth_error", "device_info", "mae", "masked_psnr",
+    "orbit_views", "psnr", "reference_render", "ssim", "__version__",
+]
+
+_ViewLike = View | Mapping[str, Any]
+_Image = Frame | npt.ArrayLike
+
+class LumigraphError(Exception): ...
+class AssetError(LumigraphError): ...
+class BakeError(LumigraphError): ...
+class RenderError(LumigraphError): ...
+class MeshError(ValueError): ...
+
+@final
+class View:
+    def __new__(
+        cls,
+        *,
+        eye: Sequence[float],
+        target: Sequence[float],
+        up: Sequence[float] = ...,
+        yfov_deg: float,
+        width: int,
+        height: int,
+    ) -> View: ...
+    @staticmethod
+    def from_dict(d: Mapping[str, Any]) -> View: ...
+    @staticmethod
+    def from_json(text: str) -> View: ...
+    def to_dict(self) -> dict[str, Any]: ...
+    def to_json(self) -> str: ...
+    def ray_directions(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def forward(self) -> tuple[float, float, float]: ...
+    @property
+    def eye(self) -> tuple[float, float, float]: ...
+    @property
+    def target(self) -> tuple[float, float, float]: ...
+    @property
+    def up(self) -> tuple[float, float, float]: ...
+    @property
+    def yfov_deg(self) -> float: ...
+    @property
+    def width(self) -> int: ...
+    @property
+    def height(self) -> int: ...
+    def __eq__(self, value: object, /) -> bool: ...
+    def __ne__(self, value: object, /) -> bool: ...
+    __hash__: None  # type: ignore[assignment]
+
+@final
+class Mesh:
+    def __new__(
+        cls,
+        vertices: npt.ArrayLike,
+        faces: npt.ArrayLike,
+        colors: npt.ArrayLike | None = None,
+        *,
+        normals: npt.ArrayLike | None = None,
+        uvs: npt.ArrayLike | None = None,
+        texture: npt.ArrayLike | None = None,
+        base_color: Sequence[float] | None = None,
+        name: str = ...,
+    ) -> Mesh: ...
+    @staticmethod
+    def load(path: str | PathLike[str]) -> Mesh: ...
+    @staticmethod
+    def demo() -> Mesh: ...
+    @property
+    def vertices(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def faces(self) -> npt.NDArray[np.uint32]: ...
+    @property
+    def vertex_count(self) -> int: ...
+    @property
+    def triangle_count(self) -> int: ...
+    @property
+    def bounding_sphere(self) -> tuple[tuple[float, float, float], float]: ...
+    @property
+    def name(self) -> str: ...
+
+@final
+class Frame:
+    @property
+    def color(self) -> npt.NDArray[np.uint8]: ...
+    @property
+    def depth(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def coverage(self) -> npt.NDArray[np.bool_]: ...
+    @property
+    def stats(self) -> dict[str, Any]: ...
+    @property
+    def width(self) -> int: ...
+    @property
+    def height(self) -> int: ...
+    @property
+    def covered_px(self) -> int: ...
+
+@final
+class LightField:
+    @staticmethod
+    def open(path: str | PathLike[str]) -> LightField: ...
+    @staticmethod
+    def from_bytes(data: bytes) -> LightField: ...
+    def to_bytes(self) -> bytes: ...
+    def save(self, path: str | PathLike[str]) -> None: ...
+    def verify(self) -> None: ...
+    @property
+    def info(self) -> dict[str, Any]: ...
+    @property
+    def cameras(self) -> int: ...
+    @property
+    def resolution(self) -> int: ...
+    @property
+    def bounding_sphere(self) -> tuple[tuple[float, float, float], float]: ...
+    @property
+    def shading(self) -> dict[str, Any]: ...
+    def render(
+        self,
+        view: _ViewLike,
+        *,
+        lod: int | None = None,
+        step: float | None = None,
+        tolerance: float | None = None,
+        method: str = "default",
+        background: Sequence[int] | None = None,
+    ) -> Frame: ...
+    def render_many(
+        self,
+        views: Iterable[_ViewLike],
+        *,
+        lod: int | None = None,
+        step: float | None = None,
+        tolerance: float | None = None,
+        method: str = "default",
+        background: Sequence[int] | None = None,
+    ) -> list[Frame]: ...
+
+def orbit_views(
+    center: Sequence[float],
+    distance: float,
+    n: int,
+    *,
+    seed: int = 0,
+    yfov_deg: float = 40.0,
+    size: int = 256,
+) -> list[View]: ...
+def bake(
+    mesh: Mesh,
+    *,
+    cameras: int,
+    resolution: int,
+    light: Sequence[float],
+    ambient: float,
+    specular: tuple[float, float] | None,
+    unlit: bool,
+    depth_bits: int,
+    progress: Callable[[int, int], object] | None,
+) -> LightField: ...
+def reference_render(
+    mesh: Mesh,
+    view: _ViewLike,
+    *,
+    light: Sequence[float],
+    ambient: float,
+    specular: tuple[float, float] | None,
+    unlit: bool,
+    background: Sequence[int] | None,
+) -> Frame: ...
+def device_info() -> str: ...
+def psnr(a: _Image, b: _Image, *, mask: npt.ArrayLike | None = None) -> float: ...
+def masked_psnr(
+    test: _Image,
+    reference: _Image,
+    *,
+    test_coverage: npt.ArrayLike | None = None,
+    reference_coverage: npt.ArrayLike | None = None,
+) -> float: ...
+def ssim(a: _Image, b: _Image) -> float: ...
+def mae(a: _Image, b: _Image) -> float: ...
+def depth_error(test: Frame | npt.ArrayLike, reference: Frame | npt.ArrayLike) -> dict[str, float]: ...
+def compare(test: Frame, reference: Frame) -> dict[str, Any]: ...

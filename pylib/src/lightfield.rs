@@ -1,0 +1,400 @@
+//! `LightField`: a validated `.lfa` asset, its GPU upload (made on first render), and `bake`.
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+
+use lumigraph_core::asset::{AssetFile, Provenance};
+use lumigraph_core::bake::BakeOptions;
+use lumigraph_core::frame::Frame;
+use lumigraph_core::render::{GpuLightField, Method, RenderOptions};
+use lumigraph_core::shading::Shading;
+use lumigraph_core::view::View;
+use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict};
+
+use crate::frame::{PyFrame, parse_background};
+use crate::mesh::{PyMesh, shading};
+use crate::{engines, errors, view};
+
+/// Where the asset's bytes live, for `save` / `to_bytes`.
+enum Origin {
+    /// Baked or loaded from bytes: the encoded file.
+    Memory(Arc<Vec<u8>>),
+    /// Opened from a file (read lazily; checked against the header on save).
+    File(PathBuf),
+}
+
+/// A spherical light field (an ``.lfa`` asset): open one with :meth:`LightField.open` or make one
+/// with :func:`lumigraph.bake_mesh`, then :meth:`render` any view.
+///
+/// The asset's header, index and page checksums are validated on open / first render; the
+/// images are uploaded to the GPU once, on the first render. A LightField may be rendered from
+/// several threads at once (the GIL is released while rendering).
+#[pyclass(name = "LightField", module = "lumigraph", frozen)]
+pub struct PyLightField {
+    asset: Arc<AssetFile>,
+    origin: Origin,
+    gpu: Mutex<Option<Arc<GpuLightField>>>,
+}
+
+impl PyLightField {
+    fn new(asset: AssetFile, origin: Origin) -> Self {
+        Self {
+            asset: Arc::new(asset),
+            origin,
+            gpu: Mutex::new(None),
+        }
+    }
+
+    /// Uploads once; call with the GIL released.
+    fn uploaded(&self) -> PyResult<Arc<GpuLightField>> {
+        let mut slot = self
+            .gpu
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(field) = slot.as_ref() {
+            return Ok(field.clone());
+        }
+        let renderer = engines::renderer().map_err(|e| errors::gpu_for_render(&e))?;
+        let field = Arc::new(
+            renderer
+                .upload(&self.asset)
+                .map_err(|e| errors::render(&e))?,
+        );
+        *slot = Some(field.clone());
+        Ok(field)
+    }
+
+    fn encoded(&self) -> PyResult<Arc<Vec<u8>>> {
+        match &self.origin {
+            Origin::Memory(bytes) => Ok(bytes.clone()),
+            Origin::File(path) => {
+                let shown = path.display().to_string();
+                let bytes = std::fs::read(path).map_err(|e| {
+                    errors::asset(&lumigraph_core::asset::AssetError::Io(e), Some(&shown))
+                })?;
+                let reread = AssetFile::from_bytes(bytes.clone())
+                    .map_err(|e| errors::asset(&e, Some(&shown)))?;
+                if reread.header() != self.asset.header()
+                    || reread.file_len() != self.asset.file_len()
+                {
+                    return Err(errors::AssetError::new_err(format!(
+                        "{shown} changed on disk since it was opened; open it again"
+                    )));
+                }
+                Ok(Arc::new(bytes))
+            }
+        }
+    }
+
+    fn render_all(
+        &self,
+        py: Python<'_>,
+        views: Vec<View>,
+        options: RenderOptions,
+        background: Option<[u8; 4]>,
+    ) -> PyResult<Vec<PyFrame>> {
+        let frames: Vec<Frame> = py.detach(|| {
+            let field = self.uploaded()?;
+            let renderer = engines::renderer().map_err(|e| errors::gpu_for_render(&e))?;
+            views
+                .iter()
+                .map(|v| {
+                    renderer
+                        .render(&field, v, &options)
+                        .map_err(|e| errors::render(&e))
+                })
+                .collect::<PyResult<Vec<Frame>>>()
+        })?;
+        Ok(frames
+            .into_iter()
+            .map(|f| PyFrame::new(f, background))
+            .collect())
+    }
+}
+
+fn render_options(
+    lod: Option<u32>,
+    step: Option<f32>,
+    tolerance: Option<f32>,
+    method: &str,
+) -> PyResult<RenderOptions> {
+    let method: Method = method.parse().map_err(PyValueError::new_err)?;
+    Ok(RenderOptions {
+        lod,
+        step,
+        tolerance,
+        method,
+    })
+}
+
+fn json_to_py<'py>(py: Python<'py>, value: &AssetHeader) -> PyResult<Bound<'py, PyAny>> {
+    let text = serde_json::to_string(value).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    py.import("json")?.call_method1("loads", (text,))
+}
+
+use lumigraph_core::asset::AssetHeader;
+use serde_json::Value;
+
+fn shading_of(header: &AssetHeader) -> Shading {
+    header
+        .provenance
+        .bake_options
+        .get("shading")
+        .cloned()
+        .and_then(|v: Value| serde_json::from_value(v).ok())
+        .unwrap_or_default()
+}
+
+#[pymethods]
+impl PyLightField {
+    /// LightField.open(path) -> LightField
+    ///
+    /// Opens an ``.lfa`` file, validating its preamble, header and index (pages are verified
+    /// when first read). The file stays open and is read on the first render.
+    ///
+    /// Raises:
+    ///     FileNotFoundError: no such file.
+    ///     AssetError: not an asset, unsupported version, truncated or corrupt.
+    #[staticmethod]
+    fn open(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let shown = path.display().to_string();
+        let asset = py
+            .detach(|| AssetFile::open(&path))
+            .map_err(|e| errors::asset(&e, Some(&shown)))?;
+        Ok(Self::new(asset, Origin::File(path)))
+    }
+
+    /// LightField.from_bytes(data) -> LightField
+    ///
+    /// Validates an asset held in memory (e.g. downloaded), exactly as :meth:`open` does.
+    ///
+    /// Raises:
+    ///     AssetError: not an asset, unsupported version, truncated or corrupt.
+    #[staticmethod]
+    fn from_bytes(py: Python<'_>, data: &Bound<'_, PyBytes>) -> PyResult<Self> {
+        let bytes = data.as_bytes().to_vec();
+        let asset = py
+            .detach(|| AssetFile::from_bytes(bytes.clone()))
+            .map_err(|e| errors::asset(&e, None))?;
+        Ok(Self::new(asset, Origin::Memory(Arc::new(bytes))))
+    }
+
+    /// to_bytes() -> bytes
+    ///
+    /// The encoded ``.lfa`` file.
+    fn to_bytes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyBytes>> {
+        let bytes = py.detach(|| self.encoded())?;
+        Ok(PyBytes::new(py, &bytes))
+    }
+
+    /// save(path) -> None
+    ///
+    /// Writes the asset to ``path`` atomically (a temporary file beside it, then a rename):
+    /// on error nothing is left at ``path``.
+    ///
+    /// Raises:
+    ///     AssetError: the file cannot be written (the message includes the OS error).
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        let shown = path.display().to_string();
+        py.detach(|| {
+            let bytes = self.encoded()?;
+            lumigraph_core::atomic_write(&path, |w| w.write_all(&bytes))
+                .map_err(|e| errors::AssetError::new_err(format!("cannot write {shown}: {e}")))
+        })
+    }
+
+    /// verify() -> None
+    ///
+    /// Reads every page and checks its CRC-32 (what ``lumigraph info`` does).
+    ///
+    /// Raises:
+    ///     AssetError: the first corrupt or missing page.
+    fn verify(&self, py: Python<'_>) -> PyResult<()> {
+        py.detach(|| self.asset.verify_all())
+            .map_err(|e| errors::asset(&e, None))
+    }
+
+    /// The asset's JSON header as a dict (docs/format.md): kind, geometry (camera_level,
+    /// camera_count, resolution_px), frame (bounding sphere centre and radius, world units),
+    /// page_size, channels, layers, states, provenance (source, bake options, bake_ms), quality.
+    #[getter]
+    fn info<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        json_to_py(py, self.asset.header())
+    }
+
+    /// Number of cameras baked (12, 42, 162 or 642).
+    #[getter]
+    fn cameras(&self) -> u32 {
+        self.asset.header().geometry.camera_count
+    }
+
+    /// Side of each camera's parabolic map, pixels.
+    #[getter]
+    fn resolution(&self) -> u32 {
+        self.asset.header().geometry.resolution_px
+    }
+
+    /// The object's bounding sphere ``((cx, cy, cz), radius)``, world units.
+    #[getter]
+    fn bounding_sphere(&self) -> ((f64, f64, f64), f64) {
+        let f = &self.asset.header().frame;
+        ((f.center[0], f.center[1], f.center[2]), f.radius)
+    }
+
+    /// The shading the asset was baked with, as keyword arguments for
+    /// :func:`lumigraph.reference_render`: ``{"light", "ambient", "specular", "unlit"}``.
+    #[getter]
+    fn shading<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let s = shading_of(self.asset.header());
+        let d = PyDict::new(py);
+        d.set_item("light", (s.light[0], s.light[1], s.light[2]))?;
+        d.set_item("ambient", s.ambient)?;
+        d.set_item("specular", s.specular)?;
+        d.set_item("unlit", s.unlit)?;
+        Ok(d)
+    }
+
+    /// render(view, *, lod=None, step=None, tolerance=None, method="default", background=None) -> Frame
+    ///
+    /// Renders one view with depth-corrected ray casting on the GPU (GIL released).
+    ///
+    /// Args:
+    ///     view: a :class:`View` or a dict with keys eye, target, up, yfov_deg, width, height
+    ///         (world coordinates of the source mesh).
+    ///     lod: cameras to use: 12, 42, 162 or 642 (nested sets; at most the asset's count), or
+    ///         a level 0-3. Default: all.
+    ///     step: march step in bounding-sphere diameters, in [1/4096, 1]. Default 1/32
+    ///         (``method="fixed"``: 1/64).
+    ///     tolerance: depth agreement tolerance in bounding-sphere diameters, in (0, 1].
+    ///         Default step/2 (smaller leaves gaps, seed 000 §3.1).
+    ///     method: ``"default"`` (edge-aware depth, bisection-refined crossings) or ``"fixed"``
+    ///         (the seed's fixed-step search, the baseline).
+    ///     background: RGB or RGBA integers 0..255 for pixels outside coverage. Default
+    ///         transparent black.
+    ///
+    /// Raises:
+    ///     ValueError: a bad view or option. TypeError: an argument of the wrong type.
+    ///     AssetError: a corrupt page. RenderError: the device failed.
+    #[pyo3(signature = (view, *, lod = None, step = None, tolerance = None, method = "default", background = None))]
+    fn render(
+        &self,
+        py: Python<'_>,
+        view: &Bound<'_, PyAny>,
+        lod: Option<u32>,
+        step: Option<f32>,
+        tolerance: Option<f32>,
+        method: &str,
+        background: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<PyFrame> {
+        let view = view::parse_view(view)?;
+        let options = render_options(lod, step, tolerance, method)?;
+        let background = background.map(parse_background).transpose()?;
+        let mut frames = self.render_all(py, vec![view], options, background)?;
+        frames
+            .pop()
+            .ok_or_else(|| errors::RenderError::new_err("no frame rendered"))
+    }
+
+    /// render_many(views, *, lod=None, step=None, tolerance=None, method="default", background=None) -> list[Frame]
+    ///
+    /// Renders a batch of views (a list of :class:`View` or dicts) with one release of the GIL;
+    /// options as in :meth:`render`. Every view is validated before any is rendered.
+    #[pyo3(signature = (views, *, lod = None, step = None, tolerance = None, method = "default", background = None))]
+    fn render_many(
+        &self,
+        py: Python<'_>,
+        views: &Bound<'_, PyAny>,
+        lod: Option<u32>,
+        step: Option<f32>,
+        tolerance: Option<f32>,
+        method: &str,
+        background: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Vec<PyFrame>> {
+        let views = view::parse_views(views)?;
+        let options = render_options(lod, step, tolerance, method)?;
+        // Check the options once up front, so a bad knob fails before any GPU work.
+        options
+            .resolve(u32::from(self.asset.header().geometry.camera_level))
+            .map_err(|e| errors::render(&e))?;
+        let background = background.map(parse_background).transpose()?;
+        self.render_all(py, views, options, background)
+    }
+
+    fn __repr__(&self) -> String {
+        let h = self.asset.header();
+        format!(
+            "LightField(source={:?}, cameras={}, resolution={}, bytes={})",
+            h.provenance.source_name,
+            h.geometry.camera_count,
+            h.geometry.resolution_px,
+            self.asset.file_len()
+        )
+    }
+}
+
+/// Native bake on a `Mesh` (the Python `bake_mesh` converts other inputs and the progress flag).
+#[pyfunction]
+#[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress))]
+pub fn bake(
+    py: Python<'_>,
+    mesh: &Bound<'_, PyMesh>,
+    cameras: u32,
+    resolution: u32,
+    light: [f32; 3],
+    ambient: f32,
+    specular: Option<(f32, f32)>,
+    unlit: bool,
+    depth_bits: u8,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<PyLightField> {
+    if let Some(callback) = &progress
+        && !callback.bind(py).is_callable()
+    {
+        return Err(PyTypeError::new_err(
+            "progress must be a bool or a callable(done, total)",
+        ));
+    }
+    let options = BakeOptions {
+        cameras,
+        resolution,
+        shading: shading(light, ambient, specular, unlit)?,
+        depth_bits,
+    };
+    options.validate().map_err(|e| errors::bake(&e))?;
+    let mesh = mesh.get();
+    let provenance = Provenance {
+        source_name: mesh.source_name.clone(),
+        source_sha256: mesh.source_sha256.clone(),
+        ..Provenance::default()
+    };
+    let core_mesh = mesh.mesh.clone();
+    let (bytes, callback_error) = py.detach(|| {
+        let baker = engines::baker().map_err(|e| errors::BakeError::new_err(e.to_string()))?;
+        // The callback runs with the GIL re-acquired; its first exception is raised after the
+        // bake (the bake itself cannot be interrupted half-way).
+        let mut callback_error: Option<PyErr> = None;
+        let mut report = |done: u32, total: u32| {
+            if let (Some(callback), None) = (&progress, &callback_error) {
+                Python::attach(|py| {
+                    if let Err(e) = callback.call1(py, (done, total)) {
+                        callback_error = Some(e);
+                    }
+                });
+            }
+        };
+        let bytes = baker
+            .bake_to_bytes(&core_mesh, &options, &provenance, &mut report)
+            .map_err(|e| errors::bake(&e))?;
+        PyResult::Ok((bytes, callback_error))
+    })?;
+    if let Some(error) = callback_error {
+        return Err(error);
+    }
+    let asset = py
+        .detach(|| AssetFile::from_bytes(bytes.clone()))
+        .map_err(|e| errors::asset(&e, None))?;
+    Ok(PyLightField::new(asset, Origin::Memory(Arc::new(bytes))))
+}

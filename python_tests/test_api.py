@@ -1,0 +1,241 @@
+"""The Python API of the bindings: bake, open/save/info, render, render_many, views, frames,
+reference renders, threads and the GIL, docstrings, the README quick start."""
+
+from __future__ import annotations
+
+import json
+import runpy
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import lumigraph as lg
+
+from bindings_helpers import ROOT, icosphere_arrays
+
+
+def test_frame_arrays_have_the_documented_dtypes_and_shapes(
+    demo_lf: lg.LightField, demo_views: list[lg.View]
+) -> None:
+    frame = demo_lf.render(demo_views[0])
+    assert frame.color.shape == (96, 96, 4) and frame.color.dtype == np.uint8
+    assert frame.depth.shape == (96, 96) and frame.depth.dtype == np.float32
+    assert frame.coverage.shape == (96, 96) and frame.coverage.dtype == np.bool_
+    assert frame.color.flags.c_contiguous and frame.depth.flags.c_contiguous
+    np.testing.assert_array_equal(frame.coverage, np.isfinite(frame.depth))
+    assert 0 < frame.covered_px == int(frame.coverage.sum()) < 96 * 96
+    assert np.all(frame.depth[frame.coverage] > 0)
+    # Outside coverage: transparent black by default (DESIGN §3).
+    assert not frame.color[~frame.coverage].any()
+    assert set(frame.stats) == {"render_ms", "rays", "steps", "fetches"}
+    assert frame.stats["render_ms"] > 0 and frame.stats["rays"] > 0
+    # Arrays are copies: modifying one does not change the frame.
+    frame.color[:] = 7
+    assert not frame.color[~frame.coverage].any()
+
+
+def test_views_as_dicts_and_view_objects_render_the_same(
+    demo_lf: lg.LightField, demo_views: list[lg.View]
+) -> None:
+    view = demo_views[1]
+    as_dict = view.to_dict()
+    a = demo_lf.render(view)
+    b = demo_lf.render(as_dict)
+    c = demo_lf.render(lg.View.from_json(json.dumps(as_dict)))
+    np.testing.assert_array_equal(a.color, b.color)
+    np.testing.assert_array_equal(a.depth, c.depth)
+
+
+def test_render_many_equals_render(demo_lf: lg.LightField, demo_views: list[lg.View]) -> None:
+    frames = demo_lf.render_many(demo_views, step=1 / 48)
+    assert len(frames) == len(demo_views)
+    for view, frame in zip(demo_views, frames, strict=True):
+        single = demo_lf.render(view, step=1 / 48)
+        np.testing.assert_array_equal(frame.color, single.color)
+        np.testing.assert_array_equal(frame.depth, single.depth)
+    assert demo_lf.render_many([]) == []
+
+
+def test_background_fills_uncovered_pixels(
+    demo_lf: lg.LightField, demo_views: list[lg.View]
+) -> None:
+    plain = demo_lf.render(demo_views[0])
+    white = demo_lf.render(demo_views[0], background=(255, 255, 255))
+    assert np.all(white.color[~white.coverage] == 255)
+    np.testing.assert_array_equal(white.color[white.coverage], plain.color[plain.coverage])
+    rgba = demo_lf.render(demo_views[0], background=[10, 20, 30, 40])
+    assert np.all(rgba.color[~rgba.coverage] == [10, 20, 30, 40])
+
+
+def test_quality_knobs_change_the_work_done(
+    demo_lf: lg.LightField, demo_views: list[lg.View]
+) -> None:
+    coarse = demo_lf.render(demo_views[0], method="fixed", step=1 / 16)
+    fine = demo_lf.render(demo_views[0], method="fixed", step=1 / 128)
+    assert fine.stats["steps"] > 2 * coarse.stats["steps"]
+    lod12 = demo_lf.render(demo_views[0], lod=12)
+    assert lod12.covered_px > 0
+    # Tolerance below step/2 leaves gaps (seed 000 §3.1): coverage drops.
+    gappy = demo_lf.render(demo_views[0], method="fixed", step=1 / 16, tolerance=1 / 400)
+    assert gappy.covered_px < coarse.covered_px
+
+
+def test_save_open_info_round_trip(demo_lf: lg.LightField, tmp_path: Path) -> None:
+    path = tmp_path / "demo.lfa"
+    demo_lf.save(path)
+    assert not list(tmp_path.glob(".*tmp*")), "atomic save leaves no temporary file"
+    opened = lg.LightField.open(path)
+    assert opened.info == demo_lf.info
+    assert opened.to_bytes() == demo_lf.to_bytes() == path.read_bytes()
+    opened.verify()
+    info = opened.info
+    assert info["kind"] == "spherical"
+    assert info["geometry"]["camera_count"] == opened.cameras == 42
+    assert info["geometry"]["resolution_px"] == opened.resolution == 96
+    assert info["provenance"]["source_name"] == "demo:trefoil"
+    assert info["provenance"]["bake_options"]["cameras"] == 42
+    assert opened.bounding_sphere[1] == pytest.approx(info["frame"]["radius"])
+    # Saving an opened asset copies it (re-validated), and str paths work too.
+    opened.save(str(tmp_path / "copy.lfa"))
+    assert (tmp_path / "copy.lfa").read_bytes() == path.read_bytes()
+
+
+def test_bake_inputs_arrays_tuples_paths_and_meshes_agree(tmp_path: Path) -> None:
+    vertices, faces = icosphere_arrays(2)
+    colors = np.tile(np.array([[200, 50, 50, 255]], dtype=np.uint8), (len(vertices), 1))
+    kwargs = {"cameras": 12, "resolution": 32, "progress": False}
+    from_tuple = lg.bake_mesh((vertices, faces, colors), **kwargs)
+    from_mesh = lg.bake_mesh(lg.Mesh(vertices, faces, colors), **kwargs)
+    # float colours in [0, 1] mean the same as uint8 / 255
+    from_float = lg.bake_mesh((vertices, faces, colors / 255.0), **kwargs)
+    view = {"eye": [0, 0, 3], "target": [0, 0, 0], "yfov_deg": 45, "width": 48, "height": 48}
+    a, b, c = (lf.render(view) for lf in (from_tuple, from_mesh, from_float))
+    np.testing.assert_array_equal(a.color, b.color)
+    np.testing.assert_array_equal(a.color, c.color)
+    # The colour is honoured: red dominates where covered.
+    px = a.color[a.coverage].astype(int)
+    assert (px[:, 0] > 2 * px[:, 1] + 10).mean() > 0.95
+    # A path goes through lumigraph's loaders.
+    obj = tmp_path / "sphere.obj"
+    obj.write_text(
+        "".join(f"v {x} {y} {z}\n" for x, y, z in vertices)
+        + "".join(f"f {i + 1} {j + 1} {k + 1}\n" for i, j, k in faces)
+    )
+    from_path = lg.bake_mesh(obj, **kwargs)
+    assert from_path.info["provenance"]["source_name"] == "sphere.obj"
+    grey = from_path.render(view)
+    np.testing.assert_array_equal(grey.coverage, a.coverage)
+
+
+def test_progress_callback_and_printer(demo_mesh: lg.Mesh, capsys: pytest.CaptureFixture[str]) -> None:
+    calls: list[tuple[int, int]] = []
+    lg.bake_mesh(demo_mesh, cameras=12, resolution=16, progress=lambda d, t: calls.append((d, t)))
+    assert calls and calls[-1] == (12, 12)
+    assert all(t == 12 for _, t in calls)
+    assert [d for d, _ in calls] == sorted(d for d, _ in calls)
+    lg.bake_mesh(demo_mesh, cameras=12, resolution=16)
+    assert "baking cameras 12/12" in capsys.readouterr().err
+
+
+def test_progress_callback_exception_is_raised_after_the_bake(demo_mesh: lg.Mesh) -> None:
+    def fail(done: int, total: int) -> None:
+        raise KeyError("stop")
+
+    with pytest.raises(KeyError, match="stop"):
+        lg.bake_mesh(demo_mesh, cameras=12, resolution=16, progress=fail)
+
+
+def test_reference_render_matches_its_light_field(
+    demo_mesh: lg.Mesh, demo_lf: lg.LightField, demo_views: list[lg.View]
+) -> None:
+    for view in demo_views[:2]:
+        ref = lg.reference_render(demo_mesh, view, **demo_lf.shading)
+        frame = demo_lf.render(view)
+        # A loose sanity floor; the calibrated floors are in test_quality.py.
+        assert lg.metrics.masked_psnr(frame, ref) > 18.0
+        assert lg.metrics.compare(frame, ref)["mask_mismatch_px"] < 0.1 * ref.covered_px
+
+
+def test_shading_options_change_the_reference(demo_mesh: lg.Mesh, demo_views: list[lg.View]) -> None:
+    view = demo_views[0]
+    lit = lg.reference_render(demo_mesh, view)
+    unlit = lg.reference_render(demo_mesh, view, unlit=True)
+    spec = lg.reference_render(demo_mesh, view, specular=(0.5, 20.0))
+    dark = lg.reference_render(demo_mesh, view, ambient=0.0)
+    cov = lit.coverage
+    mean = lambda f: f.color[cov][:, :3].astype(float).mean()  # noqa: E731
+    assert mean(unlit) > mean(lit)  # ambient + diffuse <= 1 darkens the albedo
+    assert mean(spec) > mean(lit)
+    assert mean(dark) < mean(lit)
+    np.testing.assert_array_equal(lit.depth, unlit.depth)
+
+
+def test_render_releases_the_gil_and_threads_agree(
+    demo_lf: lg.LightField, demo_views: list[lg.View]
+) -> None:
+    views = demo_views * 2
+    serial = [demo_lf.render(v).color for v in views]
+    results: dict[int, np.ndarray] = {}
+    ticks = 0
+    stop = threading.Event()
+
+    def ticker() -> None:
+        nonlocal ticks
+        while not stop.is_set():
+            ticks += 1
+            time.sleep(0.0005)
+
+    def work(i: int) -> None:
+        results[i] = demo_lf.render(views[i]).color
+
+    tick_thread = threading.Thread(target=ticker)
+    tick_thread.start()
+    workers = [threading.Thread(target=work, args=(i,)) for i in range(len(views))]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join()
+    stop.set()
+    tick_thread.join()
+    for i, color in enumerate(serial):
+        np.testing.assert_array_equal(results[i], color)
+    # With the GIL held during renders the ticker would barely run.
+    assert ticks > 20
+
+
+def test_device_info_names_an_adapter() -> None:
+    assert isinstance(lg.device_info(), str) and lg.device_info()
+
+
+def test_public_api_has_docstrings_with_units() -> None:
+    for obj in (lg.bake_mesh, lg.reference_render, lg.as_mesh, lg.LightField.render,
+                lg.LightField.render_many, lg.LightField.open, lg.View, lg.Mesh, lg.Frame,
+                lg.metrics.psnr, lg.metrics.masked_psnr, lg.metrics.ssim, lg.metrics.mae,
+                lg.metrics.depth_error, lg.orbit_views):  # fmt: skip
+        assert obj.__doc__ and len(obj.__doc__) > 60, obj
+    assert "pixels" in (lg.bake_mesh.__doc__ or "")
+    assert "diameters" in (lg.LightField.render.__doc__ or "")
+    assert "world units" in (lg.Frame.__doc__ or "")
+    text = lg.LightField.render.__text_signature__ or ""
+    assert "*" in text and "lod=None" in text
+    for name in lg.__all__:
+        assert hasattr(lg, name), name
+
+
+def test_quickstart_example_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    runpy.run_path(str(ROOT / "pylib" / "examples" / "quickstart.py"), run_name="__main__")
+    assert lg.LightField.open(tmp_path / "sphere.lfa").cameras == 42
+
+
+def test_readme_quick_start_is_the_tested_example() -> None:
+    """The README's Python quick start must be pylib/examples/quickstart.py, which runs above."""
+    readme = (ROOT / "README.md").read_text()
+    blocks = [b.split("\n", 1)[1] for b in readme.split("```python")[1:]]
+    starts = [b.split("```", 1)[0] for b in blocks if "import lumigraph" in b]
+    assert starts, "README.md has no Python quick start"
+    example = (ROOT / "pylib" / "examples" / "quickstart.py").read_text()
+    assert starts[0].strip() == example.strip(), "README quick start differs from pylib/examples/quickstart.py"
