@@ -20,6 +20,10 @@ echo "== cargo clippy"
 cargo clippy --workspace --all-targets --locked -q -- -D warnings
 echo "== cargo test"
 cargo test --workspace --locked -- --test-threads=2
+# The Python and service suites reuse this debug build instead of a second, release one.
+export LUMIGRAPH_PROFILE=dev
 echo "== Python bindings (maturin build, stubtest, pytest, examples)"
 bash scripts/test_python.sh
+echo "== service end to end (HTTP, WebSocket, headless Chromium)"
+bash scripts/test_service_e2e.sh
 echo "== all tests passed"

@@ -45,9 +45,13 @@ if [ "$(cat "$STAMP" 2>/dev/null || true)" != "$WANT" ]; then
   echo "$WANT" >"$STAMP"
 fi
 
-echo "== maturin develop --release (lumigraph._lumigraph)"
+# LUMIGRAPH_PROFILE=dev (what scripts/test.sh uses) reuses the dependencies `cargo test` just
+# built (they are optimized at opt-level 2 even in dev); the GPU work runs in the driver anyway.
+PROFILE_FLAG=--release
+if [ "${LUMIGRAPH_PROFILE:-release}" = dev ]; then PROFILE_FLAG=""; fi
+echo "== maturin develop ${PROFILE_FLAG} (lumigraph._lumigraph)"
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$ROOT/target}
-(cd pylib && VIRTUAL_ENV=$VENV PATH="$VENV/bin:$PATH" maturin develop --release --locked -q)
+(cd pylib && VIRTUAL_ENV=$VENV PATH="$VENV/bin:$PATH" maturin develop $PROFILE_FLAG --locked -q)
 
 echo "== mypy.stubtest + mypy"
 (cd pylib/python && "$PY" -m mypy.stubtest lumigraph._lumigraph --mypy-config-file ../pyproject.toml)

@@ -212,11 +212,7 @@ pub async fn upload_asset(
     state.authorize(&headers)?;
     let Query(query) = query.map_err(|e| AppError::Invalid(e.body_text()))?;
     let limit = state.config().max_upload_bytes;
-    let declared = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<u64>().ok());
-    if declared.is_some_and(|len| len > limit) {
+    if declared_length(&headers).is_some_and(|len| len > limit) {
         return Err(AppError::TooLarge { limit });
     }
     let id = query.id.unwrap_or_else(|| random_id("asset"));
@@ -485,11 +481,15 @@ pub async fn bake(
     multipart: Result<Multipart, MultipartRejection>,
 ) -> Result<Response, AppError> {
     state.authorize(&headers)?;
+    let limit = state.config().max_mesh_bytes;
+    // A declared oversize body is refused before any of it is read or buffered.
+    if declared_length(&headers).is_some_and(|len| len > limit) {
+        return Err(AppError::TooLarge { limit });
+    }
     let mut multipart = multipart.map_err(|e| AppError::Rejected {
         status: e.status(),
         message: e.body_text(),
     })?;
-    let limit = state.config().max_mesh_bytes;
     let field_error = |e: axum::extract::multipart::MultipartError| {
         AppError::from_rejection(e.status(), e.body_text(), limit)
     };
@@ -628,4 +628,12 @@ pub async fn get_job(
         .get(&id)
         .ok_or_else(|| AppError::NotFound(format!("no job with id {id:?}")))?;
     Ok(Json(job.status()))
+}
+
+/// The request's declared `Content-Length`, if any and well-formed.
+fn declared_length(headers: &HeaderMap) -> Option<u64> {
+    headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok())
 }

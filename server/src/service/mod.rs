@@ -18,7 +18,7 @@ pub mod openapi;
 pub mod stream;
 pub mod viewer;
 
-use std::future::Future;
+use std::future::{Future, IntoFuture};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -343,8 +343,12 @@ pub fn app(state: AppState) -> Router {
         .with_state(state)
 }
 
-/// Serves `state` on `listener` until `shutdown` resolves, then lets stream sessions finish
-/// their frame and close (waiting at most 10 s).
+/// How long in-flight HTTP requests may run on after a shutdown signal.
+const SHUTDOWN_GRACE: Duration = Duration::from_secs(8);
+
+/// Serves `state` on `listener` until `shutdown` resolves, then lets in-flight HTTP requests
+/// finish (at most [`SHUTDOWN_GRACE`]) and stream sessions finish their frame and close (at most
+/// 10 s).
 pub async fn run(
     listener: TcpListener,
     state: AppState,
@@ -352,14 +356,29 @@ pub async fn run(
 ) -> anyhow::Result<()> {
     let router = app(state.clone());
     let on_shutdown = state.clone();
-    axum::serve(listener, router)
+    let shutdown_started = Arc::new(tokio::sync::Notify::new());
+    let started = Arc::clone(&shutdown_started);
+    let server = axum::serve(listener, router)
         .with_graceful_shutdown(async move {
             shutdown.await;
             tracing::info!("shutting down: finishing in-flight frames");
             on_shutdown.begin_shutdown();
+            started.notify_one();
         })
-        .await
-        .context("serving HTTP")?;
+        .into_future();
+    // In-flight HTTP requests get a bounded grace period: a client stalled mid-upload must not
+    // keep SIGTERM from ending the process until the request timeout.
+    let deadline = async move {
+        shutdown_started.notified().await;
+        tokio::time::sleep(SHUTDOWN_GRACE).await;
+    };
+    tokio::select! {
+        result = server => result.context("serving HTTP")?,
+        () = deadline => tracing::warn!(
+            "HTTP requests still open {} s after shutdown began: closing them",
+            SHUTDOWN_GRACE.as_secs()
+        ),
+    }
     let all = u32::try_from(state.config().max_sessions).unwrap_or(u32::MAX);
     let sessions = Arc::clone(&state.inner.sessions);
     if tokio::time::timeout(Duration::from_secs(10), sessions.acquire_many(all))
