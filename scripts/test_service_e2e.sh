@@ -46,7 +46,13 @@ fi
 if [ "${LUMIGRAPH_PROFILE:-release}" = dev ]; then PROFILE_DIR=debug; PROFILE_FLAG=""; else PROFILE_DIR=release; PROFILE_FLAG=--release; fi
 echo "== cargo build ${PROFILE_FLAG} -p lumigraph_server"
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$ROOT/target}
-cargo build $PROFILE_FLAG --locked -q -p lumigraph_server
+if [ "$PROFILE_DIR" = debug ]; then
+  # The binary exactly as `cargo test --workspace` builds it (same feature unification, so
+  # nothing is rebuilt after the Rust tests).
+  cargo test --workspace --locked -q --no-run
+else
+  cargo build $PROFILE_FLAG --locked -q -p lumigraph_server
+fi
 export LUMIGRAPH_BIN=$CARGO_TARGET_DIR/$PROFILE_DIR/lumigraph
 
 # wgpu/Mesa want a private runtime dir.
