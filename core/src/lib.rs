@@ -19,7 +19,8 @@
 //! - [`gpu`] owns the one headless wgpu device per process; [`bake`], [`render`] and
 //!   [`reference`] are its pipelines, built once and reused. WGSL lives in `shaders/` and is
 //!   embedded at build time ([`shaders`]).
-//! - [`metrics`] implements DESIGN §3's metrics (cross-checked against scikit-image).
+//! - [`metrics`] implements DESIGN §3's metrics (cross-checked against scikit-image);
+//!   [`tradeoff`] sweeps every quality knob and measures its cost and error.
 
 pub mod asset;
 pub mod bake;
@@ -34,6 +35,7 @@ pub mod reference;
 pub mod render;
 pub mod shaders;
 pub mod shading;
+pub mod tradeoff;
 pub mod view;
 
 pub use fsutil::atomic_write;

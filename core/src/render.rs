@@ -102,6 +102,13 @@ pub struct RenderOptions {
     pub method: Method,
 }
 
+/// Options of [`Renderer::upload_with`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct UploadOptions {
+    /// Depth precision to render with: `None` = as stored, `Some(8)` requantizes 16-bit depth.
+    pub depth_bits: Option<u8>,
+}
+
 /// The resolved settings a render used.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct ResolvedOptions {
@@ -377,6 +384,21 @@ impl Renderer {
     /// # Errors
     /// [`RenderError::Asset`] for unreadable images, [`RenderError::Gpu`] for device limits.
     pub fn upload(&self, asset: &AssetFile) -> Result<GpuLightField, RenderError> {
+        self.upload_with(asset, &UploadOptions::default())
+    }
+
+    /// [`Renderer::upload`] with options: `depth_bits: Some(8)` requantizes a 16-bit asset's
+    /// depth to the 8-bit codes an 8-bit bake stores (the depth-precision knob of the
+    /// trade-off sweep, without a second bake).
+    ///
+    /// # Errors
+    /// As [`Renderer::upload`]; [`RenderError::Option`] for depth bits other than 8 or 16, or
+    /// 16 bits asked of an 8-bit asset (precision cannot be added back).
+    pub fn upload_with(
+        &self,
+        asset: &AssetFile,
+        options: &UploadOptions,
+    ) -> Result<GpuLightField, RenderError> {
         let header = asset.header();
         let n = header.geometry.resolution_px;
         let cameras = header.geometry.camera_count;
@@ -384,6 +406,19 @@ impl Renderer {
         let depth_encoding = header
             .encoding(Channel::Depth)
             .ok_or_else(|| AssetError::Header("no depth channel".to_owned()))?;
+        let requantize_8 = match (options.depth_bits, depth_encoding) {
+            (None, _) | (Some(8), Encoding::R8) => false,
+            (Some(8), _) => true,
+            (Some(16), Encoding::R8) => {
+                return Err(RenderError::Option(
+                    "depth bits 16 asked of an asset that stores 8-bit depth".to_owned(),
+                ));
+            }
+            (Some(16), _) => false,
+            (Some(b), _) => {
+                return Err(RenderError::Option(format!("depth bits {b}: use 8 or 16")));
+            }
+        };
         let limit = self.gpu.device.limits().max_texture_dimension_2d;
         if n > limit {
             return Err(GpuError::Limit {
@@ -422,6 +457,11 @@ impl Renderer {
                         )
                     })
                     .collect(),
+            };
+            let codes = if requantize_8 {
+                codes.into_iter().map(requantize_u16_to_u8).collect()
+            } else {
+                codes
             };
             depths.push(footprint_texels(&codes, n as usize));
         }
@@ -653,6 +693,17 @@ impl Renderer {
     }
 }
 
+/// The 16-bit code of the depth an 8-bit bake would store for a 16-bit code (no hit stays no
+/// hit). The extra rounding of the 16-bit code moves the 8-bit decision only for depths within
+/// 1/131070 of an 8-bit rounding boundary.
+fn requantize_u16_to_u8(code: u16) -> u16 {
+    if code == geometry::NO_HIT_U16 {
+        return code;
+    }
+    let d8 = geometry::encode_depth_u8(geometry::decode_depth_u16(code));
+    geometry::encode_depth_u16(geometry::decode_depth_u8(d8))
+}
+
 /// Packs a camera's `n×n` depth codes into footprint texels: texel `(x, y)` holds the codes of
 /// `(x, y)`, `(x+1, y)`, `(x, y+1)`, `(x+1, y+1)` (clamped at the border), as `Rgba16Uint` bytes.
 fn footprint_texels(codes: &[u16], n: usize) -> Vec<u8> {
@@ -737,6 +788,34 @@ mod tests {
             local = 4 * local + child;
         }
         start + local
+    }
+
+    #[test]
+    fn requantized_depth_equals_an_8_bit_bake() {
+        // Exact: for every 16-bit hit code, the requantized code decodes to the 8-bit code an
+        // 8-bit bake of the same depth stores, except within 1/131070 of a rounding boundary.
+        let mut off_boundary = 0;
+        for code in 0..geometry::NO_HIT_U16 {
+            let d = geometry::decode_depth_u16(code);
+            let want =
+                geometry::encode_depth_u16(geometry::decode_depth_u8(geometry::encode_depth_u8(d)));
+            let got = requantize_u16_to_u8(code);
+            let frac = (f64::from(d) * 255.0).fract();
+            if (frac - 0.5).abs() > 1.0 / 256.0 {
+                off_boundary += 1;
+                assert_eq!(got, want, "code {code}");
+            }
+            // Within 0.5/255 (+ f32 rounding) of the 16-bit depth below 254.5/255, as the
+            // format promises; above, the last hit code 254 is up to 1/255 away.
+            let err = (geometry::decode_depth_u16(got) - d).abs();
+            let bound = if d < 254.5 / 255.0 { 0.5 } else { 1.0 } / 255.0 + 1e-6;
+            assert!(err <= bound, "code {code}: {err}");
+        }
+        assert!(off_boundary > 60_000);
+        assert_eq!(
+            requantize_u16_to_u8(geometry::NO_HIT_U16),
+            geometry::NO_HIT_U16
+        );
     }
 
     #[test]

@@ -386,3 +386,118 @@ fn gl_and_vulkan_backends_render_the_same_frame() {
         "{differing} pixels differ between Vulkan and GL"
     );
 }
+
+#[test]
+fn bench_tradeoff_writes_csv_json_and_pareto_plot() {
+    let out = path("tradeoff");
+    let o = lumigraph(&[
+        "bench",
+        "tradeoff",
+        s(demo_asset()),
+        "--demo",
+        "--out",
+        s(&out),
+        "--views",
+        "2",
+        "--cameras",
+        "12",
+        "--steps",
+        "1/8,1/16",
+        "--tolerances",
+        "0.5",
+        "--methods",
+        "default,fixed",
+        "--depth-bits",
+        "16,8",
+        "--sizes",
+        "40",
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "bench failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(stdout.contains("Pareto front"), "{stdout}");
+    // 2 steps × 2 methods × 2 depth precisions = 8 settings, one CSV row each.
+    let csv = std::fs::read_to_string(out.join("tradeoff.csv")).expect("csv");
+    let rows: Vec<Vec<&str>> = csv.lines().map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows[0][0], "cameras");
+    assert_eq!(rows.len(), 1 + 8, "{csv}");
+    let col = |name: &str| rows[0].iter().position(|c| *c == name).expect(name);
+    let (ms, psnr, pareto, bits, step) = (
+        col("ms_per_frame"),
+        col("masked_psnr"),
+        col("pareto"),
+        col("depth_bits"),
+        col("step"),
+    );
+    let mut front = 0;
+    for row in &rows[1..] {
+        assert_eq!(row.len(), rows[0].len());
+        let t: f64 = row[ms].parse().expect("ms");
+        let q: f64 = row[psnr].parse().expect("psnr");
+        assert!(t > 0.0 && t.is_finite(), "{row:?}");
+        // A demo render at 40² is not blank: well above the PSNR of an empty frame.
+        assert!(q.is_finite() && q > 8.0, "{row:?}");
+        assert!(["8", "16"].contains(&row[bits]));
+        assert!(["0.125", "0.0625"].contains(&row[step]), "{row:?}");
+        if row[pareto] == "true" {
+            front += 1;
+        }
+    }
+    assert!(front >= 1);
+    // The front is undominated: no row is both faster and better than a front row.
+    for a in rows[1..].iter().filter(|r| r[pareto] == "true") {
+        let (ta, qa): (f64, f64) = (a[ms].parse().unwrap(), a[psnr].parse().unwrap());
+        for b in &rows[1..] {
+            let (tb, qb): (f64, f64) = (b[ms].parse().unwrap(), b[psnr].parse().unwrap());
+            assert!(!(tb < ta && qb > qa), "{b:?} dominates front row {a:?}");
+        }
+    }
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("tradeoff.json")).expect("json"))
+            .expect("valid json");
+    assert_eq!(json["points"].as_array().map(Vec::len), Some(8));
+    let png = std::fs::read(out.join("pareto.png")).expect("png");
+    let img = image::load_from_memory(&png)
+        .expect("decodable png")
+        .to_rgb8();
+    assert_eq!(img.dimensions(), (1200, 800));
+    // Drawn, not blank: the red front and the blue/orange markers are there.
+    let red = img
+        .pixels()
+        .filter(|p| p[0] > 200 && p[1] < 60 && p[2] < 60)
+        .count();
+    let blue = img.pixels().filter(|p| p[2] > 150 && p[0] < 150).count();
+    assert!(red > 50 && blue > 50, "red {red}, blue {blue}");
+}
+
+#[test]
+fn bench_tradeoff_rejects_bad_grids() {
+    let asset = demo_asset();
+    let base = ["bench", "tradeoff", s(asset), "--demo", "--views", "1"];
+    let with = |extra: &[&'static str]| -> Vec<&str> {
+        let mut v: Vec<&str> = base.to_vec();
+        v.extend_from_slice(extra);
+        v
+    };
+    assert_fails(&with(&["--cameras", "13"]), "cameras 13");
+    assert_fails(&with(&["--cameras", "162"]), "at most the asset's 12");
+    assert_fails(&with(&["--steps", "nan"]), "not a");
+    assert_fails(&with(&["--steps", "1/0"]), "finite");
+    assert_fails(&with(&["--steps", "2"]), "step");
+    assert_fails(&with(&["--tolerances", "0"]), "tolerance factor");
+    assert_fails(&with(&["--tolerances", "-1"]), "tolerance factor");
+    assert_fails(&with(&["--depth-bits", "12"]), "depth bits 12");
+    assert_fails(&with(&["--sizes", "0"]), "size 0");
+    assert_fails(&with(&["--methods", "fast"]), "unknown method");
+    assert_fails(
+        &["bench", "tradeoff", s(asset), "--demo", "--views", "0"],
+        "--views 0",
+    );
+    assert_fails(
+        &["bench", "tradeoff", s(&path("missing.lfa")), "--demo"],
+        "cannot open asset",
+    );
+}
