@@ -432,3 +432,552 @@ fn lod_prefixes_render_from_one_asset() {
         .collect();
     assert!(covered.iter().all(|&c| c > 500), "{covered:?}");
 }
+
+// ---------------------------------------------------------------------------------------------
+// Numerical stability at the extremes (issue #5 item 6). Each case renders a baked cube and
+// checks depth and coverage against the exact f64 ray/box intersection. The depth tolerances
+// are relative to the bounding radius r; the default method measures a median error of
+// 2–6e-4 r on real meshes (BENCHMARKS.md), so each bound leaves room for the case's geometry
+// while still failing on a wrong surface (a wrong layer or a phantom is off by ≥ 0.05 r).
+// ---------------------------------------------------------------------------------------------
+
+/// Per-frame agreement with the analytic box.
+#[derive(Debug)]
+struct BoxAgreement {
+    /// Pixels both cover.
+    both: usize,
+    /// Pixels the box covers.
+    truth: usize,
+    /// Median and 95th percentile of |z − z_true| / r over `both`.
+    median: f64,
+    p95: f64,
+    /// Coverage mismatches whose 3×3 analytic neighbourhood is uniform (not a silhouette pixel).
+    interior_mismatches: usize,
+}
+
+fn box_agreement(frame: &Frame, view: &View, lo: DVec3, hi: DVec3, r: f64) -> BoxAgreement {
+    let basis = view.basis(8192).expect("view");
+    let (w, h) = (view.width as usize, view.height as usize);
+    let mut truth = vec![None; w * h];
+    for i in 0..h {
+        for j in 0..w {
+            let d = basis.pixel_dir(i as u32, j as u32);
+            truth[i * w + j] = ray_box(basis.eye, d, lo, hi).map(|t| t * d.dot(basis.forward));
+        }
+    }
+    let mut errors = Vec::new();
+    let mut interior_mismatches = 0;
+    for i in 0..h {
+        for j in 0..w {
+            let z = frame.depth[i * w + j];
+            assert!(
+                z.is_infinite() || (z.is_finite() && z > 0.0),
+                "pixel ({i},{j}): depth {z}"
+            );
+            match (truth[i * w + j], z.is_finite()) {
+                (Some(t), true) => errors.push((f64::from(z) - t).abs() / r),
+                (None, false) => {}
+                (t, _) => {
+                    let uniform = (i.saturating_sub(1)..(i + 2).min(h)).all(|a| {
+                        (j.saturating_sub(1)..(j + 2).min(w))
+                            .all(|b| truth[a * w + b].is_some() == t.is_some())
+                    });
+                    if uniform {
+                        interior_mismatches += 1;
+                    }
+                }
+            }
+        }
+    }
+    errors.sort_by(f64::total_cmp);
+    let pick = |q: f64| {
+        errors
+            .get(((errors.len() as f64 - 1.0) * q).round() as usize)
+            .copied()
+            .unwrap_or(0.0)
+    };
+    BoxAgreement {
+        both: errors.len(),
+        truth: truth.iter().filter(|t| t.is_some()).count(),
+        median: pick(0.5),
+        p95: pick(0.95),
+        interior_mismatches,
+    }
+}
+
+fn unit_box() -> (DVec3, DVec3) {
+    (DVec3::splat(-0.5), DVec3::splat(0.5))
+}
+
+/// (name, eye, target, yfov, size, recall, median bound, p95 bound, interior mismatches).
+type ExtremeCase = (
+    &'static str,
+    [f64; 3],
+    [f64; 3],
+    f64,
+    u32,
+    f64,
+    f64,
+    f64,
+    usize,
+);
+
+#[test]
+fn stability_eye_positions_grazing_far_and_near_views() {
+    let (_mesh, asset, field) = unit_cube(162, 128);
+    let r = asset.header().frame.radius; // √3/2
+    let sphere = r * std::f64::consts::SQRT_2; // camera sphere radius, world units
+    let (lo, hi) = unit_box();
+    let just_outside = (DVec3::new(0.3, 0.2, 0.93).normalize() * sphere * 1.0005).to_array();
+    let cases: [ExtremeCase; 6] = [
+        (
+            "eye just outside the camera sphere",
+            just_outside,
+            [0.0, 0.0, 0.0],
+            60.0,
+            96,
+            0.8,
+            2e-3,
+            2e-2,
+            4,
+        ),
+        (
+            "eye inside the camera sphere, outside the bounding sphere",
+            [0.55 * r, 0.45 * r, 0.95 * r],
+            [0.0, 0.0, 0.0],
+            70.0,
+            96,
+            0.8,
+            2e-3,
+            2e-2,
+            4,
+        ),
+        (
+            "near view filling the frame",
+            [0.2, 0.1, 1.02 * r],
+            [0.0, 0.0, 0.0],
+            40.0,
+            64,
+            0.8,
+            2e-3,
+            2e-2,
+            0,
+        ),
+        (
+            // The top face (y = 0.5) seen edge-on: rays graze it along the silhouette.
+            "grazing view along the top face",
+            [0.4, 0.5, 3.0],
+            [0.0, 0.5, 0.0],
+            30.0,
+            96,
+            0.8,
+            2e-3,
+            3e-2,
+            6,
+        ),
+        (
+            // The side face x = 0.5 seen edge-on from just outside its plane.
+            "grazing view along a side face",
+            [0.5 + 1e-4, 0.1, 3.0],
+            [0.5, 0.0, 0.0],
+            20.0,
+            96,
+            0.8,
+            2e-3,
+            3e-2,
+            6,
+        ),
+        (
+            // ≈ 4 px wide: 1 / (200 r) rad over a 5° field of 64 px.
+            "far object a few pixels wide",
+            [0.0, 40.0, 200.0 * r],
+            [0.0, 0.0, 0.0],
+            5.0,
+            64,
+            0.5,
+            2e-2,
+            1e-1,
+            0,
+        ),
+    ];
+    for (name, eye, target, yfov, size, recall, median, p95, mismatches) in cases {
+        let view = View::look_at(eye, target, yfov, size, size);
+        let frame = ctx()
+            .renderer
+            .render(&field, &view, &RenderOptions::default())
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        let a = box_agreement(&frame, &view, lo, hi, r);
+        eprintln!("{name}: {a:?}");
+        assert!(a.truth > 0, "{name}: the cube is not in view");
+        assert!(
+            a.both as f64 >= recall * a.truth as f64,
+            "{name}: only {} of {} pixels covered",
+            a.both,
+            a.truth
+        );
+        assert!(
+            a.median <= median,
+            "{name}: median depth error {} r",
+            a.median
+        );
+        assert!(a.p95 <= p95, "{name}: p95 depth error {} r", a.p95);
+        assert!(
+            a.interior_mismatches <= mismatches,
+            "{name}: {} coverage mismatches away from the silhouette",
+            a.interior_mismatches
+        );
+    }
+}
+
+#[test]
+fn stability_scene_scale_1e_minus_4_to_1e4() {
+    // The asset stores geometry normalized to the bounding sphere, so a scaled scene must render
+    // the same image and depth × scale. Tolerances: colour identical on ≥ 99 % of pixels (the
+    // eye is scaled in f64 and rounded to f32 in light-field units, which may move a
+    // silhouette crossing by one ulp); depth / scale equal to 1e-5 relative (f32 rounding of
+    // the world-unit depth scale).
+    let view_at = |scale: f64| {
+        View::look_at(
+            [2.2 * scale, 1.4 * scale, 2.9 * scale],
+            [0.3 * scale, -0.2 * scale, 0.1 * scale],
+            40.0,
+            64,
+            64,
+        )
+    };
+    let render_at = |scale: f32| {
+        let mesh = cube([0.3 * scale, -0.2 * scale, 0.1 * scale], 0.5 * scale);
+        let asset = bake(
+            &mesh,
+            &BakeOptions {
+                cameras: 42,
+                resolution: 96,
+                ..Default::default()
+            },
+        );
+        let field = ctx().renderer.upload(&asset).expect("upload");
+        let view = view_at(f64::from(scale));
+        let frame = ctx()
+            .renderer
+            .render(&field, &view, &RenderOptions::default())
+            .expect("render");
+        let c = DVec3::new(0.3, -0.2, 0.1) * f64::from(scale);
+        let lo = c - 0.5 * f64::from(scale);
+        let hi = c + 0.5 * f64::from(scale);
+        let a = box_agreement(&frame, &view, lo, hi, asset.header().frame.radius);
+        (frame, a)
+    };
+    let (base, base_a) = render_at(1.0);
+    assert!(base_a.median < 2e-3, "{base_a:?}");
+    for scale in [1e-4f32, 1e4] {
+        let (frame, a) = render_at(scale);
+        assert!(a.median < 2e-3 && a.both > 500, "scale {scale}: {a:?}");
+        let same_colour = frame
+            .color
+            .chunks_exact(4)
+            .zip(base.color.chunks_exact(4))
+            .filter(|(x, y)| x == y)
+            .count();
+        assert!(
+            same_colour * 100 >= base.pixel_count() * 99,
+            "scale {scale}: {same_colour} of {} pixels identical",
+            base.pixel_count()
+        );
+        let mut rel = Vec::new();
+        for (z, z0) in frame.depth.iter().zip(&base.depth) {
+            if z.is_finite() && z0.is_finite() {
+                rel.push(
+                    (f64::from(*z) / f64::from(scale) - f64::from(*z0)).abs() / f64::from(*z0),
+                );
+            }
+        }
+        rel.sort_by(f64::total_cmp);
+        assert!(
+            rel[rel.len() / 2] < 1e-5,
+            "scale {scale}: depth {}",
+            rel[rel.len() / 2]
+        );
+    }
+}
+
+#[test]
+fn stability_depth_precision_8_and_16_bits() {
+    use lumigraph_core::render::UploadOptions;
+    let (_mesh, asset, field16) = unit_cube(162, 128);
+    let field8 = ctx()
+        .renderer
+        .upload_with(
+            &asset,
+            &UploadOptions {
+                depth_bits: Some(8),
+            },
+        )
+        .expect("upload 8 bits");
+    let r = asset.header().frame.radius;
+    let (lo, hi) = unit_box();
+    let view = cube_view(96);
+    let measure = |field| {
+        let frame = ctx()
+            .renderer
+            .render(field, &view, &RenderOptions::default())
+            .expect("render");
+        box_agreement(&frame, &view, lo, hi, r)
+    };
+    let a16 = measure(&field16);
+    let a8 = measure(&field8);
+    eprintln!("16 bits {a16:?}\n8 bits {a8:?}");
+    // 16 bits: quantization 0.5/65535 of a chord ≤ 2 light-field units is 2e-5 r, far below
+    // the marcher's own error; 8 bits: 0.5/255 × 2 / (1/√2) ≈ 5.5e-3 r per map lookup.
+    assert!(a16.median < 2e-3, "16 bits: {a16:?}");
+    assert!(a8.median < 1.2e-2, "8 bits: {a8:?}");
+    assert!(
+        a8.median > a16.median,
+        "8 bits should be coarser: {a8:?} vs {a16:?}"
+    );
+    assert!(a8.both * 10 >= a8.truth * 8, "8 bits lost coverage: {a8:?}");
+    // A 16-bit field is not available from an 8-bit asset.
+    let asset8 = bake(
+        &cube([0.0, 0.0, 0.0], 0.5),
+        &BakeOptions {
+            cameras: 12,
+            resolution: 32,
+            depth_bits: 8,
+            ..Default::default()
+        },
+    );
+    assert!(
+        ctx()
+            .renderer
+            .upload_with(
+                &asset8,
+                &UploadOptions {
+                    depth_bits: Some(16)
+                }
+            )
+            .is_err()
+    );
+    assert!(
+        ctx()
+            .renderer
+            .upload_with(
+                &asset,
+                &UploadOptions {
+                    depth_bits: Some(12)
+                }
+            )
+            .is_err()
+    );
+}
+
+#[test]
+fn stability_step_and_tolerance_at_their_limits() {
+    use lumigraph_core::render::MIN_STEP;
+    let (_mesh, asset, field) = unit_cube(42, 64);
+    let r = asset.header().frame.radius;
+    let (lo, hi) = unit_box();
+    let view = cube_view(40);
+    let basis = view.basis(8192).expect("view");
+    // Every depth lies inside the bounding sphere's z-range (centre at the origin here).
+    let zc = (-basis.eye).dot(basis.forward);
+    let render = |method, step: f32, tolerance: f32| {
+        let frame = ctx()
+            .renderer
+            .render(
+                &field,
+                &view,
+                &RenderOptions {
+                    method,
+                    step: Some(step),
+                    tolerance: Some(tolerance),
+                    lod: None,
+                },
+            )
+            .unwrap_or_else(|e| panic!("{method} step {step} tol {tolerance}: {e}"));
+        for z in frame.depth.iter().filter(|z| z.is_finite()) {
+            assert!(
+                (f64::from(*z) - zc).abs() < r * 1.001,
+                "{method} step {step} tol {tolerance}: depth {z} outside the bounding sphere"
+            );
+        }
+        box_agreement(&frame, &view, lo, hi, r)
+    };
+    // Finest step: as accurate as the maps allow. Bound 5e-3 r: 64-px maps, where bilinear
+    // interpolation of the non-linear parabolic depth across one texel dominates (the same
+    // cube from 128-px maps measures 2–5e-4 r); a wrong surface would be ≥ 0.05 r off.
+    for method in [Method::Default, Method::Fixed] {
+        let fine = render(method, MIN_STEP, MIN_STEP / 2.0);
+        eprintln!("{method} finest: {fine:?}");
+        assert!(fine.median < 5e-3, "{method} finest: {fine:?}");
+        assert!(
+            fine.both * 10 >= fine.truth * 9,
+            "{method} finest: {fine:?}"
+        );
+    }
+    // Coarsest step and largest tolerance: crude, but finite and inside the sphere.
+    for method in [Method::Default, Method::Fixed] {
+        let coarse = render(method, 1.0, 1.0);
+        eprintln!("{method} coarsest: {coarse:?}");
+    }
+    // Tolerance far below step/2 (seed 000 §3.1): the fixed search loses most of the surface
+    // but never returns a wrong one.
+    let tiny = render(Method::Fixed, 1.0 / 32.0, 1e-6);
+    assert!(tiny.both * 2 < tiny.truth, "tiny tolerance: {tiny:?}");
+    assert!(tiny.median < 1e-3, "tiny tolerance: {tiny:?}");
+}
+
+#[test]
+fn stability_thin_structure_at_lod_12() {
+    // A rod 0.02 × 1 × 0.02 (its width is 1/50 of its length): 12 cameras are ~63° apart, so
+    // the rod is thin in every map; coverage must degrade gracefully, not vanish or smear.
+    let (lo, hi) = (DVec3::new(-0.01, -0.5, -0.01), DVec3::new(0.01, 0.5, 0.01));
+    let mut mesh = cube([0.0, 0.0, 0.0], 0.5);
+    for p in &mut mesh.positions {
+        p[0] *= 0.02;
+        p[2] *= 0.02;
+    }
+    let asset = bake(
+        &Mesh::from_arrays(mesh.positions.clone(), mesh.triangles.clone(), None).expect("rod"),
+        &BakeOptions {
+            cameras: 162,
+            resolution: 128,
+            ..Default::default()
+        },
+    );
+    let field = ctx().renderer.upload(&asset).expect("upload");
+    let r = asset.header().frame.radius;
+    let view = View::look_at([0.9, 0.3, 1.6], [0.0, 0.0, 0.0], 40.0, 96, 96);
+    // Depth bound: the rod's width (0.02 = 0.023 r): on a structure one or two map texels
+    // wide, cameras find the crossing on the rod's side faces rather than the one facing the
+    // view (measured 1.0e-2 r at LOD 12, 6.4e-3 r at 162); more cameras must not be worse.
+    let mut medians = Vec::new();
+    for (lod, recall, median) in [(12, 0.5, 0.023), (162, 0.8, 0.023)] {
+        let frame = ctx()
+            .renderer
+            .render(
+                &field,
+                &view,
+                &RenderOptions {
+                    lod: Some(lod),
+                    ..Default::default()
+                },
+            )
+            .expect("render");
+        let a = box_agreement(&frame, &view, lo, hi, r);
+        eprintln!("rod at lod {lod}: {a:?}, covered {}", frame.covered_count());
+        assert!(a.truth > 100, "{a:?}");
+        assert!(
+            a.both as f64 >= recall * a.truth as f64,
+            "lod {lod}: {} of {} rod pixels",
+            a.both,
+            a.truth
+        );
+        // No smearing: at most 50 % more pixels than the rod covers.
+        assert!(
+            frame.covered_count() * 2 <= a.truth * 3,
+            "lod {lod}: {} covered vs {}",
+            frame.covered_count(),
+            a.truth
+        );
+        assert!(a.median < median, "lod {lod}: {a:?}");
+        medians.push(a.median);
+    }
+    assert!(
+        medians[1] <= medians[0],
+        "162 cameras worse than 12: {medians:?}"
+    );
+}
+
+#[test]
+fn stability_bad_parameters_are_clear_errors() {
+    let (_mesh, _asset, field) = unit_cube(12, 32);
+    let view = cube_view(16);
+    let options = |step, tolerance| RenderOptions {
+        step,
+        tolerance,
+        ..Default::default()
+    };
+    for (o, needle) in [
+        (options(Some(f32::INFINITY), None), "step"),
+        (options(Some(f32::NEG_INFINITY), None), "step"),
+        (options(Some(-0.01), None), "step"),
+        (options(Some(MIN_STEP_HALF), None), "step"),
+        (options(None, Some(f32::NAN)), "tolerance"),
+        (options(None, Some(f32::INFINITY)), "tolerance"),
+        (options(None, Some(0.0)), "tolerance"),
+        (options(None, Some(1.5)), "tolerance"),
+    ] {
+        let err = ctx()
+            .renderer
+            .render(&field, &view, &o)
+            .expect_err("bad option accepted");
+        assert!(err.to_string().contains(needle), "{o:?}: {err}");
+    }
+    let base = cube_view(16);
+    let bad_views: [(View, &str); 8] = [
+        (
+            View {
+                yfov_deg: 0.0,
+                ..base.clone()
+            },
+            "yfov",
+        ),
+        (
+            View {
+                yfov_deg: 180.0,
+                ..base.clone()
+            },
+            "yfov",
+        ),
+        (
+            View {
+                yfov_deg: f64::NAN,
+                ..base.clone()
+            },
+            "yfov",
+        ),
+        (
+            View {
+                target: [f64::INFINITY, 0.0, 0.0],
+                ..base.clone()
+            },
+            "target",
+        ),
+        (
+            View {
+                width: 0,
+                ..base.clone()
+            },
+            "size",
+        ),
+        (
+            View {
+                height: 1_000_000,
+                ..base.clone()
+            },
+            "size",
+        ),
+        (
+            View {
+                target: base.eye,
+                ..base.clone()
+            },
+            "coincide",
+        ),
+        (
+            View {
+                up: [0.0, 0.0, 0.0],
+                ..base.clone()
+            },
+            "up",
+        ),
+    ];
+    for (v, needle) in bad_views {
+        let err = ctx()
+            .renderer
+            .render(&field, &v, &RenderOptions::default())
+            .expect_err("bad view accepted");
+        assert!(err.to_string().contains(needle), "{v:?}: {err}");
+    }
+}
+
+const MIN_STEP_HALF: f32 = lumigraph_core::render::MIN_STEP / 2.0;
