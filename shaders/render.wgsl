@@ -21,6 +21,11 @@ struct RenderParams {
     pad0: f32,
     pad1: f32,
     pad2: f32,
+    // Box around every surface point the maps hold (see `visible_box` in render.rs).
+    box_min: vec3<f32>,
+    pad3: f32,
+    box_max: vec3<f32>,
+    pad4: f32,
 }
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
@@ -229,8 +234,22 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if bounds.y < 0.0 || bounds.x > bounds.y {
         return;
     }
-    let t_in = max(bounds.x, 0.0);
-    let t_out = bounds.y;
+    var t_in = max(bounds.x, 0.0);
+    var t_out = bounds.y;
+    if params.method != METHOD_FIXED {
+        // Clip to the visible box (slab test; near-zero direction components are replaced by
+        // ±1e-20 so every product stays finite). The fixed baseline keeps the seed's sphere.
+        let dd = select(d, select(vec3<f32>(1e-20), vec3<f32>(-1e-20), d < vec3<f32>(0.0)), abs(d) < vec3<f32>(1e-20));
+        let t0 = (params.box_min - o) / dd;
+        let t1 = (params.box_max - o) / dd;
+        let near = min(t0, t1);
+        let far = max(t0, t1);
+        t_in = max(t_in, max(max(near.x, near.y), near.z));
+        t_out = min(t_out, min(min(far.x, far.y), far.z));
+        if t_in > t_out {
+            return;
+        }
+    }
     atomicAdd(&counters[2], 1u);
     // The line's first intersection with the camera sphere picks the three cameras (seed 000 §2);
     // it exists whenever the line meets the bounding sphere inside it.

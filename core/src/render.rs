@@ -186,6 +186,10 @@ pub struct GpuLightField {
     pub resolution: u32,
     /// Bytes of texture memory used.
     pub gpu_bytes: u64,
+    /// Axis-aligned box (light-field units) holding every surface point any camera saw, grown
+    /// by the maps' texel footprint: the default marcher clips rays to it (empty when nothing
+    /// was seen).
+    pub visible_box: [[f32; 3]; 2],
     group: wgpu::BindGroup,
 }
 
@@ -210,8 +214,12 @@ struct RenderParams {
     refine_iterations: u32,
     front_mass: f32,
     pad: [f32; 3],
+    box_min: [f32; 3],
+    pad_min: f32,
+    box_max: [f32; 3],
+    pad_max: f32,
 }
-const _: () = assert!(std::mem::size_of::<RenderParams>() == 112);
+const _: () = assert!(std::mem::size_of::<RenderParams>() == 144);
 
 /// Per-size output buffers, reused between frames of the same size.
 struct Targets {
@@ -431,6 +439,8 @@ impl Renderer {
         self.gpu.check_layers(Gpu::padded_layers(cameras))?;
         let mut colors = Vec::with_capacity(cameras as usize);
         let mut depths = Vec::with_capacity(cameras as usize);
+        let mut visible = VisibleBox::default();
+        let positions = &geometry::camera_set().positions;
         for k in 0..cameras {
             colors.push(asset.read_image(ImageKey::new(0, 0, k, Channel::Color))?);
             let raw = asset.read_image(ImageKey::new(0, 0, k, Channel::Depth))?;
@@ -463,6 +473,7 @@ impl Renderer {
             } else {
                 codes
             };
+            visible.add_map(&codes, n as usize, positions[k as usize]);
             depths.push(footprint_texels(&codes, n as usize));
         }
         let color_refs: Vec<&[u8]> = colors.iter().map(Vec::as_slice).collect();
@@ -527,6 +538,7 @@ impl Renderer {
             max_level,
             resolution: n,
             gpu_bytes,
+            visible_box: visible.finish(n, requantize_8 || depth_encoding == Encoding::R8),
             group,
         })
     }
@@ -627,6 +639,10 @@ impl Renderer {
             refine_iterations: REFINE_ITERATIONS,
             front_mass: FRONT_MASS,
             pad: [0.0; 3],
+            box_min: field.visible_box[0],
+            pad_min: 0.0,
+            box_max: field.visible_box[1],
+            pad_max: 0.0,
         };
         let pixels = u64::from(view.width) * u64::from(view.height);
         let mut guard = self
@@ -690,6 +706,67 @@ impl Renderer {
                 fetches: u64::from(counters[0]),
             },
         })
+    }
+}
+
+/// Running bounds of the surface points the depth maps hold (light-field units).
+struct VisibleBox {
+    lo: glam::Vec3,
+    hi: glam::Vec3,
+}
+
+impl Default for VisibleBox {
+    fn default() -> Self {
+        VisibleBox {
+            lo: glam::Vec3::splat(f32::INFINITY),
+            hi: glam::Vec3::splat(f32::NEG_INFINITY),
+        }
+    }
+}
+
+impl VisibleBox {
+    /// Adds every hit texel of one camera's `n×n` map: the point `p + d·chord·w` of the
+    /// texel centre's direction `w` (the parabolic inverse in the camera frame).
+    fn add_map(&mut self, codes: &[u16], n: usize, camera: glam::Vec3) {
+        let [fx, fy, fz] = geometry::camera_frame(camera);
+        let scale = 2.0 / n as f32;
+        for (row, line) in codes.chunks_exact(n).enumerate() {
+            let v = (row as f32 + 0.5) * scale - 1.0;
+            for (col, &code) in line.iter().enumerate() {
+                if code == geometry::NO_HIT_U16 {
+                    continue;
+                }
+                let u = (col as f32 + 0.5) * scale - 1.0;
+                let s = u * u + v * v;
+                let inv = 1.0 / (1.0 + s);
+                let (rx, ry, rz) = (2.0 * u * inv, 2.0 * v * inv, (1.0 - s) * inv);
+                if rz <= 0.0 {
+                    continue;
+                }
+                let w = fx * rx + fy * ry + fz * rz;
+                // Chord of a unit-sphere camera along w: −2 p·w = 2 r_z.
+                let x = camera + w * (geometry::decode_depth_u16(code) * 2.0 * rz);
+                self.lo = self.lo.min(x);
+                self.hi = self.hi.max(x);
+            }
+        }
+    }
+
+    /// The box grown by a margin covering what a lookup can return beyond the texel centres:
+    /// one texel of angle (≤ 2/n rad per texel at the rim) at chord ≤ 2, doubled, plus the
+    /// depth quantization (8-bit: 1/255 of a chord ≤ 2), plus 0.01 for f32 rounding. An empty
+    /// map gives an empty box (lo > hi), which no ray enters.
+    fn finish(&self, n: u32, eight_bit: bool) -> [[f32; 3]; 2] {
+        if self.lo.cmpgt(self.hi).any() {
+            return [[1.0; 3], [-1.0; 3]];
+        }
+        let quantization = if eight_bit {
+            2.0 / 255.0
+        } else {
+            2.0 / 65535.0
+        };
+        let margin = 8.0 / n.max(1) as f32 + quantization + 0.01;
+        [(self.lo - margin).to_array(), (self.hi + margin).to_array()]
     }
 }
 
