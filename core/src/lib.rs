@@ -21,6 +21,7 @@
 //!   embedded at build time ([`shaders`]).
 //! - [`metrics`] implements DESIGN §3's metrics (cross-checked against scikit-image);
 //!   [`tradeoff`] sweeps every quality knob and measures its cost and error.
+//! - [`scene`] composites light-field instances and meshes, each with its own transform, by depth.
 
 pub mod asset;
 pub mod bake;
@@ -33,6 +34,7 @@ pub mod mesh;
 pub mod metrics;
 pub mod reference;
 pub mod render;
+pub mod scene;
 pub mod shaders;
 pub mod shading;
 pub mod tradeoff;

@@ -501,3 +501,108 @@ fn bench_tradeoff_rejects_bad_grids() {
         "cannot open asset",
     );
 }
+
+#[test]
+fn render_scene_composites_instances_and_meshes() {
+    let asset = demo_asset();
+    let obj = write(
+        "floor.obj",
+        b"v -9 -3 -9\nv 9 -3 -9\nv 9 -3 9\nv -9 -3 9\nf 1 3 2\nf 1 4 3\n",
+    );
+    let scene = write(
+        "scene.json",
+        format!(
+            r#"{{"objects": [
+                {{"type": "lightfield", "asset": "{}"}},
+                {{"type": "lightfield", "asset": "{}", "transform": {{"translation": [3, 0, 0], "scale": 0.5}}}},
+                {{"type": "mesh", "mesh": "{}"}}
+            ]}}"#,
+            s(asset),
+            s(asset),
+            obj.file_name().and_then(|n| n.to_str()).expect("name")
+        )
+        .as_bytes(),
+    );
+    let view = write("scene_view.json", VIEW.as_bytes());
+    let out = path("scene.png");
+    let depth = path("scene.npy");
+    let o = lumigraph(&[
+        "render",
+        s(&scene),
+        "--view",
+        s(&view),
+        "-o",
+        s(&out),
+        "--depth",
+        s(&depth),
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        stdout.contains("3 objects, 1 light-field assets and 1 meshes"),
+        "{stdout}"
+    );
+    let img = image::open(&out).expect("png").to_rgba8();
+    assert_eq!(img.dimensions(), (48, 40));
+    assert!(std::fs::metadata(&depth).expect("depth").len() > 48 * 40 * 4);
+    // Bad scenes fail cleanly, naming the problem.
+    let bad = |name: &str, json: &str| write(name, json.as_bytes());
+    let v = s(&view);
+    let o = s(&out);
+    assert_fails(
+        &[
+            "render",
+            s(&bad("bad1.json", r#"{"objects": []}"#)),
+            "--view",
+            v,
+            "-o",
+            o,
+        ],
+        "0 objects",
+    );
+    assert_fails(
+        &[
+            "render",
+            s(&bad(
+                "bad2.json",
+                r#"{"objects": [{"type": "lightfield", "asset": "missing.lfa"}]}"#,
+            )),
+            "--view",
+            v,
+            "-o",
+            o,
+        ],
+        "missing.lfa",
+    );
+    let neg = format!(
+        r#"{{"objects": [{{"type": "lightfield", "asset": "{}", "transform": {{"scale": -2}}}}]}}"#,
+        s(asset)
+    );
+    assert_fails(
+        &["render", s(&bad("bad3.json", &neg)), "--view", v, "-o", o],
+        "scale",
+    );
+    assert_fails(
+        &[
+            "render",
+            s(&bad("bad4.json", "{not json")),
+            "--view",
+            v,
+            "-o",
+            o,
+        ],
+        "bad4.json",
+    );
+    assert_fails(
+        &["render", s(&scene), "--view", v, "-o", o, "--step", "0.1"],
+        "per light-field object",
+    );
+    let lod = format!(
+        r#"{{"objects": [{{"type": "lightfield", "asset": "{}", "options": {{"lod": 642}}}}]}}"#,
+        s(asset)
+    );
+    assert_fails(
+        &["render", s(&bad("bad5.json", &lod)), "--view", v, "-o", o],
+        "642",
+    );
+}

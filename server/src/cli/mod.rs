@@ -18,6 +18,7 @@ use lumigraph_core::mesh::{Mesh, demo_mesh, load_mesh};
 use lumigraph_core::metrics::{self, Comparison};
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::{Method, RenderOptions, Renderer};
+use lumigraph_core::scene::Scene;
 use lumigraph_core::shading::Shading;
 use lumigraph_core::tradeoff::{self, Grid, SweepInputs};
 use lumigraph_core::view::{View, random_orbit_views};
@@ -182,7 +183,8 @@ pub struct DepthArgs {
 /// `lumigraph render`.
 #[derive(Debug, Args)]
 pub struct RenderArgs {
-    /// Light-field asset (.lfa).
+    /// Light-field asset (.lfa), or a scene (.json: light-field instances and meshes, each
+    /// with its own transform, composited by depth; docs/scene.md).
     pub asset: PathBuf,
     /// Views.
     #[command(flatten)]
@@ -538,6 +540,13 @@ fn check_depth_path(depth: &DepthArgs, many: bool) -> Result<()> {
 fn render(args: &RenderArgs) -> Result<()> {
     let (views, many) = read_views(&args.views)?;
     check_depth_path(&args.depth, many)?;
+    if args
+        .asset
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+    {
+        return render_scene(args, &views, many);
+    }
     let asset = AssetFile::open(&args.asset)
         .with_context(|| format!("cannot open asset {}", args.asset.display()))?;
     let options = args.quality.options();
@@ -548,6 +557,37 @@ fn render(args: &RenderArgs) -> Result<()> {
         .with_context(|| format!("cannot load asset {}", args.asset.display()))?;
     for (i, view) in views.iter().enumerate() {
         let frame = renderer.render(&field, view, &options)?;
+        write_outputs(&frame, i, many, &args.output, &args.depth)?;
+        println!(
+            "view {i:03}: {:.2} ms ({} px covered)",
+            frame.stats.render_ms,
+            frame.covered_count()
+        );
+    }
+    Ok(())
+}
+
+fn render_scene(args: &RenderArgs, views: &[View], many: bool) -> Result<()> {
+    let q = &args.quality;
+    if q.lod.is_some() || q.step.is_some() || q.tolerance.is_some() || q.method != Method::Default {
+        bail!(
+            "quality flags do not apply to a scene: set \"options\" per light-field object in {}",
+            args.asset.display()
+        );
+    }
+    let gpu = gpu()?;
+    let renderer = Renderer::new(gpu.clone());
+    let reference = ReferenceRenderer::new(gpu);
+    let scene = Scene::load(&args.asset, &renderer, &reference)?;
+    println!(
+        "scene {}: {} objects, {} light-field assets and {} meshes on the GPU",
+        args.asset.display(),
+        scene.objects(),
+        scene.uploaded_fields(),
+        scene.uploaded_meshes()
+    );
+    for (i, view) in views.iter().enumerate() {
+        let frame = scene.render(&renderer, &reference, view)?;
         write_outputs(&frame, i, many, &args.output, &args.depth)?;
         println!(
             "view {i:03}: {:.2} ms ({} px covered)",

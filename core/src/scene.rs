@@ -1,0 +1,591 @@
+//! Scenes: light-field instances and polygon meshes, each with its own world transform, rendered
+//! into one frame with a shared depth buffer (seed 000 §3.2, issue #5; format in
+//! `docs/scene.md`).
+//!
+//! Every object is rendered by the pipeline it belongs to (light fields by [`Renderer`], meshes
+//! by the [`ReferenceRenderer`] rasterizer) with the view carried into the object's own frame by
+//! the inverse of its transform — a similarity (rotation, uniform scale, translation), so a
+//! pinhole view stays a pinhole view and z-depth scales by the object's scale. The layers are
+//! then composited per pixel by z-depth (nearest wins). Instances of one asset (or one mesh
+//! file) share a single upload: the GPU holds each asset once however many times it is placed.
+//!
+//! Lighting is baked into a light field in its own frame, so it turns with the instance; a
+//! mesh object is shaded in its own frame the same way, so both kinds stay consistent.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use glam::{DQuat, DVec3};
+use serde::Deserialize;
+
+use crate::asset::{AssetError, AssetFile};
+use crate::frame::{Frame, FrameStats};
+use crate::gpu::GpuError;
+use crate::gpu::mesh::GpuMesh;
+use crate::mesh::{MeshError, load_mesh};
+use crate::reference::{ReferenceError, ReferenceRenderer};
+use crate::render::{GpuLightField, RenderError, RenderOptions, Renderer};
+use crate::shading::Shading;
+use crate::view::{View, ViewError};
+
+/// Most objects in one scene.
+pub const MAX_OBJECTS: usize = 1024;
+
+/// Errors of scenes.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SceneError {
+    /// The scene file is not valid JSON of the documented shape, or a value is out of range.
+    #[error("scene {path}: {message}")]
+    Invalid {
+        /// The scene file.
+        path: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// The scene file cannot be read.
+    #[error("cannot read scene {path}: {source}")]
+    Io {
+        /// The scene file.
+        path: String,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// An object's asset cannot be opened.
+    #[error("scene object {index} ({path}): {source}")]
+    Asset {
+        /// Object index.
+        index: usize,
+        /// Asset path.
+        path: String,
+        /// The cause.
+        source: AssetError,
+    },
+    /// An object's mesh cannot be loaded.
+    #[error("scene object {index} ({path}): {source}")]
+    Mesh {
+        /// Object index.
+        index: usize,
+        /// Mesh path.
+        path: String,
+        /// The cause.
+        source: MeshError,
+    },
+    /// A light-field render failed (or an object's options are invalid).
+    #[error("scene object {index}: {source}")]
+    Render {
+        /// Object index.
+        index: usize,
+        /// The cause.
+        source: RenderError,
+    },
+    /// A mesh render failed.
+    #[error("scene object {index}: {source}")]
+    Reference {
+        /// Object index.
+        index: usize,
+        /// The cause.
+        source: ReferenceError,
+    },
+    /// The device failed.
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    /// The view is invalid.
+    #[error(transparent)]
+    View(#[from] ViewError),
+}
+
+/// A rotation about an axis (right-handed), in degrees.
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Rotation {
+    /// Axis (normalized when used; must not be zero).
+    pub axis: [f64; 3],
+    /// Angle in degrees.
+    pub degrees: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// An object's placement: `world = translation + scale · rotation(local)`.
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Transform {
+    /// Translation, world units.
+    #[serde(default)]
+    pub translation: [f64; 3],
+    /// Rotation (none: identity).
+    #[serde(default)]
+    pub rotation: Option<Rotation>,
+    /// Uniform scale (> 0).
+    #[serde(default = "one")]
+    pub scale: f64,
+}
+
+impl Default for Transform {
+    fn default() -> Self {
+        Transform {
+            translation: [0.0; 3],
+            rotation: None,
+            scale: 1.0,
+        }
+    }
+}
+
+/// A validated similarity transform.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Similarity {
+    rotation: DQuat,
+    scale: f64,
+    translation: DVec3,
+}
+
+impl Transform {
+    /// Checks the values and builds the similarity.
+    ///
+    /// # Errors
+    /// A message naming the bad value.
+    pub fn similarity(&self) -> Result<Similarity, String> {
+        let translation = DVec3::from(self.translation);
+        if !translation.is_finite() {
+            return Err("translation must be finite".to_owned());
+        }
+        if !(self.scale.is_finite() && self.scale > 1e-12 && self.scale < 1e12) {
+            return Err(format!(
+                "scale {} must be finite and in (1e-12, 1e12)",
+                self.scale
+            ));
+        }
+        let rotation = match self.rotation {
+            None => DQuat::IDENTITY,
+            Some(r) => {
+                let axis = DVec3::from(r.axis);
+                let len = axis.length();
+                if !(axis.is_finite() && len > 1e-12) {
+                    return Err("rotation axis must be finite and non-zero".to_owned());
+                }
+                if !r.degrees.is_finite() {
+                    return Err("rotation degrees must be finite".to_owned());
+                }
+                DQuat::from_axis_angle(axis / len, r.degrees.to_radians())
+            }
+        };
+        Ok(Similarity {
+            rotation,
+            scale: self.scale,
+            translation,
+        })
+    }
+}
+
+impl Similarity {
+    /// World coordinates of an object point.
+    pub fn to_world(&self, p: DVec3) -> DVec3 {
+        self.translation + self.scale * (self.rotation * p)
+    }
+
+    /// Object coordinates of a world point.
+    pub fn to_local(&self, p: DVec3) -> DVec3 {
+        self.rotation.inverse() * (p - self.translation) / self.scale
+    }
+
+    /// The view as seen in the object's frame (same image, z-depth divided by the scale).
+    pub fn view_to_local(&self, view: &View) -> View {
+        let up = self.rotation.inverse() * DVec3::from(view.up);
+        View {
+            eye: self.to_local(DVec3::from(view.eye)).to_array(),
+            target: self.to_local(DVec3::from(view.target)).to_array(),
+            up: up.to_array(),
+            ..view.clone()
+        }
+    }
+
+    /// Uniform scale.
+    pub fn scale(&self) -> f64 {
+        self.scale
+    }
+}
+
+/// One object of a scene file.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
+pub enum SceneObject {
+    /// A light-field instance.
+    Lightfield {
+        /// `.lfa` path, relative to the scene file.
+        asset: PathBuf,
+        /// Placement.
+        #[serde(default)]
+        transform: Transform,
+        /// Quality knobs for this instance.
+        #[serde(default)]
+        options: RenderOptions,
+    },
+    /// A polygon mesh (any format `lumigraph bake` reads), rasterized.
+    Mesh {
+        /// Mesh path, relative to the scene file.
+        mesh: PathBuf,
+        /// Placement.
+        #[serde(default)]
+        transform: Transform,
+        /// Shading, in the mesh's own frame.
+        #[serde(default)]
+        shading: Shading,
+    },
+}
+
+/// A scene file: `{"objects": [...]}`.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneFile {
+    /// The objects, at least one.
+    pub objects: Vec<SceneObject>,
+}
+
+enum Layer {
+    Field {
+        field: usize,
+        placement: Similarity,
+        options: RenderOptions,
+    },
+    Mesh {
+        mesh: usize,
+        placement: Similarity,
+        shading: Shading,
+    },
+}
+
+/// A scene with its assets and meshes on the GPU (each file uploaded once).
+pub struct Scene {
+    layers: Vec<Layer>,
+    fields: Vec<Arc<GpuLightField>>,
+    meshes: Vec<GpuMesh>,
+}
+
+impl Scene {
+    /// Reads, validates and uploads the scene at `path`.
+    ///
+    /// # Errors
+    /// [`SceneError`] naming the object and what is wrong.
+    pub fn load(
+        path: &Path,
+        renderer: &Renderer,
+        reference: &ReferenceRenderer,
+    ) -> Result<Scene, SceneError> {
+        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        let base = path.parent().unwrap_or_else(|| Path::new("."));
+        Scene::from_json(&text, base, renderer, reference).map_err(|e| match e {
+            SceneError::Invalid { message, .. } => SceneError::Invalid {
+                path: path.display().to_string(),
+                message,
+            },
+            other => other,
+        })
+    }
+
+    /// [`Scene::load`] from JSON text; relative paths resolve against `base`.
+    ///
+    /// # Errors
+    /// [`SceneError`].
+    pub fn from_json(
+        text: &str,
+        base: &Path,
+        renderer: &Renderer,
+        reference: &ReferenceRenderer,
+    ) -> Result<Scene, SceneError> {
+        let invalid = |message: String| SceneError::Invalid {
+            path: "(json)".to_owned(),
+            message,
+        };
+        let file: SceneFile = serde_json::from_str(text).map_err(|e| invalid(e.to_string()))?;
+        if file.objects.is_empty() || file.objects.len() > MAX_OBJECTS {
+            return Err(invalid(format!(
+                "{} objects: give 1 to {MAX_OBJECTS}",
+                file.objects.len()
+            )));
+        }
+        let mut field_index: HashMap<PathBuf, usize> = HashMap::new();
+        let mut mesh_index: HashMap<PathBuf, usize> = HashMap::new();
+        let mut fields = Vec::new();
+        let mut meshes = Vec::new();
+        let mut layers = Vec::with_capacity(file.objects.len());
+        for (index, object) in file.objects.iter().enumerate() {
+            match object {
+                SceneObject::Lightfield {
+                    asset,
+                    transform,
+                    options,
+                } => {
+                    let placement = transform
+                        .similarity()
+                        .map_err(|m| invalid(format!("object {index}: {m}")))?;
+                    let path = base.join(asset);
+                    let key = path.canonicalize().unwrap_or_else(|_| path.clone());
+                    let field = if let Some(&i) = field_index.get(&key) {
+                        i
+                    } else {
+                        let file = AssetFile::open(&path).map_err(|source| SceneError::Asset {
+                            index,
+                            path: path.display().to_string(),
+                            source,
+                        })?;
+                        let uploaded = renderer
+                            .upload(&file)
+                            .map_err(|source| SceneError::Render { index, source })?;
+                        fields.push(Arc::new(uploaded));
+                        field_index.insert(key, fields.len() - 1);
+                        fields.len() - 1
+                    };
+                    options
+                        .resolve(fields[field].max_level)
+                        .map_err(|source| SceneError::Render { index, source })?;
+                    layers.push(Layer::Field {
+                        field,
+                        placement,
+                        options: *options,
+                    });
+                }
+                SceneObject::Mesh {
+                    mesh,
+                    transform,
+                    shading,
+                } => {
+                    let placement = transform
+                        .similarity()
+                        .map_err(|m| invalid(format!("object {index}: {m}")))?;
+                    shading
+                        .validate()
+                        .map_err(|e| invalid(format!("object {index}: {e}")))?;
+                    let path = base.join(mesh);
+                    let key = path.canonicalize().unwrap_or_else(|_| path.clone());
+                    let mesh = if let Some(&i) = mesh_index.get(&key) {
+                        i
+                    } else {
+                        let loaded = load_mesh(&path).map_err(|source| SceneError::Mesh {
+                            index,
+                            path: path.display().to_string(),
+                            source,
+                        })?;
+                        meshes.push(reference.upload(&loaded)?);
+                        mesh_index.insert(key, meshes.len() - 1);
+                        meshes.len() - 1
+                    };
+                    layers.push(Layer::Mesh {
+                        mesh,
+                        placement,
+                        shading: *shading,
+                    });
+                }
+            }
+        }
+        Ok(Scene {
+            layers,
+            fields,
+            meshes,
+        })
+    }
+
+    /// Number of light-field assets on the GPU (instances of one asset count once).
+    pub fn uploaded_fields(&self) -> usize {
+        self.fields.len()
+    }
+
+    /// Number of meshes on the GPU.
+    pub fn uploaded_meshes(&self) -> usize {
+        self.meshes.len()
+    }
+
+    /// Number of objects.
+    pub fn objects(&self) -> usize {
+        self.layers.len()
+    }
+
+    /// Renders every object from `view` and composites them by depth.
+    ///
+    /// # Errors
+    /// [`SceneError`] for a bad view or a failed render.
+    pub fn render(
+        &self,
+        renderer: &Renderer,
+        reference: &ReferenceRenderer,
+        view: &View,
+    ) -> Result<Frame, SceneError> {
+        view.basis(crate::view::DEFAULT_MAX_VIEW_PX)?;
+        let mut out: Option<Frame> = None;
+        for (index, layer) in self.layers.iter().enumerate() {
+            let (frame, scale) = match layer {
+                Layer::Field {
+                    field,
+                    placement,
+                    options,
+                } => {
+                    let local = placement.view_to_local(view);
+                    let frame = renderer
+                        .render(&self.fields[*field], &local, options)
+                        .map_err(|source| SceneError::Render { index, source })?;
+                    (frame, placement.scale())
+                }
+                Layer::Mesh {
+                    mesh,
+                    placement,
+                    shading,
+                } => {
+                    let local = placement.view_to_local(view);
+                    let frame = reference
+                        .render(&self.meshes[*mesh], &local, shading)
+                        .map_err(|source| SceneError::Reference { index, source })?;
+                    (frame, placement.scale())
+                }
+            };
+            match out.as_mut() {
+                None => {
+                    let mut first = frame;
+                    scale_depth(&mut first.depth, scale);
+                    out = Some(first);
+                }
+                Some(acc) => composite_into(acc, &frame, scale),
+            }
+        }
+        out.ok_or_else(|| GpuError::Operation("scene has no objects".to_owned()).into())
+    }
+}
+
+fn scale_depth(depth: &mut [f32], scale: f64) {
+    if scale != 1.0 {
+        for z in depth.iter_mut().filter(|z| z.is_finite()) {
+            *z = (f64::from(*z) * scale) as f32;
+        }
+    }
+}
+
+/// Depth test of `layer` (z-depth in its object's units, × `scale` for world units) into `acc`:
+/// per pixel the nearer surface wins; ties keep what is already there. Stats add up.
+pub fn composite_into(acc: &mut Frame, layer: &Frame, scale: f64) {
+    for (i, &z) in layer.depth.iter().enumerate() {
+        if !z.is_finite() {
+            continue;
+        }
+        let z = (f64::from(z) * scale) as f32;
+        if z < acc.depth[i] {
+            acc.depth[i] = z;
+            acc.color[4 * i..4 * i + 4].copy_from_slice(&layer.color[4 * i..4 * i + 4]);
+        }
+    }
+    acc.stats = FrameStats {
+        render_ms: acc.stats.render_ms + layer.stats.render_ms,
+        rays: acc.stats.rays + layer.stats.rays,
+        steps: acc.stats.steps + layer.stats.steps,
+        fetches: acc.stats.fetches + layer.stats.fetches,
+    };
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn similarity_round_trips_views_and_scales_depth() {
+        let t = Transform {
+            translation: [1.0, -2.0, 3.0],
+            rotation: Some(Rotation {
+                axis: [0.0, 2.0, 0.0],
+                degrees: 90.0,
+            }),
+            scale: 2.0,
+        }
+        .similarity()
+        .expect("valid");
+        // World point (1,-2,3) + 2·R(1,0,0) with R = 90° about y: R(1,0,0) = (0,0,-1).
+        let local = t.to_local(DVec3::new(1.0, -2.0, 1.0));
+        assert!((local - DVec3::X).length() < 1e-12, "{local}");
+        let view = View::look_at([5.0, 1.0, 7.0], [1.0, -2.0, 3.0], 40.0, 8, 8);
+        let lv = t.view_to_local(&view);
+        // Distances shrink by the scale; the viewing direction turns with the rotation.
+        let d_world = (DVec3::from(view.eye) - DVec3::from(view.target)).length();
+        let d_local = (DVec3::from(lv.eye) - DVec3::from(lv.target)).length();
+        assert!((d_world / d_local - 2.0).abs() < 1e-12);
+        assert!(lv.target.iter().all(|c| c.abs() < 1e-12), "{:?}", lv.target);
+        let p = DVec3::new(0.3, -0.7, 2.0);
+        assert!((t.to_world(t.to_local(p)) - p).length() < 1e-12);
+    }
+
+    #[test]
+    fn bad_transforms_and_scene_json_are_rejected() {
+        let bad = [
+            Transform {
+                scale: 0.0,
+                ..Default::default()
+            },
+            Transform {
+                scale: -1.0,
+                ..Default::default()
+            },
+            Transform {
+                scale: f64::NAN,
+                ..Default::default()
+            },
+            Transform {
+                translation: [f64::INFINITY, 0.0, 0.0],
+                ..Default::default()
+            },
+            Transform {
+                rotation: Some(Rotation {
+                    axis: [0.0; 3],
+                    degrees: 10.0,
+                }),
+                ..Default::default()
+            },
+            Transform {
+                rotation: Some(Rotation {
+                    axis: [1.0, 0.0, 0.0],
+                    degrees: f64::NAN,
+                }),
+                ..Default::default()
+            },
+        ];
+        for t in bad {
+            assert!(t.similarity().is_err(), "{t:?}");
+        }
+        for text in [
+            r#"{"objects": [{"type": "lightfield"}]}"#,
+            r#"{"objects": [{"type": "sphere", "radius": 1}]}"#,
+            r#"{"objects": [{"type": "mesh", "mesh": "a.obj", "colour": 1}]}"#,
+            r#"{"objects": [], "extra": 1}"#,
+            r#"{"objects": [{"type": "lightfield", "asset": "a.lfa", "transform": {"scale": "big"}}]}"#,
+        ] {
+            assert!(serde_json::from_str::<SceneFile>(text).is_err(), "{text}");
+        }
+        let ok: SceneFile = serde_json::from_str(
+            r#"{"objects": [{"type": "lightfield", "asset": "a.lfa",
+                "transform": {"translation": [1, 2, 3], "rotation": {"axis": [0, 1, 0], "degrees": 30}, "scale": 0.5},
+                "options": {"lod": 42, "step": 0.0625}},
+               {"type": "mesh", "mesh": "floor.obj"}]}"#,
+        )
+        .expect("valid scene");
+        assert_eq!(ok.objects.len(), 2);
+    }
+
+    #[test]
+    fn compositing_keeps_the_nearest_surface() {
+        let frame = |depth: Vec<f32>, c: u8| Frame {
+            width: 3,
+            height: 1,
+            color: vec![c; 12],
+            depth,
+            stats: FrameStats::default(),
+        };
+        let mut acc = frame(vec![1.0, f32::INFINITY, 2.0], 10);
+        // Layer depths are in object units; × 2 gives world units 0.8, 6, 4.
+        composite_into(&mut acc, &frame(vec![0.4, 3.0, 2.0], 20), 2.0);
+        assert_eq!(acc.depth, vec![0.8, 6.0, 2.0]);
+        assert_eq!(acc.color[0], 20);
+        assert_eq!(acc.color[4], 20);
+        assert_eq!(acc.color[8], 10);
+    }
+}
