@@ -38,6 +38,9 @@ pub enum TradeoffError {
     /// A comparison failed.
     #[error(transparent)]
     Metrics(#[from] MetricsError),
+    /// A render goal (target PSNR or time budget) is invalid or cannot be served.
+    #[error("{0}")]
+    Goal(String),
     /// Writing the CSV failed.
     #[error("cannot write {path}: {source}")]
     Io {
@@ -405,9 +408,317 @@ pub fn write_csv(path: &Path, points: &[Point]) -> Result<(), TradeoffError> {
     })
 }
 
+/// Output size of the calibration renders (square, pixels).
+pub const CALIBRATION_SIZE: u32 = 256;
+/// Random orbit views per calibration setting.
+pub const CALIBRATION_VIEWS: usize = 4;
+/// Steps the calibration measures (bounding diameters).
+pub const CALIBRATION_STEPS: [f32; 4] = [1.0 / 8.0, 1.0 / 16.0, 1.0 / 32.0, 1.0 / 64.0];
+
+/// A scene's error against cost, measured at bake time (issue #5 item 5) and stored in the
+/// asset's quality report under `"calibration"`: the default method at every camera count the
+/// asset holds × [`CALIBRATION_STEPS`], on [`CALIBRATION_VIEWS`] random orbit views of
+/// [`CALIBRATION_SIZE`]².
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Calibration {
+    /// Calibration frame side, pixels.
+    pub size: u32,
+    /// Views per setting.
+    pub views: usize,
+    /// The adapter the times were measured on.
+    pub adapter: String,
+    /// One point per setting.
+    pub points: Vec<CalibrationPoint>,
+}
+
+/// One calibrated setting.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationPoint {
+    /// Cameras.
+    pub cameras: u32,
+    /// Step, bounding diameters (tolerance: step / 2).
+    pub step: f32,
+    /// Mean render time per million pixels, ms.
+    pub ms_per_mpx: f64,
+    /// Mean masked PSNR, dB.
+    pub masked_psnr: f64,
+    /// Mean median depth error, bounding radii.
+    pub depth_median_r: f64,
+}
+
+/// What a render should meet.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Goal {
+    /// The cheapest setting predicted to reach this masked PSNR (dB).
+    TargetPsnr(f64),
+    /// The most accurate setting predicted to fit this time per frame (ms).
+    BudgetMs(f64),
+}
+
+/// The setting chosen for a goal, with its predictions.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Choice {
+    /// Cameras.
+    pub cameras: u32,
+    /// Step, bounding diameters.
+    pub step: f32,
+    /// Predicted masked PSNR, dB (the calibrated value; masked PSNR barely depends on the
+    /// output size: ±0.15 dB between 256² and 512² in BENCHMARKS.md).
+    pub predicted_psnr: f64,
+    /// Predicted ms per frame at the requested size (calibrated ms per pixel × pixels).
+    pub predicted_ms: f64,
+    /// Whether some setting was predicted to meet the goal (else the closest one is chosen).
+    pub met: bool,
+}
+
+impl Choice {
+    /// The render options of the choice (default method, tolerance step / 2).
+    pub fn options(&self) -> RenderOptions {
+        RenderOptions {
+            lod: Some(self.cameras),
+            step: Some(self.step),
+            tolerance: None,
+            method: Method::Default,
+        }
+    }
+}
+
+impl Calibration {
+    /// Measures the calibration of `inputs.asset` (its views are replaced by the calibration
+    /// views around the asset's bounding sphere).
+    ///
+    /// # Errors
+    /// [`TradeoffError`] from the sweep.
+    pub fn measure(
+        renderer: &Renderer,
+        reference: &ReferenceRenderer,
+        asset: &AssetFile,
+        mesh: &GpuMesh,
+        shading: &Shading,
+        adapter: &str,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<Calibration, TradeoffError> {
+        let frame = &asset.header().frame;
+        let views = crate::view::random_orbit_views(
+            frame.center,
+            2.5 * frame.radius,
+            CALIBRATION_VIEWS,
+            0,
+            40.0,
+            CALIBRATION_SIZE,
+        );
+        let max_level = usize::from(asset.header().geometry.camera_level).min(3);
+        let stored_8 = asset.header().encoding(Channel::Depth) == Some(Encoding::R8);
+        let grid = Grid {
+            cameras: CAMERA_COUNTS[..=max_level].to_vec(),
+            steps: CALIBRATION_STEPS.to_vec(),
+            tolerance_factors: vec![0.5],
+            methods: vec![Method::Default],
+            depth_bits: vec![if stored_8 { 8 } else { 16 }],
+            sizes: vec![CALIBRATION_SIZE],
+        };
+        let inputs = SweepInputs {
+            renderer,
+            reference,
+            asset,
+            mesh,
+            shading,
+            views: &views,
+            repeats: 1,
+        };
+        let mpx = f64::from(CALIBRATION_SIZE).powi(2) / 1e6;
+        let points = sweep(&inputs, &grid, progress)?
+            .into_iter()
+            .map(|p| CalibrationPoint {
+                cameras: p.setting.cameras,
+                step: p.setting.step,
+                ms_per_mpx: p.ms_per_frame / mpx,
+                masked_psnr: p.masked_psnr,
+                depth_median_r: p.depth_median_r,
+            })
+            .collect();
+        Ok(Calibration {
+            size: CALIBRATION_SIZE,
+            views: CALIBRATION_VIEWS,
+            adapter: adapter.to_owned(),
+            points,
+        })
+    }
+
+    /// The calibration in an asset's quality report, if any.
+    ///
+    /// # Errors
+    /// [`TradeoffError::Goal`] when a report is there but malformed.
+    pub fn from_quality(
+        quality: Option<&serde_json::Value>,
+    ) -> Result<Option<Calibration>, TradeoffError> {
+        match quality.and_then(|q| q.get("calibration")) {
+            None => Ok(None),
+            Some(value) => serde_json::from_value(value.clone())
+                .map(Some)
+                .map_err(|e| TradeoffError::Goal(format!("malformed calibration: {e}"))),
+        }
+    }
+
+    /// Picks the setting for `goal` at `width × height` among points with at most
+    /// `max_cameras` cameras.
+    ///
+    /// # Errors
+    /// [`TradeoffError::Goal`] for a non-finite or non-positive goal, or no usable point.
+    pub fn choose(
+        &self,
+        goal: Goal,
+        width: u32,
+        height: u32,
+        max_cameras: u32,
+    ) -> Result<Choice, TradeoffError> {
+        match goal {
+            Goal::TargetPsnr(db) if !(db.is_finite() && db > 0.0) => {
+                return Err(TradeoffError::Goal(format!(
+                    "target PSNR {db} dB must be finite and positive"
+                )));
+            }
+            Goal::BudgetMs(ms) if !(ms.is_finite() && ms > 0.0) => {
+                return Err(TradeoffError::Goal(format!(
+                    "budget {ms} ms must be finite and positive"
+                )));
+            }
+            _ => {}
+        }
+        let mpx = f64::from(width) * f64::from(height) / 1e6;
+        let usable: Vec<(CalibrationPoint, f64)> = self
+            .points
+            .iter()
+            .filter(|p| {
+                p.cameras <= max_cameras
+                    && p.ms_per_mpx.is_finite()
+                    && p.masked_psnr.is_finite()
+                    && RenderOptions {
+                        step: Some(p.step),
+                        ..RenderOptions::default()
+                    }
+                    .resolve(3)
+                    .is_ok()
+            })
+            .map(|p| (*p, p.ms_per_mpx * mpx))
+            .collect();
+        let by_ms =
+            |a: &&(CalibrationPoint, f64), b: &&(CalibrationPoint, f64)| a.1.total_cmp(&b.1);
+        let by_psnr = |a: &&(CalibrationPoint, f64), b: &&(CalibrationPoint, f64)| {
+            a.0.masked_psnr.total_cmp(&b.0.masked_psnr)
+        };
+        let (pick, met) = match goal {
+            Goal::TargetPsnr(db) => {
+                match usable
+                    .iter()
+                    .filter(|(p, _)| p.masked_psnr >= db)
+                    .min_by(by_ms)
+                {
+                    Some(p) => (Some(p), true),
+                    None => (usable.iter().max_by(by_psnr), false),
+                }
+            }
+            Goal::BudgetMs(ms) => match usable.iter().filter(|(_, t)| *t <= ms).max_by(by_psnr) {
+                Some(p) => (Some(p), true),
+                None => (usable.iter().min_by(by_ms), false),
+            },
+        };
+        let (point, predicted_ms) = pick.ok_or_else(|| {
+            TradeoffError::Goal("the calibration holds no usable setting".to_owned())
+        })?;
+        Ok(Choice {
+            cameras: point.cameras,
+            step: point.step,
+            predicted_psnr: point.masked_psnr,
+            predicted_ms: *predicted_ms,
+            met,
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn calibration() -> Calibration {
+        let point = |cameras, step, ms_per_mpx, masked_psnr| CalibrationPoint {
+            cameras,
+            step,
+            ms_per_mpx,
+            masked_psnr,
+            depth_median_r: 1e-3,
+        };
+        Calibration {
+            size: 256,
+            views: 4,
+            adapter: "test".to_owned(),
+            points: vec![
+                point(12, 1.0 / 16.0, 500.0, 23.0),
+                point(42, 1.0 / 16.0, 600.0, 25.5),
+                point(162, 1.0 / 16.0, 700.0, 26.0),
+                point(162, 1.0 / 32.0, 900.0, 27.0),
+                point(642, 1.0 / 64.0, 2000.0, 28.0),
+            ],
+        }
+    }
+
+    #[test]
+    fn calibration_picks_the_cheapest_setting_for_a_target() {
+        let c = calibration();
+        // 512² = 0.262144 Mpx.
+        let pick = c
+            .choose(Goal::TargetPsnr(25.8), 512, 512, 162)
+            .expect("choice");
+        assert_eq!((pick.cameras, pick.step, pick.met), (162, 1.0 / 16.0, true));
+        assert!((pick.predicted_ms - 700.0 * 0.262_144).abs() < 1e-9);
+        // Unreachable with 162 cameras: the best there is, flagged.
+        let pick = c
+            .choose(Goal::TargetPsnr(27.5), 512, 512, 162)
+            .expect("choice");
+        assert_eq!((pick.cameras, pick.met), (162, false));
+        assert_eq!(pick.predicted_psnr, 27.0);
+        // With 642 cameras in the asset it is reachable.
+        let pick = c
+            .choose(Goal::TargetPsnr(27.5), 512, 512, 642)
+            .expect("choice");
+        assert_eq!((pick.cameras, pick.met), (642, true));
+    }
+
+    #[test]
+    fn calibration_picks_the_best_setting_within_a_budget() {
+        let c = calibration();
+        // 200 ms at 512²: up to 762 ms/Mpx → 162 cameras at 1/16 (700).
+        let pick = c
+            .choose(Goal::BudgetMs(200.0), 512, 512, 642)
+            .expect("choice");
+        assert_eq!((pick.cameras, pick.step, pick.met), (162, 1.0 / 16.0, true));
+        // A smaller frame affords more.
+        let pick = c
+            .choose(Goal::BudgetMs(200.0), 256, 256, 642)
+            .expect("choice");
+        assert_eq!((pick.cameras, pick.met), (642, true));
+        // Too tight: the fastest, flagged.
+        let pick = c
+            .choose(Goal::BudgetMs(1.0), 512, 512, 642)
+            .expect("choice");
+        assert_eq!((pick.cameras, pick.met), (12, false));
+        for bad in [
+            Goal::BudgetMs(0.0),
+            Goal::BudgetMs(f64::NAN),
+            Goal::TargetPsnr(-3.0),
+            Goal::TargetPsnr(f64::INFINITY),
+        ] {
+            assert!(c.choose(bad, 512, 512, 642).is_err(), "{bad:?}");
+        }
+        // Stored and read back through the quality report.
+        let q = serde_json::json!({"calibration": serde_json::to_value(&c).expect("json")});
+        assert_eq!(Calibration::from_quality(Some(&q)).expect("ok"), Some(c));
+        assert_eq!(Calibration::from_quality(None).expect("ok"), None);
+        let bad = serde_json::json!({"calibration": {"size": "x"}});
+        assert!(Calibration::from_quality(Some(&bad)).is_err());
+    }
 
     #[test]
     fn pareto_front_keeps_only_undominated_points() {

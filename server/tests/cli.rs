@@ -606,3 +606,101 @@ fn render_scene_composites_instances_and_meshes() {
         "642",
     );
 }
+
+#[test]
+fn calibrated_goals_pick_settings_and_report_predictions() {
+    // `bake` calibrates by default: the demo asset carries error against cost.
+    let asset = demo_asset();
+    let o = lumigraph(&["info", s(asset)]);
+    let info = String::from_utf8_lossy(&o.stdout);
+    assert!(info.contains("\"calibration\""), "{info}");
+    let view = write("goal_view.json", VIEW.as_bytes());
+    let out = path("goal.png");
+    let o = lumigraph(&[
+        "render",
+        s(asset),
+        "--view",
+        s(&view),
+        "-o",
+        s(&out),
+        "--target-psnr",
+        "15",
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(stdout.contains("chose 12 cameras, step 1/"), "{stdout}");
+    assert!(stdout.contains("predicted masked PSNR"), "{stdout}");
+    // eval puts the prediction beside the measurement.
+    let o = lumigraph(&[
+        "eval",
+        s(asset),
+        "--demo",
+        "--views",
+        "2",
+        "--size",
+        "64",
+        "--budget-ms",
+        "1000",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    let choice = &report["choice"];
+    assert_eq!(choice["met"], serde_json::Value::Bool(true), "{report}");
+    let predicted = choice["predicted_psnr"].as_f64().expect("predicted");
+    let measured = report["mean"]["masked_psnr"].as_f64().expect("measured");
+    // Calibrated at 256² on 4 views, measured here at 64² on 2 others: same scene, so within
+    // a few dB (masked PSNR is per pixel; view sampling moves it by ~1 dB).
+    assert!(
+        (predicted - measured).abs() < 4.0,
+        "{predicted} vs {measured}"
+    );
+    assert_eq!(
+        report["settings"]["step"].as_f64().map(|v| v as f32),
+        choice["step"].as_f64().map(|v| v as f32)
+    );
+    // Bad goals and conflicts fail cleanly.
+    let base = ["render", s(asset), "--view", s(&view), "-o", s(&out)];
+    let with = |extra: &[&'static str]| -> Vec<&str> {
+        let mut v: Vec<&str> = base.to_vec();
+        v.extend_from_slice(extra);
+        v
+    };
+    assert_fails(&with(&["--budget-ms", "nan"]), "budget");
+    assert_fails(&with(&["--target-psnr", "-1"]), "target PSNR");
+    assert_fails(
+        &with(&["--target-psnr", "20", "--step", "0.1"]),
+        "cannot be used",
+    );
+    assert_fails(
+        &with(&["--target-psnr", "20", "--budget-ms", "9"]),
+        "cannot be used",
+    );
+    // An asset baked without calibration says how to get one.
+    let plain = path("plain.lfa");
+    let o = lumigraph(&[
+        "bake",
+        "--demo",
+        "-o",
+        s(&plain),
+        "--cameras",
+        "12",
+        "--resolution",
+        "32",
+        "--no-calibrate",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_fails(
+        &[
+            "render",
+            s(&plain),
+            "--view",
+            s(&view),
+            "-o",
+            s(&out),
+            "--budget-ms",
+            "50",
+        ],
+        "re-bake",
+    );
+}

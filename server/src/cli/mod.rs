@@ -20,7 +20,7 @@ use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::{Method, RenderOptions, Renderer};
 use lumigraph_core::scene::Scene;
 use lumigraph_core::shading::Shading;
-use lumigraph_core::tradeoff::{self, Grid, SweepInputs};
+use lumigraph_core::tradeoff::{self, Calibration, Choice, Goal, Grid, SweepInputs};
 use lumigraph_core::view::{View, random_orbit_views};
 
 mod plot;
@@ -127,6 +127,10 @@ pub struct BakeArgs {
     /// Shading.
     #[command(flatten)]
     pub shading: ShadingArgs,
+    /// Skip the calibration (error against cost of this scene, stored in the asset's quality
+    /// report for `render --target-psnr / --budget-ms`; a few seconds on lavapipe).
+    #[arg(long)]
+    pub no_calibrate: bool,
 }
 
 /// One view file or a list of views.
@@ -156,9 +160,23 @@ pub struct QualityArgs {
     /// Marching method: default or fixed.
     #[arg(long, default_value = "default")]
     pub method: Method,
+    /// Pick the cheapest setting the asset's calibration predicts to reach this masked PSNR (dB).
+    #[arg(long, allow_hyphen_values = true, conflicts_with_all = ["lod", "step", "tolerance", "method", "budget_ms"])]
+    pub target_psnr: Option<f64>,
+    /// Pick the most accurate setting the calibration predicts to render within this time (ms).
+    #[arg(long, allow_hyphen_values = true, conflicts_with_all = ["lod", "step", "tolerance", "method"])]
+    pub budget_ms: Option<f64>,
 }
 
 impl QualityArgs {
+    fn goal(&self) -> Option<Goal> {
+        match (self.target_psnr, self.budget_ms) {
+            (Some(db), _) => Some(Goal::TargetPsnr(db)),
+            (None, Some(ms)) => Some(Goal::BudgetMs(ms)),
+            (None, None) => None,
+        }
+    }
+
     fn options(&self) -> RenderOptions {
         RenderOptions {
             lod: self.lod,
@@ -446,8 +464,12 @@ fn bake(args: &BakeArgs) -> Result<()> {
     };
     options.validate()?;
     let (mesh, provenance) = load_source(args.mesh.as_deref(), args.demo)?;
-    let baker = Baker::new(gpu()?);
+    let gpu = gpu()?;
+    let baker = Baker::new(gpu.clone());
     let bar = progress_bar(u64::from(options.cameras), "baking cameras");
+    if !args.no_calibrate {
+        return bake_calibrated(args, &options, &mesh, &provenance, &baker, &gpu, &bar);
+    }
     let report = baker.bake_to_file(
         &mesh,
         &options,
@@ -466,6 +488,96 @@ fn bake(args: &BakeArgs) -> Result<()> {
         report.asset_bytes as f64 / (1024.0 * 1024.0)
     );
     Ok(())
+}
+
+/// Bakes in memory, measures the scene's calibration (tradeoff::Calibration) and writes the
+/// asset with it in the quality report, atomically.
+fn bake_calibrated(
+    args: &BakeArgs,
+    options: &BakeOptions,
+    mesh: &Mesh,
+    provenance: &Provenance,
+    baker: &Baker,
+    gpu: &Arc<Gpu>,
+    bar: &ProgressBar,
+) -> Result<()> {
+    let start = std::time::Instant::now();
+    let bytes = baker.bake_to_bytes(mesh, options, provenance, &mut |done, _| {
+        bar.set_position(u64::from(done));
+    })?;
+    bar.finish_and_clear();
+    let bake_ms = start.elapsed().as_secs_f64() * 1e3;
+    let asset = AssetFile::from_bytes(bytes).context("the baked asset does not read back")?;
+    let renderer = Renderer::new(gpu.clone());
+    let reference = ReferenceRenderer::new(gpu.clone());
+    let gpu_mesh = reference.upload(mesh)?;
+    let cal_bar = progress_bar(1, "calibrating error against cost");
+    let calibration = Calibration::measure(
+        &renderer,
+        &reference,
+        &asset,
+        &gpu_mesh,
+        &options.shading,
+        &gpu.adapter_summary(),
+        &mut |done, total| {
+            cal_bar.set_length(total as u64);
+            cal_bar.set_position(done as u64);
+        },
+    )?;
+    cal_bar.finish_and_clear();
+    let mut header = asset.header().clone();
+    header.quality = Some(serde_json::json!({ "calibration": calibration }));
+    let mut keys: Vec<lumigraph_core::asset::ImageKey> =
+        asset.index().iter().map(|e| e.key).collect();
+    keys.sort_unstable();
+    keys.dedup();
+    let images = keys
+        .into_iter()
+        .map(|k| asset.read_image(k).map(|bytes| (k, bytes)))
+        .collect::<Result<Vec<_>, _>>()?;
+    lumigraph_core::asset::write_asset(&args.output, header, images)
+        .with_context(|| format!("cannot write {}", args.output.display()))?;
+    let asset_bytes = std::fs::metadata(&args.output).map_or(0, |m| m.len());
+    println!(
+        "baked {} cameras at {} px from {} triangles in {:.0} ms, calibrated {} settings in {:.0} ms: {} ({:.1} MiB)",
+        options.cameras,
+        options.resolution,
+        mesh.triangles.len(),
+        bake_ms,
+        calibration.points.len(),
+        start.elapsed().as_secs_f64() * 1e3 - bake_ms,
+        args.output.display(),
+        asset_bytes as f64 / (1024.0 * 1024.0)
+    );
+    Ok(())
+}
+
+/// The calibrated choice for a goal, or an error saying how to get a calibration.
+fn choose(asset: &AssetFile, goal: Goal, view: &View) -> Result<Choice> {
+    let header = asset.header();
+    let calibration = Calibration::from_quality(header.quality.as_ref())?.ok_or_else(|| {
+        anyhow::anyhow!(
+            "--target-psnr / --budget-ms need the asset's calibration, which this asset lacks \
+             (baked with --no-calibrate, by the Python API or the service): re-bake it with \
+             `lumigraph bake`"
+        )
+    })?;
+    Ok(calibration.choose(goal, view.width, view.height, header.geometry.camera_count)?)
+}
+
+fn describe(choice: &Choice) -> String {
+    format!(
+        "chose {} cameras, step 1/{:.0} (default method): predicted masked PSNR {:.2} dB, {:.1} ms{}",
+        choice.cameras,
+        1.0 / choice.step,
+        choice.predicted_psnr,
+        choice.predicted_ms,
+        if choice.met {
+            ""
+        } else {
+            " (no calibrated setting meets the goal: the closest one)"
+        }
+    )
 }
 
 /// Reads `--view` / `--views`; returns the views and whether OUT is a folder.
@@ -555,14 +667,25 @@ fn render(args: &RenderArgs) -> Result<()> {
     let field = renderer
         .upload(&asset)
         .with_context(|| format!("cannot load asset {}", args.asset.display()))?;
+    let goal = args.quality.goal();
     for (i, view) in views.iter().enumerate() {
+        let choice = goal.map(|g| choose(&asset, g, view)).transpose()?;
+        let options = choice.map_or(options, |c| c.options());
         let frame = renderer.render(&field, view, &options)?;
         write_outputs(&frame, i, many, &args.output, &args.depth)?;
-        println!(
-            "view {i:03}: {:.2} ms ({} px covered)",
-            frame.stats.render_ms,
-            frame.covered_count()
-        );
+        match choice {
+            Some(c) => println!(
+                "view {i:03}: {}; measured {:.2} ms ({} px covered)",
+                describe(&c),
+                frame.stats.render_ms,
+                frame.covered_count()
+            ),
+            None => println!(
+                "view {i:03}: {:.2} ms ({} px covered)",
+                frame.stats.render_ms,
+                frame.covered_count()
+            ),
+        }
     }
     Ok(())
 }
@@ -661,6 +784,8 @@ struct EvalReport {
     mean: Option<metrics::MeanComparison>,
     mean_ms: f64,
     mean_fetches_per_pixel: f64,
+    /// The calibrated choice (with --target-psnr / --budget-ms): predicted beside measured.
+    choice: Option<Choice>,
 }
 
 #[derive(Debug, serde::Serialize)]
@@ -676,13 +801,19 @@ fn eval(args: &EvalArgs) -> Result<()> {
     let asset = AssetFile::open(&args.asset)
         .with_context(|| format!("cannot open asset {}", args.asset.display()))?;
     let header = asset.header().clone();
-    let options = args.quality.options();
-    let settings = options.resolve(u32::from(header.geometry.camera_level))?;
     let views = eval_views(args, &asset)?;
     for (i, v) in views.iter().enumerate() {
         v.basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX)
             .with_context(|| format!("view {i}"))?;
     }
+    // With a goal, the calibration chooses (for the first view's size) and the report sets
+    // the prediction beside the measurement.
+    let choice = match args.quality.goal() {
+        Some(goal) => Some(choose(&asset, goal, &views[0])?),
+        None => None,
+    };
+    let options = choice.map_or_else(|| args.quality.options(), |c| c.options());
+    let settings = options.resolve(u32::from(header.geometry.camera_level))?;
     // The reference must shade exactly as the bake did.
     let bake_options: BakeOptions =
         serde_json::from_value(header.provenance.bake_options.clone()).unwrap_or_default();
@@ -728,6 +859,7 @@ fn eval(args: &EvalArgs) -> Result<()> {
         views: rows,
         mean_ms,
         mean_fetches_per_pixel,
+        choice,
     };
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -762,6 +894,14 @@ fn print_eval_table(report: &EvalReport) {
             c.mask_mismatch_px,
             c.depth.median,
             row.ms
+        );
+    }
+    if let (Some(c), Some(m)) = (&report.choice, &report.mean) {
+        println!(
+            "{}; measured masked PSNR {:.2} dB, {:.1} ms",
+            describe(c),
+            m.masked_psnr,
+            report.mean_ms
         );
     }
     if let Some(m) = &report.mean {
