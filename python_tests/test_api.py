@@ -239,3 +239,56 @@ def test_readme_quick_start_is_the_tested_example() -> None:
     assert starts, "README.md has no Python quick start"
     example = (ROOT / "pylib" / "examples" / "quickstart.py").read_text()
     assert starts[0].strip() == example.strip(), "README quick start differs from pylib/examples/quickstart.py"
+
+
+def test_calibrated_goals_choose_settings_and_render_them(
+    demo_mesh: lg.Mesh, demo_views: list[lg.View]
+) -> None:
+    lf = lg.bake_mesh(demo_mesh, cameras=42, resolution=64, progress=False, calibrate=True)
+    points = lf.info["quality"]["calibration"]["points"]
+    # Every camera count the asset holds × 4 steps, each with a finite prediction.
+    assert {(p["cameras"], p["step"]) for p in points} == {
+        (c, s) for c in (12, 42) for s in (1 / 8, 1 / 16, 1 / 32, 1 / 64)
+    }
+    assert all(np.isfinite(p["ms_per_mpx"]) and p["masked_psnr"] > 10 for p in points)
+    view = demo_views[0]
+    best = max(p["masked_psnr"] for p in points)
+    choice = lf.choose(view, target_psnr=best - 0.01)
+    assert choice["met"] is True
+    assert choice["predicted_psnr"] >= best - 0.01
+    # The cheapest setting reaching the target, by the calibration's own numbers.
+    mpx = view.width * view.height / 1e6
+    cheapest = min(
+        (p for p in points if p["masked_psnr"] >= best - 0.01), key=lambda p: p["ms_per_mpx"]
+    )
+    assert choice["cameras"] == cheapest["cameras"]
+    assert choice["step"] == pytest.approx(cheapest["step"])
+    assert choice["predicted_ms"] == pytest.approx(cheapest["ms_per_mpx"] * mpx)
+    # render(target_psnr=...) renders exactly the chosen setting.
+    chosen = lf.render(view, target_psnr=best - 0.01)
+    explicit = lf.render(view, lod=choice["cameras"], step=choice["step"])
+    np.testing.assert_array_equal(chosen.color, explicit.color)
+    np.testing.assert_array_equal(chosen.depth, explicit.depth)
+    # A budget: the most accurate setting predicted to fit; an impossible one is flagged.
+    roomy = lf.choose(view, budget_ms=1e6)
+    assert roomy["met"] is True and roomy["predicted_psnr"] == pytest.approx(best)
+    tight = lf.choose(view, budget_ms=1e-6)
+    assert tight["met"] is False
+    frames = lf.render_many(demo_views[:2], budget_ms=1e6)
+    assert len(frames) == 2
+    for bad in (
+        {"target_psnr": float("nan")},
+        {"budget_ms": 0.0},
+        {"target_psnr": 20.0, "budget_ms": 10.0},
+        {},
+    ):
+        with pytest.raises(ValueError):
+            lf.choose(view, **bad)
+    with pytest.raises(ValueError, match="do not set them too"):
+        lf.render(view, target_psnr=20.0, step=1 / 16)
+    # Without calibration the goals say how to get one; the default bake has none.
+    plain = lg.bake_mesh(demo_mesh, cameras=12, resolution=32, progress=False)
+    with pytest.raises(ValueError, match="calibrate=True"):
+        plain.render(view, budget_ms=100.0)
+    # The calibration survives save / open.
+    assert lg.LightField.from_bytes(lf.to_bytes()).choose(view, budget_ms=1e6) == roomy

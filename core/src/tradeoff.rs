@@ -12,7 +12,7 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use crate::asset::{AssetFile, Channel, Encoding};
+use crate::asset::{AssetError, AssetFile, Channel, Encoding};
 use crate::frame::Frame;
 use crate::geometry::{self, CAMERA_COUNTS};
 use crate::gpu::mesh::GpuMesh;
@@ -545,6 +545,32 @@ impl Calibration {
             adapter: adapter.to_owned(),
             points,
         })
+    }
+
+    /// The asset with this calibration in its quality report (under `"calibration"`, other
+    /// keys kept), re-encoded in memory.
+    ///
+    /// # Errors
+    /// [`AssetError`] for an unreadable page or a header over the format's limit.
+    pub fn attach(&self, asset: &AssetFile) -> Result<Vec<u8>, AssetError> {
+        let mut header = asset.header().clone();
+        let mut quality = match header.quality.take() {
+            Some(serde_json::Value::Object(map)) => map,
+            _ => serde_json::Map::new(),
+        };
+        quality.insert(
+            "calibration".to_owned(),
+            serde_json::to_value(self).map_err(|e| AssetError::Header(e.to_string()))?,
+        );
+        header.quality = Some(serde_json::Value::Object(quality));
+        let mut keys: Vec<crate::asset::ImageKey> = asset.index().iter().map(|e| e.key).collect();
+        keys.sort_unstable();
+        keys.dedup();
+        let images = keys
+            .into_iter()
+            .map(|k| asset.read_image(k).map(|bytes| (k, bytes)))
+            .collect::<Result<Vec<_>, _>>()?;
+        crate::asset::encode_asset(header, images)
     }
 
     /// The calibration in an asset's quality report, if any.

@@ -9,6 +9,7 @@ use lumigraph_core::bake::BakeOptions;
 use lumigraph_core::frame::Frame;
 use lumigraph_core::render::{GpuLightField, Method, RenderOptions};
 use lumigraph_core::shading::Shading;
+use lumigraph_core::tradeoff::{Calibration, Choice, Goal};
 use lumigraph_core::view::View;
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
@@ -92,18 +93,16 @@ impl PyLightField {
     fn render_all(
         &self,
         py: Python<'_>,
-        views: Vec<View>,
-        options: RenderOptions,
+        jobs: Vec<(View, RenderOptions)>,
         background: Option<[u8; 4]>,
     ) -> PyResult<Vec<PyFrame>> {
         let frames: Vec<Frame> = py.detach(|| {
             let field = self.uploaded()?;
             let renderer = engines::renderer().map_err(|e| errors::gpu_for_render(&e))?;
-            views
-                .iter()
-                .map(|v| {
+            jobs.iter()
+                .map(|(v, options)| {
                     renderer
-                        .render(&field, v, &options)
+                        .render(&field, v, options)
                         .map_err(|e| errors::render(&e))
                 })
                 .collect::<PyResult<Vec<Frame>>>()
@@ -112,6 +111,67 @@ impl PyLightField {
             .into_iter()
             .map(|f| PyFrame::new(f, background))
             .collect())
+    }
+}
+
+/// The goal of `target_psnr` / `budget_ms`, checked against explicit knobs.
+fn goal_of(
+    target_psnr: Option<f64>,
+    budget_ms: Option<f64>,
+    explicit: &RenderOptions,
+) -> PyResult<Option<Goal>> {
+    let goal = match (target_psnr, budget_ms) {
+        (Some(_), Some(_)) => {
+            return Err(PyValueError::new_err(
+                "give target_psnr or budget_ms, not both",
+            ));
+        }
+        (Some(db), None) => Some(Goal::TargetPsnr(db)),
+        (None, Some(ms)) => Some(Goal::BudgetMs(ms)),
+        (None, None) => None,
+    };
+    if goal.is_some() && *explicit != RenderOptions::default() {
+        return Err(PyValueError::new_err(
+            "target_psnr / budget_ms choose lod, step, tolerance and method: do not set them too",
+        ));
+    }
+    Ok(goal)
+}
+
+impl PyLightField {
+    /// The calibrated choice for `goal` at the view's size.
+    fn choice(&self, goal: Goal, view: &View) -> PyResult<Choice> {
+        let header = self.asset.header();
+        let calibration = Calibration::from_quality(header.quality.as_ref())
+            .map_err(|e| PyValueError::new_err(e.to_string()))?
+            .ok_or_else(|| {
+                PyValueError::new_err(
+                    "this light field has no calibration: bake it with calibrate=True (or \
+                     `lumigraph bake`) to use target_psnr / budget_ms",
+                )
+            })?;
+        calibration
+            .choose(goal, view.width, view.height, header.geometry.camera_count)
+            .map_err(|e| PyValueError::new_err(e.to_string()))
+    }
+
+    /// Each view with its options: the explicit ones, or the calibrated choice for a goal.
+    fn jobs(
+        &self,
+        views: Vec<View>,
+        explicit: RenderOptions,
+        goal: Option<Goal>,
+    ) -> PyResult<Vec<(View, RenderOptions)>> {
+        views
+            .into_iter()
+            .map(|v| {
+                let options = match goal {
+                    Some(g) => self.choice(g, &v)?.options(),
+                    None => explicit,
+                };
+                Ok((v, options))
+            })
+            .collect()
     }
 }
 
@@ -278,7 +338,7 @@ impl PyLightField {
     /// Raises:
     ///     ValueError: a bad view or option. TypeError: an argument of the wrong type.
     ///     AssetError: a corrupt page. RenderError: the device failed.
-    #[pyo3(signature = (view, *, lod = None, step = None, tolerance = None, method = "default", background = None))]
+    #[pyo3(signature = (view, *, lod = None, step = None, tolerance = None, method = "default", background = None, target_psnr = None, budget_ms = None))]
     fn render(
         &self,
         py: Python<'_>,
@@ -288,11 +348,15 @@ impl PyLightField {
         tolerance: Option<f32>,
         method: &str,
         background: Option<&Bound<'_, PyAny>>,
+        target_psnr: Option<f64>,
+        budget_ms: Option<f64>,
     ) -> PyResult<PyFrame> {
         let view = view::parse_view(view)?;
         let options = render_options(lod, step, tolerance, method)?;
+        let goal = goal_of(target_psnr, budget_ms, &options)?;
         let background = background.map(parse_background).transpose()?;
-        let mut frames = self.render_all(py, vec![view], options, background)?;
+        let jobs = self.jobs(vec![view], options, goal)?;
+        let mut frames = self.render_all(py, jobs, background)?;
         frames
             .pop()
             .ok_or_else(|| errors::RenderError::new_err("no frame rendered"))
@@ -302,7 +366,7 @@ impl PyLightField {
     ///
     /// Renders a batch of views (a list of :class:`View` or dicts) with one release of the GIL;
     /// options as in :meth:`render`. Every view is validated before any is rendered.
-    #[pyo3(signature = (views, *, lod = None, step = None, tolerance = None, method = "default", background = None))]
+    #[pyo3(signature = (views, *, lod = None, step = None, tolerance = None, method = "default", background = None, target_psnr = None, budget_ms = None))]
     fn render_many(
         &self,
         py: Python<'_>,
@@ -312,15 +376,52 @@ impl PyLightField {
         tolerance: Option<f32>,
         method: &str,
         background: Option<&Bound<'_, PyAny>>,
+        target_psnr: Option<f64>,
+        budget_ms: Option<f64>,
     ) -> PyResult<Vec<PyFrame>> {
         let views = view::parse_views(views)?;
         let options = render_options(lod, step, tolerance, method)?;
+        let goal = goal_of(target_psnr, budget_ms, &options)?;
         // Check the options once up front, so a bad knob fails before any GPU work.
         options
             .resolve(u32::from(self.asset.header().geometry.camera_level))
             .map_err(|e| errors::render(&e))?;
         let background = background.map(parse_background).transpose()?;
-        self.render_all(py, views, options, background)
+        let jobs = self.jobs(views, options, goal)?;
+        self.render_all(py, jobs, background)
+    }
+
+    /// choose(view, *, target_psnr=None, budget_ms=None) -> dict
+    ///
+    /// The setting :meth:`render` would use for a goal at the view's size, from the light
+    /// field's calibration (baked with ``calibrate=True``): ``{"cameras", "step",
+    /// "predicted_psnr", "predicted_ms", "met"}``. ``target_psnr``: the cheapest setting
+    /// predicted to reach that masked PSNR (dB); ``budget_ms``: the most accurate setting
+    /// predicted to render within that time. ``met`` is False when no calibrated setting
+    /// meets the goal (the closest one is returned).
+    ///
+    /// Raises:
+    ///     ValueError: no goal, both goals, a non-finite or non-positive goal, a bad view, or
+    ///         no calibration in this light field.
+    #[pyo3(signature = (view, *, target_psnr = None, budget_ms = None))]
+    fn choose<'py>(
+        &self,
+        py: Python<'py>,
+        view: &Bound<'_, PyAny>,
+        target_psnr: Option<f64>,
+        budget_ms: Option<f64>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let view = view::parse_view(view)?;
+        let goal = goal_of(target_psnr, budget_ms, &RenderOptions::default())?
+            .ok_or_else(|| PyValueError::new_err("give target_psnr or budget_ms"))?;
+        let c = self.choice(goal, &view)?;
+        let out = PyDict::new(py);
+        out.set_item("cameras", c.cameras)?;
+        out.set_item("step", c.step)?;
+        out.set_item("predicted_psnr", c.predicted_psnr)?;
+        out.set_item("predicted_ms", c.predicted_ms)?;
+        out.set_item("met", c.met)?;
+        Ok(out)
     }
 
     fn __repr__(&self) -> String {
@@ -337,7 +438,7 @@ impl PyLightField {
 
 /// Native bake on a `Mesh` (the Python `bake_mesh` converts other inputs and the progress flag).
 #[pyfunction]
-#[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress))]
+#[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress, calibrate = false))]
 pub fn bake(
     py: Python<'_>,
     mesh: &Bound<'_, PyMesh>,
@@ -349,6 +450,7 @@ pub fn bake(
     unlit: bool,
     depth_bits: u8,
     progress: Option<Py<PyAny>>,
+    calibrate: bool,
 ) -> PyResult<PyLightField> {
     if let Some(callback) = &progress
         && !callback.bind(py).is_callable()
@@ -385,9 +487,12 @@ pub fn bake(
                 });
             }
         };
-        let bytes = baker
+        let mut bytes = baker
             .bake_to_bytes(&core_mesh, &options, &provenance, &mut report)
             .map_err(|e| errors::bake(&e))?;
+        if calibrate {
+            bytes = calibrated(bytes, &core_mesh, &options.shading)?;
+        }
         PyResult::Ok((bytes, callback_error))
     })?;
     if let Some(error) = callback_error {
@@ -397,4 +502,33 @@ pub fn bake(
         .detach(|| AssetFile::from_bytes(bytes.clone()))
         .map_err(|e| errors::asset(&e, None))?;
     Ok(PyLightField::new(asset, Origin::Memory(Arc::new(bytes))))
+}
+
+/// The baked bytes with the scene's calibration in the quality report (see
+/// `lumigraph_core::tradeoff::Calibration`).
+fn calibrated(
+    bytes: Vec<u8>,
+    mesh: &lumigraph_core::mesh::Mesh,
+    shading: &Shading,
+) -> PyResult<Vec<u8>> {
+    let asset = AssetFile::from_bytes(bytes).map_err(|e| errors::asset(&e, None))?;
+    let renderer = engines::renderer().map_err(|e| errors::gpu_for_render(&e))?;
+    let reference = engines::reference().map_err(|e| errors::gpu_for_render(&e))?;
+    let gpu = engines::gpu().map_err(|e| errors::gpu_for_render(&e))?;
+    let gpu_mesh = reference
+        .upload(mesh)
+        .map_err(|e| errors::gpu_for_render(&e))?;
+    let calibration = Calibration::measure(
+        renderer,
+        reference,
+        &asset,
+        &gpu_mesh,
+        shading,
+        &gpu.adapter_summary(),
+        &mut |_, _| {},
+    )
+    .map_err(|e| errors::BakeError::new_err(format!("calibration failed: {e}")))?;
+    calibration
+        .attach(&asset)
+        .map_err(|e| errors::asset(&e, None))
 }

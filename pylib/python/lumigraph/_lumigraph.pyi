@@ -135,6 +135,8 @@ class LightField:
         tolerance: float | None = None,
         method: str = "default",
         background: Sequence[int] | None = None,
+        target_psnr: float | None = None,
+        budget_ms: float | None = None,
     ) -> Frame: ...
     def render_many(
         self,
@@ -145,7 +147,16 @@ class LightField:
         tolerance: float | None = None,
         method: str = "default",
         background: Sequence[int] | None = None,
+        target_psnr: float | None = None,
+        budget_ms: float | None = None,
     ) -> list[Frame]: ...
+    def choose(
+        self,
+        view: _ViewLike,
+        *,
+        target_psnr: float | None = None,
+        budget_ms: float | None = None,
+    ) -> dict[str, Any]: ...
 
 def orbit_views(
     center: Sequence[float],
@@ -167,6 +178,7 @@ def bake(
     unlit: bool,
     depth_bits: int,
     progress: Callable[[int, int], object] | None,
+    calibrate: bool = False,
 ) -> LightField: ...
 def reference_render(
     mesh: Mesh,

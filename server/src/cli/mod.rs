@@ -525,17 +525,8 @@ fn bake_calibrated(
         },
     )?;
     cal_bar.finish_and_clear();
-    let mut header = asset.header().clone();
-    header.quality = Some(serde_json::json!({ "calibration": calibration }));
-    let mut keys: Vec<lumigraph_core::asset::ImageKey> =
-        asset.index().iter().map(|e| e.key).collect();
-    keys.sort_unstable();
-    keys.dedup();
-    let images = keys
-        .into_iter()
-        .map(|k| asset.read_image(k).map(|bytes| (k, bytes)))
-        .collect::<Result<Vec<_>, _>>()?;
-    lumigraph_core::asset::write_asset(&args.output, header, images)
+    let bytes = calibration.attach(&asset)?;
+    lumigraph_core::atomic_write(&args.output, |w| std::io::Write::write_all(w, &bytes))
         .with_context(|| format!("cannot write {}", args.output.display()))?;
     let asset_bytes = std::fs::metadata(&args.output).map_or(0, |m| m.len());
     println!(
