@@ -41,6 +41,15 @@ pub enum TradeoffError {
     /// A render goal (target PSNR or time budget) is invalid or cannot be served.
     #[error("{0}")]
     Goal(String),
+    /// The bake before a calibration failed.
+    #[error(transparent)]
+    Bake(#[from] crate::bake::BakeError),
+    /// The baked asset could not be read back or re-encoded.
+    #[error(transparent)]
+    Asset(#[from] AssetError),
+    /// A device upload failed.
+    #[error(transparent)]
+    Gpu(#[from] crate::gpu::GpuError),
     /// Writing the CSV failed.
     #[error("cannot write {path}: {source}")]
     Io {
@@ -405,6 +414,55 @@ pub fn write_csv(path: &Path, points: &[Point]) -> Result<(), TradeoffError> {
     .map_err(|source| TradeoffError::Io {
         path: path.display().to_string(),
         source,
+    })
+}
+
+/// A bake with its calibration attached (see [`bake_calibrated`]).
+pub struct CalibratedBake {
+    /// The encoded asset, calibration in its quality report.
+    pub bytes: Vec<u8>,
+    /// The calibration.
+    pub calibration: Calibration,
+    /// Bake time, ms.
+    pub bake_ms: f64,
+    /// Calibration time, ms.
+    pub calibrate_ms: f64,
+}
+
+/// Bakes `mesh` in memory, measures its [`Calibration`] against the mesh and attaches it:
+/// what `lumigraph bake`, the service's bakes and `bake_mesh(calibrate=True)` store.
+///
+/// # Errors
+/// [`TradeoffError`] from the bake, the calibration renders or the re-encoding.
+pub fn bake_calibrated(
+    baker: &crate::bake::Baker,
+    renderer: &Renderer,
+    reference: &ReferenceRenderer,
+    mesh: &crate::mesh::Mesh,
+    options: &crate::bake::BakeOptions,
+    source: &crate::asset::Provenance,
+    progress: &mut dyn FnMut(u32, u32),
+) -> Result<CalibratedBake, TradeoffError> {
+    let start = std::time::Instant::now();
+    let bytes = baker.bake_to_bytes(mesh, options, source, progress)?;
+    let bake_ms = start.elapsed().as_secs_f64() * 1e3;
+    let asset = AssetFile::from_bytes(bytes)?;
+    let gpu_mesh = reference.upload(mesh)?;
+    let calibration = Calibration::measure(
+        renderer,
+        reference,
+        &asset,
+        &gpu_mesh,
+        &options.shading,
+        &renderer.gpu().adapter_summary(),
+        &mut |_, _| {},
+    )?;
+    let bytes = calibration.attach(&asset)?;
+    Ok(CalibratedBake {
+        bytes,
+        calibration,
+        bake_ms,
+        calibrate_ms: start.elapsed().as_secs_f64() * 1e3 - bake_ms,
     })
 }
 

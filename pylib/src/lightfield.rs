@@ -9,7 +9,7 @@ use lumigraph_core::bake::BakeOptions;
 use lumigraph_core::frame::Frame;
 use lumigraph_core::render::{GpuLightField, Method, RenderOptions};
 use lumigraph_core::shading::Shading;
-use lumigraph_core::tradeoff::{Calibration, Choice, Goal};
+use lumigraph_core::tradeoff::{self, Calibration, Choice, Goal};
 use lumigraph_core::view::View;
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
@@ -487,12 +487,28 @@ pub fn bake(
                 });
             }
         };
-        let mut bytes = baker
-            .bake_to_bytes(&core_mesh, &options, &provenance, &mut report)
-            .map_err(|e| errors::bake(&e))?;
-        if calibrate {
-            bytes = calibrated(bytes, &core_mesh, &options.shading)?;
-        }
+        let bytes = if calibrate {
+            let renderer = engines::renderer().map_err(|e| errors::gpu_for_render(&e))?;
+            let reference = engines::reference().map_err(|e| errors::gpu_for_render(&e))?;
+            tradeoff::bake_calibrated(
+                baker,
+                renderer,
+                reference,
+                &core_mesh,
+                &options,
+                &provenance,
+                &mut report,
+            )
+            .map_err(|e| match e {
+                tradeoff::TradeoffError::Bake(e) => errors::bake(&e),
+                other => errors::BakeError::new_err(format!("calibration failed: {other}")),
+            })?
+            .bytes
+        } else {
+            baker
+                .bake_to_bytes(&core_mesh, &options, &provenance, &mut report)
+                .map_err(|e| errors::bake(&e))?
+        };
         PyResult::Ok((bytes, callback_error))
     })?;
     if let Some(error) = callback_error {
@@ -502,33 +518,4 @@ pub fn bake(
         .detach(|| AssetFile::from_bytes(bytes.clone()))
         .map_err(|e| errors::asset(&e, None))?;
     Ok(PyLightField::new(asset, Origin::Memory(Arc::new(bytes))))
-}
-
-/// The baked bytes with the scene's calibration in the quality report (see
-/// `lumigraph_core::tradeoff::Calibration`).
-fn calibrated(
-    bytes: Vec<u8>,
-    mesh: &lumigraph_core::mesh::Mesh,
-    shading: &Shading,
-) -> PyResult<Vec<u8>> {
-    let asset = AssetFile::from_bytes(bytes).map_err(|e| errors::asset(&e, None))?;
-    let renderer = engines::renderer().map_err(|e| errors::gpu_for_render(&e))?;
-    let reference = engines::reference().map_err(|e| errors::gpu_for_render(&e))?;
-    let gpu = engines::gpu().map_err(|e| errors::gpu_for_render(&e))?;
-    let gpu_mesh = reference
-        .upload(mesh)
-        .map_err(|e| errors::gpu_for_render(&e))?;
-    let calibration = Calibration::measure(
-        renderer,
-        reference,
-        &asset,
-        &gpu_mesh,
-        shading,
-        &gpu.adapter_summary(),
-        &mut |_, _| {},
-    )
-    .map_err(|e| errors::BakeError::new_err(format!("calibration failed: {e}")))?;
-    calibration
-        .attach(&asset)
-        .map_err(|e| errors::asset(&e, None))
 }

@@ -698,6 +698,78 @@ async fn bake_jobs() {
         get(&state, "/v1/jobs/job-0000000000000000").await.status,
         StatusCode::NOT_FOUND
     );
+    // Bakes are calibrated by default: renders can ask for a quality or a time instead of knobs.
+    assert!(
+        status["report"]["calibrate_ms"].as_f64().unwrap_or(0.0) > 0.0,
+        "{status}"
+    );
+    let by_goal = post_json(
+        &state,
+        "/v1/assets/baked/render",
+        serde_json::json!({"view": view_json(16, 16), "budget_ms": 1e6}).to_string(),
+    )
+    .await;
+    assert_eq!(
+        by_goal.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&by_goal.body)
+    );
+    assert_eq!(by_goal.header("x-chosen-cameras"), "12");
+    assert_eq!(by_goal.header("x-goal-met"), "true");
+    assert!(
+        by_goal
+            .header("x-predicted-psnr")
+            .parse::<f64>()
+            .is_ok_and(f64::is_finite)
+    );
+    let unreachable = post_json(
+        &state,
+        "/v1/assets/baked/render",
+        serde_json::json!({"view": view_json(16, 16), "target_psnr": 99.0}).to_string(),
+    )
+    .await;
+    assert_eq!(unreachable.status, StatusCode::OK);
+    assert_eq!(unreachable.header("x-goal-met"), "false");
+    for (body, needle) in [
+        (
+            serde_json::json!({"view": view_json(8, 8), "budget_ms": 10.0, "target_psnr": 20.0}),
+            "not both",
+        ),
+        (
+            serde_json::json!({"view": view_json(8, 8), "budget_ms": 10.0, "step": 0.1}),
+            "do not send them",
+        ),
+        (
+            serde_json::json!({"view": view_json(8, 8), "budget_ms": -1.0}),
+            "budget",
+        ),
+    ] {
+        let reply = post_json(&state, "/v1/assets/baked/render", body.to_string()).await;
+        assert_eq!(reply.status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+        assert!(
+            String::from_utf8_lossy(&reply.body).contains(needle),
+            "{body}"
+        );
+    }
+    // The test asset was baked without calibration: the error says how to get one.
+    let uncalibrated = render(
+        &state,
+        &serde_json::json!({"view": view_json(8, 8), "target_psnr": 20.0}),
+    )
+    .await;
+    assert_eq!(uncalibrated.status, StatusCode::UNPROCESSABLE_ENTITY);
+    assert!(String::from_utf8_lossy(&uncalibrated.body).contains("calibrate=true"));
+    let bad_flag = post_bake(
+        &state,
+        Some(TOKEN),
+        &[
+            ("mesh", Some("x.obj"), obj.as_bytes()),
+            ("calibrate", None, b"maybe"),
+        ],
+    )
+    .await;
+    assert_eq!(bad_flag.status, StatusCode::UNPROCESSABLE_ENTITY);
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -501,44 +501,35 @@ fn bake_calibrated(
     gpu: &Arc<Gpu>,
     bar: &ProgressBar,
 ) -> Result<()> {
-    let start = std::time::Instant::now();
-    let bytes = baker.bake_to_bytes(mesh, options, provenance, &mut |done, _| {
-        bar.set_position(u64::from(done));
-    })?;
-    bar.finish_and_clear();
-    let bake_ms = start.elapsed().as_secs_f64() * 1e3;
-    let asset = AssetFile::from_bytes(bytes).context("the baked asset does not read back")?;
     let renderer = Renderer::new(gpu.clone());
     let reference = ReferenceRenderer::new(gpu.clone());
-    let gpu_mesh = reference.upload(mesh)?;
-    let cal_bar = progress_bar(1, "calibrating error against cost");
-    let calibration = Calibration::measure(
+    let baked = tradeoff::bake_calibrated(
+        baker,
         &renderer,
         &reference,
-        &asset,
-        &gpu_mesh,
-        &options.shading,
-        &gpu.adapter_summary(),
+        mesh,
+        options,
+        provenance,
         &mut |done, total| {
-            cal_bar.set_length(total as u64);
-            cal_bar.set_position(done as u64);
+            bar.set_position(u64::from(done));
+            if done == total {
+                bar.set_message("calibrating error against cost");
+            }
         },
     )?;
-    cal_bar.finish_and_clear();
-    let bytes = calibration.attach(&asset)?;
-    lumigraph_core::atomic_write(&args.output, |w| std::io::Write::write_all(w, &bytes))
+    bar.finish_and_clear();
+    lumigraph_core::atomic_write(&args.output, |w| std::io::Write::write_all(w, &baked.bytes))
         .with_context(|| format!("cannot write {}", args.output.display()))?;
-    let asset_bytes = std::fs::metadata(&args.output).map_or(0, |m| m.len());
     println!(
         "baked {} cameras at {} px from {} triangles in {:.0} ms, calibrated {} settings in {:.0} ms: {} ({:.1} MiB)",
         options.cameras,
         options.resolution,
         mesh.triangles.len(),
-        bake_ms,
-        calibration.points.len(),
-        start.elapsed().as_secs_f64() * 1e3 - bake_ms,
+        baked.bake_ms,
+        baked.calibration.points.len(),
+        baked.calibrate_ms,
         args.output.display(),
-        asset_bytes as f64 / (1024.0 * 1024.0)
+        baked.bytes.len() as f64 / (1024.0 * 1024.0)
     );
     Ok(())
 }

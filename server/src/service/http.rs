@@ -14,6 +14,7 @@ use axum::response::{IntoResponse, Response};
 use futures_util::StreamExt as _;
 use lumigraph_core::bake::BakeOptions;
 use lumigraph_core::mesh::{MeshFormat, load_mesh_from_bytes};
+use lumigraph_core::tradeoff::{Calibration, Goal};
 use lumigraph_core::view::View;
 use serde::{Deserialize, Serialize};
 use tokio::io::AsyncWriteExt as _;
@@ -303,6 +304,14 @@ pub struct RenderRequest {
     pub quality: Option<u8>,
     /// Also return depth in this format (see the response description).
     pub depth: Option<DepthFormat>,
+    /// Instead of the knobs: the cheapest setting the asset's calibration predicts to reach
+    /// this masked PSNR (dB). The choice comes back in `X-Chosen-Cameras`, `X-Chosen-Step`,
+    /// `X-Predicted-Psnr`, `X-Predicted-Ms` and `X-Goal-Met` (`false`: no calibrated setting
+    /// meets it, the closest is used).
+    pub target_psnr: Option<f64>,
+    /// Instead of the knobs: the most accurate setting predicted to render within this many
+    /// milliseconds at the view's size (same response headers).
+    pub budget_ms: Option<f64>,
 }
 
 fn ms_header(value: f64) -> HeaderValue {
@@ -353,7 +362,45 @@ pub async fn render_asset(
         tolerance: request.tolerance,
         method: request.method,
     };
-    let options = knobs.to_options(&asset)?;
+    let goal = match (request.target_psnr, request.budget_ms) {
+        (Some(_), Some(_)) => {
+            return Err(AppError::Invalid(
+                "send target_psnr or budget_ms, not both".to_owned(),
+            ));
+        }
+        (Some(db), None) => Some(Goal::TargetPsnr(db)),
+        (None, Some(ms)) => Some(Goal::BudgetMs(ms)),
+        (None, None) => None,
+    };
+    let (options, choice) = match goal {
+        None => (knobs.to_options(&asset)?, None),
+        Some(goal) => {
+            if knobs != Knobs::default() {
+                return Err(AppError::Invalid(
+                    "target_psnr / budget_ms choose lod, step, tolerance and method: do not send them too"
+                        .to_owned(),
+                ));
+            }
+            let calibration = Calibration::from_quality(asset.header.quality.as_ref())
+                .map_err(|e| AppError::Invalid(e.to_string()))?
+                .ok_or_else(|| {
+                    AppError::Invalid(format!(
+                        "asset {id} has no calibration: bake it with calibrate=true (the \
+                         default of POST /v1/bake and `lumigraph bake`) to render by target_psnr \
+                         or budget_ms"
+                    ))
+                })?;
+            let choice = calibration
+                .choose(
+                    goal,
+                    request.view.width,
+                    request.view.height,
+                    asset.header.geometry.camera_count,
+                )
+                .map_err(|e| AppError::Invalid(e.to_string()))?;
+            (choice.options(), Some(choice))
+        }
+    };
     let rendered = state
         .pool()
         .render(Arc::clone(&asset), request.view.clone(), options)
@@ -397,6 +444,29 @@ pub async fn render_asset(
         HeaderValue::from(height),
     );
     headers.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    if let Some(c) = choice {
+        let text = |v: String| HeaderValue::from_str(&v).unwrap_or(HeaderValue::from_static("?"));
+        headers.insert(
+            HeaderName::from_static("x-chosen-cameras"),
+            HeaderValue::from(c.cameras),
+        );
+        headers.insert(
+            HeaderName::from_static("x-chosen-step"),
+            text(format!("{}", c.step)),
+        );
+        headers.insert(
+            HeaderName::from_static("x-predicted-psnr"),
+            text(format!("{:.3}", c.predicted_psnr)),
+        );
+        headers.insert(
+            HeaderName::from_static("x-predicted-ms"),
+            ms_header(c.predicted_ms),
+        );
+        headers.insert(
+            HeaderName::from_static("x-goal-met"),
+            HeaderValue::from_static(if c.met { "true" } else { "false" }),
+        );
+    }
     let body = if let (Some(depth), Some(depth_format)) = (depth, depth_format) {
         if let Some((near, far)) = depth.range {
             headers.insert(
@@ -466,6 +536,9 @@ pub struct BakeForm {
     pub options: Option<String>,
     /// Id of the asset to create (default: a random `mesh-…` id).
     pub id: Option<String>,
+    /// `true` (default) or `false`: measure the scene's error against cost after the bake
+    /// (a few seconds), so renders can ask for `target_psnr` / `budget_ms`.
+    pub calibrate: Option<String>,
 }
 
 /// Uploads a mesh and starts a bake job (token-protected when a token is configured). The
@@ -497,6 +570,7 @@ pub async fn bake(
     let mut format = None;
     let mut options_json = None;
     let mut id = None;
+    let mut calibrate = true;
     while let Some(field) = multipart.next_field().await.map_err(field_error)? {
         let name = field.name().unwrap_or_default().to_owned();
         match name.as_str() {
@@ -507,9 +581,20 @@ pub async fn bake(
             "format" => format = Some(field.text().await.map_err(field_error)?),
             "options" => options_json = Some(field.text().await.map_err(field_error)?),
             "id" => id = Some(field.text().await.map_err(field_error)?),
+            "calibrate" => {
+                calibrate = match field.text().await.map_err(field_error)?.trim() {
+                    "true" => true,
+                    "false" => false,
+                    other => {
+                        return Err(AppError::Invalid(format!(
+                            "calibrate must be true or false, got {other:?}"
+                        )));
+                    }
+                };
+            }
             other => {
                 return Err(AppError::Invalid(format!(
-                    "unknown form field {other:?}: expected mesh, format, options, id"
+                    "unknown form field {other:?}: expected mesh, format, options, id, calibrate"
                 )));
             }
         }
@@ -572,11 +657,26 @@ pub async fn bake(
         let progress_job = Arc::clone(&job);
         let result = tokio::task::spawn_blocking(move || {
             let mut progress = |done, total| progress_job.progress(done, total);
-            let report = baker
-                .inner
-                .baker
-                .bake_to_file(&mesh, &options, &source, &path, &mut progress)
-                .map_err(|e| format!("bake failed: {e}"))?;
+            let report = if calibrate {
+                let baked = baker
+                    .bake_calibrated(&mesh, &options, &source, &path, &mut progress)
+                    .map_err(|e| format!("bake failed: {e:#}"))?;
+                serde_json::json!({
+                    "cameras": options.cameras,
+                    "resolution": options.resolution,
+                    "triangles": mesh.triangles.len(),
+                    "bake_ms": baked.bake_ms,
+                    "calibrate_ms": baked.calibrate_ms,
+                    "asset_bytes": baked.bytes.len(),
+                })
+            } else {
+                let report = baker
+                    .inner
+                    .baker
+                    .bake_to_file(&mesh, &options, &source, &path, &mut progress)
+                    .map_err(|e| format!("bake failed: {e}"))?;
+                serde_json::to_value(&report).unwrap_or_default()
+            };
             let asset = load_file(baker.pool().renderer(), &progress_job.asset, &path)
                 .map_err(|e| format!("the baked asset cannot be loaded: {e}"))?;
             Ok::<_, String>((report, asset))
@@ -586,13 +686,8 @@ pub async fn bake(
             Ok(Ok((report, asset))) => {
                 worker.assets().insert(asset);
                 worker.metrics().set_assets(worker.assets().len());
-                tracing::info!(
-                    job = job.id,
-                    asset = job.asset,
-                    bake_ms = report.bake_ms,
-                    "bake job done"
-                );
-                job.finish(serde_json::to_value(&report).unwrap_or_default());
+                tracing::info!(job = job.id, asset = job.asset, %report, "bake job done");
+                job.finish(report);
             }
             Ok(Err(message)) => {
                 tracing::warn!(job = job.id, message, "bake job failed");

@@ -120,6 +120,8 @@ struct Inner {
     assets: AssetStore,
     pool: RenderPool,
     baker: Baker,
+    /// Rasterizes source meshes for the calibration of each bake.
+    reference: lumigraph_core::reference::ReferenceRenderer,
     bake_slot: Semaphore,
     jobs: Jobs,
     metrics: Metrics,
@@ -134,6 +136,7 @@ impl AppState {
     pub fn new(config: ServeConfig, gpu: Arc<Gpu>) -> anyhow::Result<Self> {
         let adapter = gpu.adapter_summary();
         let renderer = Renderer::new(Arc::clone(&gpu));
+        let reference = lumigraph_core::reference::ReferenceRenderer::new(Arc::clone(&gpu));
         let baker = Baker::new(gpu);
         let pool = RenderPool::new(
             Arc::new(renderer),
@@ -149,6 +152,7 @@ impl AppState {
                 adapter,
                 pool,
                 baker,
+                reference,
                 bake_slot: Semaphore::new(1),
                 jobs: Jobs::default(),
                 metrics: Metrics::new(),
@@ -255,6 +259,30 @@ impl AppState {
         Ok(())
     }
 
+    /// Bakes `mesh`, measures its calibration (error against cost, for `target_psnr` /
+    /// `budget_ms` renders) and writes the asset to `path` atomically. Blocking.
+    pub(crate) fn bake_calibrated(
+        &self,
+        mesh: &lumigraph_core::mesh::Mesh,
+        options: &BakeOptions,
+        source: &lumigraph_core::asset::Provenance,
+        path: &std::path::Path,
+        progress: &mut dyn FnMut(u32, u32),
+    ) -> anyhow::Result<lumigraph_core::tradeoff::CalibratedBake> {
+        let baked = lumigraph_core::tradeoff::bake_calibrated(
+            &self.inner.baker,
+            self.pool().renderer(),
+            &self.inner.reference,
+            mesh,
+            options,
+            source,
+            progress,
+        )?;
+        lumigraph_core::atomic_write(path, |w| std::io::Write::write_all(w, &baked.bytes))
+            .with_context(|| format!("writing {}", path.display()))?;
+        Ok(baked)
+    }
+
     async fn bake_demo(&self, path: PathBuf) -> anyhow::Result<()> {
         let state = self.clone();
         let options = self.inner.config.demo_bake;
@@ -273,15 +301,14 @@ impl AppState {
                     tracing::info!("baking demo: {done}/{total} cameras");
                 }
             };
-            let report = state
-                .inner
-                .baker
-                .bake_to_file(&mesh, &options, &source, &path, &mut progress)
+            let baked = state
+                .bake_calibrated(&mesh, &options, &source, &path, &mut progress)
                 .context("baking the demo scene")?;
             tracing::info!(
-                bake_ms = report.bake_ms,
-                asset_bytes = report.asset_bytes,
-                "demo scene baked"
+                bake_ms = baked.bake_ms,
+                calibrate_ms = baked.calibrate_ms,
+                asset_bytes = baked.bytes.len(),
+                "demo scene baked and calibrated"
             );
             Ok(())
         })
