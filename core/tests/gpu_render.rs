@@ -1077,9 +1077,8 @@ fn unlit() -> Shading {
     }
 }
 
-#[test]
-fn scene_instances_share_one_upload_and_composite_like_the_union_mesh() {
-    use lumigraph_core::scene::{Rotation, Scene, Transform};
+/// The unit cube baked unlit (162 cameras, 128 px) to `cube.lfa` in a fresh folder.
+fn unlit_cube_file() -> (tempfile::TempDir, Mesh) {
     let dir = tempfile::tempdir().expect("tempdir");
     let cube_mesh = cube([0.0, 0.0, 0.0], 0.5);
     ctx()
@@ -1097,6 +1096,13 @@ fn scene_instances_share_one_upload_and_composite_like_the_union_mesh() {
             &mut |_, _| {},
         )
         .expect("bake");
+    (dir, cube_mesh)
+}
+
+#[test]
+fn scene_instances_share_one_upload_and_composite_like_the_union_mesh() {
+    use lumigraph_core::scene::{Rotation, Scene, Transform};
+    let (dir, cube_mesh) = unlit_cube_file();
     // B is rotated 30° about y, scaled 0.8 and pushed into A: the two interpenetrate.
     let b = Transform {
         translation: [0.55, 0.25, 0.2],
@@ -1161,23 +1167,7 @@ fn scene_instances_share_one_upload_and_composite_like_the_union_mesh() {
 #[test]
 fn scene_mesh_in_front_of_and_behind_a_light_field() {
     use lumigraph_core::scene::Scene;
-    let dir = tempfile::tempdir().expect("tempdir");
-    let cube_mesh = cube([0.0, 0.0, 0.0], 0.5);
-    ctx()
-        .baker
-        .bake_to_file(
-            &cube_mesh,
-            &BakeOptions {
-                cameras: 162,
-                resolution: 128,
-                shading: unlit(),
-                ..Default::default()
-            },
-            &Provenance::default(),
-            &dir.path().join("cube.lfa"),
-            &mut |_, _| {},
-        )
-        .expect("bake");
+    let (dir, cube_mesh) = unlit_cube_file();
     // A quad in front covering the left of the cube (z = 0.9) and a backdrop behind (z = -1.5),
     // both facing +z (the eye side).
     let quad = |x0: f32, x1: f32, y0: f32, y1: f32, z: f32| -> ([[f32; 3]; 4], String) {
