@@ -19,7 +19,7 @@ for scene in bunny cow spot demo; do
     asset="$OUT/$scene-$cams.lfa"
     if [ "$scene" = demo ]; then src=(--demo); else src=("${MESH[$scene]}"); fi
     /usr/bin/time -f "%e s wall, %M KiB max RSS" -o "$OUT/$scene-$cams.bake-time" \
-      $LG bake "${src[@]}" -o "$asset" --cameras "$cams" --resolution 256 > "$OUT/$scene-$cams.bake.txt"
+      $LG bake "${src[@]}" -o "$asset" --cameras "$cams" --resolution 256 --no-calibrate > "$OUT/$scene-$cams.bake.txt"
     if [ "$scene" = demo ]; then ref=(--demo); else ref=(--mesh "${MESH[$scene]}"); fi
     for method in default fixed; do
       $LG eval "$asset" "${ref[@]}" --method "$method" --json > "$OUT/$scene-$cams-$method.json"
