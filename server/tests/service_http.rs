@@ -1031,3 +1031,112 @@ async fn websocket_stream_on_a_real_server() {
         .expect("join")
         .expect("serve");
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn websocket_goals_choose_full_quality_settings() {
+    // A calibrated copy of the tiny asset beside the uncalibrated one.
+    let (dir, _) = setup(None, |_| {}).await;
+    let calibrated = tokio::task::spawn_blocking(|| {
+        let gpu = gpu();
+        let renderer = lumigraph_core::render::Renderer::new(gpu.clone());
+        let reference = lumigraph_core::reference::ReferenceRenderer::new(gpu.clone());
+        lumigraph_core::tradeoff::bake_calibrated(
+            &Baker::new(gpu),
+            &renderer,
+            &reference,
+            &icosahedron(),
+            &tiny_options(),
+            &lumigraph_core::asset::Provenance::default(),
+            &mut |_, _| {},
+        )
+        .expect("calibrated bake")
+    })
+    .await
+    .expect("join");
+    std::fs::write(dir.path().join("cal.lfa"), &calibrated.bytes).expect("write");
+    let mut config = ServeConfig::new(dir.path(), "127.0.0.1:0".parse().expect("addr"));
+    config.bake_demo_if_empty = false;
+    let state = tokio::task::spawn_blocking(move || AppState::new(config, gpu()))
+        .await
+        .expect("join")
+        .expect("state");
+    state.load_assets().await.expect("loading assets");
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let addr = listener.local_addr().expect("addr");
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let server = tokio::spawn(run(listener, state, async move {
+        let _ = stop_rx.await;
+    }));
+
+    let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset=cal"))
+        .await
+        .expect("connect");
+    assert_eq!(next_json(&mut ws).await["type"], "hello");
+    // Bad goals are reported and the session stays usable.
+    for (settings, needle) in [
+        (
+            serde_json::json!({"type": "settings", "budget_ms": 10.0, "target_psnr": 20.0}),
+            "not both",
+        ),
+        (
+            serde_json::json!({"type": "settings", "budget_ms": 10.0, "lod": 12}),
+            "clear them",
+        ),
+        (
+            serde_json::json!({"type": "settings", "budget_ms": -5.0}),
+            "budget",
+        ),
+    ] {
+        send_json(&mut ws, settings.clone()).await;
+        let error = next_json(&mut ws).await;
+        assert_eq!(error["type"], "error", "{settings}");
+        assert!(
+            error["message"]
+                .as_str()
+                .unwrap_or_default()
+                .contains(needle),
+            "{error}"
+        );
+    }
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "settings", "interactive": false, "still_codec": "png", "target_psnr": 1.0}),
+    )
+    .await;
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "view", "id": 5, "view": view_json(40, 24)}),
+    )
+    .await;
+    let (header, image) = next_frame(&mut ws).await;
+    assert_eq!(
+        (header.request_id, header.width, header.height),
+        (5, 40, 24)
+    );
+    assert!(is_png(&image));
+    ws.close(None).await.expect("close");
+
+    // The uncalibrated asset refuses goals with a message saying how to get a calibration.
+    let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset=tiny"))
+        .await
+        .expect("connect");
+    assert_eq!(next_json(&mut ws).await["type"], "hello");
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "settings", "budget_ms": 100.0}),
+    )
+    .await;
+    let error = next_json(&mut ws).await;
+    assert!(
+        error["message"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("calibrate=true"),
+        "{error}"
+    );
+    ws.close(None).await.expect("close");
+    let _ = stop_tx.send(());
+    server.await.expect("join").expect("server");
+}

@@ -26,6 +26,7 @@ use super::AppState;
 use super::assets::{AssetSummary, LoadedAsset};
 use super::error::AppError;
 use super::frames::{ColorFormat, Encoding, Knobs, encode_blocking, encode_color};
+use lumigraph_core::tradeoff::{Calibration, Goal};
 
 /// Version of the stream protocol, sent in `hello`.
 pub const PROTOCOL_VERSION: u32 = 1;
@@ -128,6 +129,14 @@ pub struct Settings {
     pub layers: BTreeMap<String, f32>,
     /// Named state of the asset (lighting, animation frame); absent = the base state.
     pub state: Option<String>,
+    /// Full-quality frames use the cheapest setting the asset's calibration predicts to reach
+    /// this masked PSNR (dB), chosen per frame size; excludes `lod`/`step`/`tolerance`/`method`.
+    #[serde(default)]
+    pub target_psnr: Option<f64>,
+    /// Full-quality frames use the most accurate setting predicted to render within this many
+    /// ms at the frame's size; excludes the knobs and `target_psnr`.
+    #[serde(default)]
+    pub budget_ms: Option<f64>,
 }
 
 impl Settings {
@@ -150,6 +159,8 @@ impl Settings {
             background: [0; 4],
             layers: BTreeMap::new(),
             state: None,
+            target_psnr: None,
+            budget_ms: None,
         }
     }
 }
@@ -165,6 +176,8 @@ struct Effective {
     interactive_cameras: u32,
     /// Opacity of layer 0 (the one rendered), multiplied into alpha.
     opacity: f32,
+    /// A quality or time goal for full-quality frames, with the calibration that serves it.
+    goal: Option<(Goal, Arc<Calibration>)>,
 }
 
 fn validate_settings(settings: Settings, asset: &LoadedAsset) -> Result<Effective, String> {
@@ -247,6 +260,38 @@ fn validate_settings(settings: Settings, asset: &LoadedAsset) -> Result<Effectiv
         tolerance: s.tolerance,
         method: s.method,
     };
+    let goal = match (s.target_psnr, s.budget_ms) {
+        (Some(_), Some(_)) => {
+            return Err("send target_psnr or budget_ms, not both".to_owned());
+        }
+        (Some(db), None) => Some(Goal::TargetPsnr(db)),
+        (None, Some(ms)) => Some(Goal::BudgetMs(ms)),
+        (None, None) => None,
+    };
+    let goal = match goal {
+        None => None,
+        Some(goal) => {
+            if knobs != Knobs::default() {
+                return Err(
+                    "target_psnr / budget_ms choose lod, step, tolerance and method: clear them \
+                     (send null) to use a goal"
+                        .to_owned(),
+                );
+            }
+            let calibration = Calibration::from_quality(asset.header.quality.as_ref())
+                .map_err(|e| e.to_string())?
+                .ok_or_else(|| {
+                    "this asset has no calibration: bake it with calibrate=true (the default of \
+                     POST /v1/bake and `lumigraph bake`) to stream by target_psnr or budget_ms"
+                        .to_owned()
+                })?;
+            // Checks the goal's value now rather than at the first frame.
+            calibration
+                .choose(goal, 64, 64, asset.header.geometry.camera_count)
+                .map_err(|e| e.to_string())?;
+            Some((goal, Arc::new(calibration)))
+        }
+    };
     let still_options = knobs.to_options(asset).map_err(|e| e.to_string())?;
     let interactive_options = Knobs {
         lod: s.interactive_lod.or(s.lod),
@@ -262,6 +307,7 @@ fn validate_settings(settings: Settings, asset: &LoadedAsset) -> Result<Effectiv
         interactive_options,
         opacity,
         settings,
+        goal,
     })
 }
 
@@ -636,6 +682,18 @@ impl Sender<'_> {
                 },
                 effective.still_cameras,
             ),
+        };
+        let (options, cameras) = match (&effective.goal, quality) {
+            (Some((goal, calibration)), Quality::Full) => match calibration.choose(
+                *goal,
+                view.width,
+                view.height,
+                self.asset.header.geometry.camera_count,
+            ) {
+                Ok(choice) => (choice.options(), choice.cameras),
+                Err(_) => (options, cameras),
+            },
+            _ => (options, cameras),
         };
         if quality == Quality::Interactive {
             let scale = settings.interactive_scale.map_or_else(
