@@ -60,6 +60,15 @@ pub enum TradeoffError {
     },
 }
 
+/// Depth precision an asset stores: 8 for 8-bit depth, 16 otherwise.
+fn stored_depth_bits(asset: &AssetFile) -> u8 {
+    if asset.header().encoding(Channel::Depth) == Some(Encoding::R8) {
+        8
+    } else {
+        16
+    }
+}
+
 /// The values of every knob to sweep; the sweep renders their Cartesian product.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Grid {
@@ -83,13 +92,16 @@ impl Grid {
     /// 96–192 settings.
     pub fn default_for(asset: &AssetFile) -> Grid {
         let max_level = usize::from(asset.header().geometry.camera_level).min(3);
-        let stored_16 = asset.header().encoding(Channel::Depth) != Some(Encoding::R8);
         Grid {
             cameras: CAMERA_COUNTS[..=max_level].to_vec(),
             steps: vec![1.0 / 16.0, 1.0 / 32.0, 1.0 / 64.0],
             tolerance_factors: vec![0.5, 1.0],
             methods: vec![Method::Default, Method::Fixed],
-            depth_bits: if stored_16 { vec![16, 8] } else { vec![8] },
+            depth_bits: if stored_depth_bits(asset) == 16 {
+                vec![16, 8]
+            } else {
+                vec![8]
+            },
             sizes: vec![256, 512],
         }
     }
@@ -156,12 +168,12 @@ impl Grid {
                 }
             }
         }
-        let stored_8 = asset.header().encoding(Channel::Depth) == Some(Encoding::R8);
+        let stored = stored_depth_bits(asset);
         for &b in &self.depth_bits {
             if b != 8 && b != 16 {
                 return bad(format!("depth bits {b}: use 8 or 16"));
             }
-            if b == 16 && stored_8 {
+            if b > stored {
                 return bad("depth bits 16: the asset stores 8-bit depth".to_owned());
             }
         }
@@ -515,6 +527,27 @@ pub enum Goal {
     BudgetMs(f64),
 }
 
+impl Goal {
+    /// The goal of an optional target PSNR and an optional time budget (at most one).
+    ///
+    /// # Errors
+    /// [`TradeoffError::Goal`] when both are given. The values themselves are checked by
+    /// [`Calibration::choose`].
+    pub fn from_pair(
+        target_psnr: Option<f64>,
+        budget_ms: Option<f64>,
+    ) -> Result<Option<Goal>, TradeoffError> {
+        match (target_psnr, budget_ms) {
+            (Some(_), Some(_)) => Err(TradeoffError::Goal(
+                "give target_psnr or budget_ms, not both".to_owned(),
+            )),
+            (Some(db), None) => Ok(Some(Goal::TargetPsnr(db))),
+            (None, Some(ms)) => Ok(Some(Goal::BudgetMs(ms))),
+            (None, None) => Ok(None),
+        }
+    }
+}
+
 /// The setting chosen for a goal, with its predictions.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct Choice {
@@ -568,13 +601,12 @@ impl Calibration {
             CALIBRATION_SIZE,
         );
         let max_level = usize::from(asset.header().geometry.camera_level).min(3);
-        let stored_8 = asset.header().encoding(Channel::Depth) == Some(Encoding::R8);
         let grid = Grid {
             cameras: CAMERA_COUNTS[..=max_level].to_vec(),
             steps: CALIBRATION_STEPS.to_vec(),
             tolerance_factors: vec![0.5],
             methods: vec![Method::Default],
-            depth_bits: vec![if stored_8 { 8 } else { 16 }],
+            depth_bits: vec![stored_depth_bits(asset)],
             sizes: vec![CALIBRATION_SIZE],
         };
         let inputs = SweepInputs {
@@ -788,6 +820,12 @@ mod tests {
             .choose(Goal::BudgetMs(1.0), 512, 512, 642)
             .expect("choice");
         assert_eq!((pick.cameras, pick.met), (12, false));
+        assert_eq!(
+            Goal::from_pair(Some(20.0), None).expect("one"),
+            Some(Goal::TargetPsnr(20.0))
+        );
+        assert_eq!(Goal::from_pair(None, None).expect("none"), None);
+        assert!(Goal::from_pair(Some(20.0), Some(5.0)).is_err());
         for bad in [
             Goal::BudgetMs(0.0),
             Goal::BudgetMs(f64::NAN),

@@ -120,16 +120,8 @@ fn goal_of(
     budget_ms: Option<f64>,
     explicit: &RenderOptions,
 ) -> PyResult<Option<Goal>> {
-    let goal = match (target_psnr, budget_ms) {
-        (Some(_), Some(_)) => {
-            return Err(PyValueError::new_err(
-                "give target_psnr or budget_ms, not both",
-            ));
-        }
-        (Some(db), None) => Some(Goal::TargetPsnr(db)),
-        (None, Some(ms)) => Some(Goal::BudgetMs(ms)),
-        (None, None) => None,
-    };
+    let goal = Goal::from_pair(target_psnr, budget_ms)
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
     if goal.is_some() && *explicit != RenderOptions::default() {
         return Err(PyValueError::new_err(
             "target_psnr / budget_ms choose lod, step, tolerance and method: do not set them too",
@@ -139,36 +131,46 @@ fn goal_of(
 }
 
 impl PyLightField {
-    /// The calibrated choice for `goal` at the view's size.
-    fn choice(&self, goal: Goal, view: &View) -> PyResult<Choice> {
-        let header = self.asset.header();
-        let calibration = Calibration::from_quality(header.quality.as_ref())
+    /// The asset's calibration, or an error saying how to get one.
+    fn calibration(&self) -> PyResult<Calibration> {
+        Calibration::from_quality(self.asset.header().quality.as_ref())
             .map_err(|e| PyValueError::new_err(e.to_string()))?
             .ok_or_else(|| {
                 PyValueError::new_err(
                     "this light field has no calibration: bake it with calibrate=True (or \
                      `lumigraph bake`) to use target_psnr / budget_ms",
                 )
-            })?;
+            })
+    }
+
+    /// The calibrated choice for `goal` at the view's size.
+    fn choice(&self, calibration: &Calibration, goal: Goal, view: &View) -> PyResult<Choice> {
         calibration
-            .choose(goal, view.width, view.height, header.geometry.camera_count)
+            .choose(
+                goal,
+                view.width,
+                view.height,
+                self.asset.header().geometry.camera_count,
+            )
             .map_err(|e| PyValueError::new_err(e.to_string()))
     }
 
-    /// Each view with its options: the explicit ones, or the calibrated choice for a goal.
+    /// Each view with its options: the explicit ones, or the calibrated choice for a goal
+    /// (the calibration is read once for all views).
     fn jobs(
         &self,
         views: Vec<View>,
         explicit: RenderOptions,
         goal: Option<Goal>,
     ) -> PyResult<Vec<(View, RenderOptions)>> {
+        let Some(goal) = goal else {
+            return Ok(views.into_iter().map(|v| (v, explicit)).collect());
+        };
+        let calibration = self.calibration()?;
         views
             .into_iter()
             .map(|v| {
-                let options = match goal {
-                    Some(g) => self.choice(g, &v)?.options(),
-                    None => explicit,
-                };
+                let options = self.choice(&calibration, goal, &v)?.options();
                 Ok((v, options))
             })
             .collect()
@@ -414,7 +416,7 @@ impl PyLightField {
         let view = view::parse_view(view)?;
         let goal = goal_of(target_psnr, budget_ms, &RenderOptions::default())?
             .ok_or_else(|| PyValueError::new_err("give target_psnr or budget_ms"))?;
-        let c = self.choice(goal, &view)?;
+        let c = self.choice(&self.calibration()?, goal, &view)?;
         let out = PyDict::new(py);
         out.set_item("cameras", c.cameras)?;
         out.set_item("step", c.step)?;

@@ -169,12 +169,21 @@ pub struct QualityArgs {
 }
 
 impl QualityArgs {
-    fn goal(&self) -> Option<Goal> {
-        match (self.target_psnr, self.budget_ms) {
-            (Some(db), _) => Some(Goal::TargetPsnr(db)),
-            (None, Some(ms)) => Some(Goal::BudgetMs(ms)),
-            (None, None) => None,
-        }
+    /// The goal (`--target-psnr` / `--budget-ms`, exclusive by clap) with the asset's
+    /// calibration, read once; an error says how to get a calibration.
+    fn goal(&self, asset: &AssetFile) -> Result<Option<(Goal, Calibration)>> {
+        let Some(goal) = Goal::from_pair(self.target_psnr, self.budget_ms)? else {
+            return Ok(None);
+        };
+        let calibration =
+            Calibration::from_quality(asset.header().quality.as_ref())?.ok_or_else(|| {
+                anyhow::anyhow!(
+                    "--target-psnr / --budget-ms need the asset's calibration, which this asset \
+                     lacks (baked with --no-calibrate, by the Python API or the service): \
+                     re-bake it with `lumigraph bake`"
+                )
+            })?;
+        Ok(Some((goal, calibration)))
     }
 
     fn options(&self) -> RenderOptions {
@@ -534,17 +543,18 @@ fn bake_calibrated(
     Ok(())
 }
 
-/// The calibrated choice for a goal, or an error saying how to get a calibration.
-fn choose(asset: &AssetFile, goal: Goal, view: &View) -> Result<Choice> {
-    let header = asset.header();
-    let calibration = Calibration::from_quality(header.quality.as_ref())?.ok_or_else(|| {
-        anyhow::anyhow!(
-            "--target-psnr / --budget-ms need the asset's calibration, which this asset lacks \
-             (baked with --no-calibrate, by the Python API or the service): re-bake it with \
-             `lumigraph bake`"
-        )
-    })?;
-    Ok(calibration.choose(goal, view.width, view.height, header.geometry.camera_count)?)
+/// The calibrated choice for `goal` at the view's size.
+fn choose(
+    asset: &AssetFile,
+    (goal, calibration): &(Goal, Calibration),
+    view: &View,
+) -> Result<Choice> {
+    Ok(calibration.choose(
+        *goal,
+        view.width,
+        view.height,
+        asset.header().geometry.camera_count,
+    )?)
 }
 
 fn describe(choice: &Choice) -> String {
@@ -649,9 +659,9 @@ fn render(args: &RenderArgs) -> Result<()> {
     let field = renderer
         .upload(&asset)
         .with_context(|| format!("cannot load asset {}", args.asset.display()))?;
-    let goal = args.quality.goal();
+    let goal = args.quality.goal(&asset)?;
     for (i, view) in views.iter().enumerate() {
-        let choice = goal.map(|g| choose(&asset, g, view)).transpose()?;
+        let choice = goal.as_ref().map(|g| choose(&asset, g, view)).transpose()?;
         let options = choice.map_or(options, |c| c.options());
         let frame = renderer.render(&field, view, &options)?;
         write_outputs(&frame, i, many, &args.output, &args.depth)?;
@@ -790,8 +800,8 @@ fn eval(args: &EvalArgs) -> Result<()> {
     }
     // With a goal, the calibration chooses (for the first view's size) and the report sets
     // the prediction beside the measurement.
-    let choice = match args.quality.goal() {
-        Some(goal) => Some(choose(&asset, goal, &views[0])?),
+    let choice = match args.quality.goal(&asset)? {
+        Some(goal) => Some(choose(&asset, &goal, &views[0])?),
         None => None,
     };
     let options = choice.map_or_else(|| args.quality.options(), |c| c.options());

@@ -7,6 +7,7 @@ use std::time::Instant;
 use lumigraph_core::frame::Frame;
 use lumigraph_core::image_io;
 use lumigraph_core::render::{Method, RenderOptions, Renderer};
+use lumigraph_core::tradeoff::{Calibration, Goal, TradeoffError};
 use lumigraph_core::view::View;
 use serde::{Deserialize, Serialize};
 use tokio::sync::Semaphore;
@@ -105,6 +106,38 @@ impl Knobs {
             .map_err(render_error)?;
         Ok(options)
     }
+}
+
+/// The goal of a render request or stream session: `target_psnr` or `budget_ms` (at most one,
+/// and then none of the knobs), with the asset's calibration that serves it. `None` when
+/// neither is given. Goal values are checked when a setting is chosen.
+pub fn goal_calibration(
+    target_psnr: Option<f64>,
+    budget_ms: Option<f64>,
+    knobs: &Knobs,
+    asset: &LoadedAsset,
+) -> Result<Option<(Goal, Arc<Calibration>)>, AppError> {
+    let invalid = |e: TradeoffError| AppError::Invalid(e.to_string());
+    let Some(goal) = Goal::from_pair(target_psnr, budget_ms).map_err(invalid)? else {
+        return Ok(None);
+    };
+    if *knobs != Knobs::default() {
+        return Err(AppError::Invalid(
+            "target_psnr / budget_ms choose lod, step, tolerance and method: do not send them too \
+             (in a stream session, clear them with null)"
+                .to_owned(),
+        ));
+    }
+    let calibration = Calibration::from_quality(asset.header.quality.as_ref())
+        .map_err(invalid)?
+        .ok_or_else(|| {
+            AppError::Invalid(format!(
+                "asset {} has no calibration: bake it with calibrate=true (the default of POST \
+                 /v1/bake and `lumigraph bake`) to render by target_psnr or budget_ms",
+                asset.id
+            ))
+        })?;
+    Ok(Some((goal, Arc::new(calibration))))
 }
 
 /// How a colour frame is encoded.

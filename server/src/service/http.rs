@@ -14,7 +14,6 @@ use axum::response::{IntoResponse, Response};
 use futures_util::StreamExt as _;
 use lumigraph_core::bake::BakeOptions;
 use lumigraph_core::mesh::{MeshFormat, load_mesh_from_bytes};
-use lumigraph_core::tradeoff::{Calibration, Goal};
 use lumigraph_core::view::View;
 use serde::{Deserialize, Serialize};
 use tokio::io::AsyncWriteExt as _;
@@ -23,6 +22,7 @@ use super::assets::{AssetSummary, LoadedAsset, load_file, validate_id};
 use super::error::{AppError, ErrorBody, ErrorKind};
 use super::frames::{
     ColorFormat, DepthFormat, Encoding, Knobs, encode_blocking, encode_color, encode_depth,
+    goal_calibration,
 };
 use super::jobs::{JobState, JobStatus};
 use super::{AppState, random_id};
@@ -362,34 +362,10 @@ pub async fn render_asset(
         tolerance: request.tolerance,
         method: request.method,
     };
-    let goal = match (request.target_psnr, request.budget_ms) {
-        (Some(_), Some(_)) => {
-            return Err(AppError::Invalid(
-                "send target_psnr or budget_ms, not both".to_owned(),
-            ));
-        }
-        (Some(db), None) => Some(Goal::TargetPsnr(db)),
-        (None, Some(ms)) => Some(Goal::BudgetMs(ms)),
-        (None, None) => None,
-    };
+    let goal = goal_calibration(request.target_psnr, request.budget_ms, &knobs, &asset)?;
     let (options, choice) = match goal {
         None => (knobs.to_options(&asset)?, None),
-        Some(goal) => {
-            if knobs != Knobs::default() {
-                return Err(AppError::Invalid(
-                    "target_psnr / budget_ms choose lod, step, tolerance and method: do not send them too"
-                        .to_owned(),
-                ));
-            }
-            let calibration = Calibration::from_quality(asset.header.quality.as_ref())
-                .map_err(|e| AppError::Invalid(e.to_string()))?
-                .ok_or_else(|| {
-                    AppError::Invalid(format!(
-                        "asset {id} has no calibration: bake it with calibrate=true (the \
-                         default of POST /v1/bake and `lumigraph bake`) to render by target_psnr \
-                         or budget_ms"
-                    ))
-                })?;
+        Some((goal, calibration)) => {
             let choice = calibration
                 .choose(
                     goal,

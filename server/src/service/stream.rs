@@ -25,7 +25,9 @@ use tokio::sync::{mpsc, watch};
 use super::AppState;
 use super::assets::{AssetSummary, LoadedAsset};
 use super::error::AppError;
-use super::frames::{ColorFormat, Encoding, Knobs, encode_blocking, encode_color};
+use super::frames::{
+    ColorFormat, Encoding, Knobs, encode_blocking, encode_color, goal_calibration,
+};
 use lumigraph_core::tradeoff::{Calibration, Goal};
 
 /// Version of the stream protocol, sent in `hello`.
@@ -260,38 +262,14 @@ fn validate_settings(settings: Settings, asset: &LoadedAsset) -> Result<Effectiv
         tolerance: s.tolerance,
         method: s.method,
     };
-    let goal = match (s.target_psnr, s.budget_ms) {
-        (Some(_), Some(_)) => {
-            return Err("send target_psnr or budget_ms, not both".to_owned());
-        }
-        (Some(db), None) => Some(Goal::TargetPsnr(db)),
-        (None, Some(ms)) => Some(Goal::BudgetMs(ms)),
-        (None, None) => None,
-    };
-    let goal = match goal {
-        None => None,
-        Some(goal) => {
-            if knobs != Knobs::default() {
-                return Err(
-                    "target_psnr / budget_ms choose lod, step, tolerance and method: clear them \
-                     (send null) to use a goal"
-                        .to_owned(),
-                );
-            }
-            let calibration = Calibration::from_quality(asset.header.quality.as_ref())
-                .map_err(|e| e.to_string())?
-                .ok_or_else(|| {
-                    "this asset has no calibration: bake it with calibrate=true (the default of \
-                     POST /v1/bake and `lumigraph bake`) to stream by target_psnr or budget_ms"
-                        .to_owned()
-                })?;
-            // Checks the goal's value now rather than at the first frame.
-            calibration
-                .choose(goal, 64, 64, asset.header.geometry.camera_count)
-                .map_err(|e| e.to_string())?;
-            Some((goal, Arc::new(calibration)))
-        }
-    };
+    let goal =
+        goal_calibration(s.target_psnr, s.budget_ms, &knobs, asset).map_err(|e| e.to_string())?;
+    if let Some((goal, calibration)) = &goal {
+        // Checks the goal's value now rather than at the first frame.
+        calibration
+            .choose(*goal, 64, 64, asset.header.geometry.camera_count)
+            .map_err(|e| e.to_string())?;
+    }
     let still_options = knobs.to_options(asset).map_err(|e| e.to_string())?;
     let interactive_options = Knobs {
         lod: s.interactive_lod.or(s.lod),
