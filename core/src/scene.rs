@@ -417,7 +417,14 @@ impl Scene {
         view: &View,
     ) -> Result<Frame, SceneError> {
         view.basis(crate::view::DEFAULT_MAX_VIEW_PX)?;
-        let mut out: Option<Frame> = None;
+        let pixels = view.width as usize * view.height as usize;
+        let mut out = Frame {
+            width: view.width,
+            height: view.height,
+            color: vec![0; 4 * pixels],
+            depth: vec![f32::INFINITY; pixels],
+            stats: FrameStats::default(),
+        };
         for (index, layer) in self.layers.iter().enumerate() {
             let (frame, scale) = match layer {
                 Layer::Field {
@@ -443,24 +450,9 @@ impl Scene {
                     (frame, placement.scale())
                 }
             };
-            match out.as_mut() {
-                None => {
-                    let mut first = frame;
-                    scale_depth(&mut first.depth, scale);
-                    out = Some(first);
-                }
-                Some(acc) => composite_into(acc, &frame, scale),
-            }
+            composite_into(&mut out, &frame, scale);
         }
-        out.ok_or_else(|| GpuError::Operation("scene has no objects".to_owned()).into())
-    }
-}
-
-fn scale_depth(depth: &mut [f32], scale: f64) {
-    if scale != 1.0 {
-        for z in depth.iter_mut().filter(|z| z.is_finite()) {
-            *z = (f64::from(*z) * scale) as f32;
-        }
+        Ok(out)
     }
 }
 
