@@ -1,19 +1,13 @@
 #!/usr/bin/env bash
 # Reproduces the tables of BENCHMARKS.md (release build, real-mesh fixtures + the demo).
-#   bash scripts/bench.sh [OUT_DIR]     (default: out/bench; takes ~15 min on 2-core lavapipe)
+#   bash scripts/bench.sh [OUT_DIR]     (default: out/bench; about 5 min on 2-core lavapipe)
 # Writes OUT_DIR/*.json (raw `lumigraph eval --json` reports) and OUT_DIR/tables.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
 OUT=${1:-out/bench}
 mkdir -p "$OUT"
-cargo build --release --locked -q -p lumigraph_server
-LG=target/release/lumigraph
-FIX=${LUMIGRAPH_FIXTURES:-fixtures}
-if [ ! -f "$FIX/mesh/bunny00.off" ]; then
-  bash "${LUMIGRAPH_FETCH_FIXTURES:-../shared/data/fetch-dev-fixtures.sh}" "$FIX"
-fi
-declare -A MESH=([bunny]="$FIX/mesh/bunny00.off" [cow]="$FIX/mesh/cow.off" [spot]="$FIX/mesh/spot.ply" [demo]="")
+source scripts/bench_common.sh
 for scene in bunny cow spot demo; do
   for cams in 42 162; do
     asset="$OUT/$scene-$cams.lfa"

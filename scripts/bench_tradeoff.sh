@@ -3,20 +3,14 @@
 # fixtures) and the demo at 162 cameras × 256 px, runs `lumigraph bench tradeoff` on each
 # (default grid: cameras × step × tolerance × method × depth bits × size, 4 views per setting),
 # and formats the tables.
-#   bash scripts/bench_tradeoff.sh [OUT_DIR]   (default out/tradeoff; ~15 min on 2-core lavapipe)
+#   bash scripts/bench_tradeoff.sh [OUT_DIR]   (default out/tradeoff; about 7 min on 2-core lavapipe)
 # Writes OUT_DIR/SCENE/{tradeoff.csv,tradeoff.json,pareto.png} and OUT_DIR/tables.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
 OUT=${1:-out/tradeoff}
 mkdir -p "$OUT"
-cargo build --release --locked -q -p lumigraph_server
-LG=target/release/lumigraph
-FIX=${LUMIGRAPH_FIXTURES:-fixtures}
-if [ ! -f "$FIX/mesh/bunny00.off" ]; then
-  bash "${LUMIGRAPH_FETCH_FIXTURES:-../shared/data/fetch-dev-fixtures.sh}" "$FIX"
-fi
-declare -A MESH=([bunny]="$FIX/mesh/bunny00.off" [cow]="$FIX/mesh/cow.off" [spot]="$FIX/mesh/spot.ply" [demo]="")
+source scripts/bench_common.sh
 for scene in ${SCENES:-bunny cow spot demo}; do
   asset="$OUT/$scene.lfa"
   if [ "$scene" = demo ]; then src=(--demo); ref=(--demo); else src=("${MESH[$scene]}"); ref=(--mesh "${MESH[$scene]}"); fi

@@ -1,0 +1,10 @@
+# Sourced by the bench scripts (from the repository root, after scripts/setup.sh): builds the
+# release binary as $LG and provides the real-mesh fixtures as $FIX (fetched once) with their
+# paths in MESH[scene] (the demo has none: it is built in).
+cargo build --release --locked -q -p lumigraph_server
+LG=target/release/lumigraph
+FIX=${LUMIGRAPH_FIXTURES:-fixtures}
+if [ ! -f "$FIX/mesh/bunny00.off" ]; then
+  bash "${LUMIGRAPH_FETCH_FIXTURES:-../shared/data/fetch-dev-fixtures.sh}" "$FIX"
+fi
+declare -A MESH=([bunny]="$FIX/mesh/bunny00.off" [cow]="$FIX/mesh/cow.off" [spot]="$FIX/mesh/spot.ply" [demo]="")
