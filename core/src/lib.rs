@@ -21,6 +21,7 @@
 //!   embedded at build time ([`shaders`]).
 //! - [`metrics`] implements DESIGN §3's metrics (cross-checked against scikit-image);
 //!   [`tradeoff`] sweeps every quality knob and measures its cost and error.
+//! - [`lod`] chooses cameras and step from an object's projected size under a quality floor.
 //! - [`scene`] composites light-field instances and meshes, each with its own transform, by depth.
 
 pub mod asset;
@@ -30,6 +31,7 @@ mod fsutil;
 pub mod geometry;
 pub mod gpu;
 pub mod image_io;
+pub mod lod;
 pub mod mesh;
 pub mod metrics;
 pub mod reference;

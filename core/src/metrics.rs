@@ -520,6 +520,32 @@ pub fn compare(test: &Frame, reference: &Frame) -> Result<Comparison, MetricsErr
     })
 }
 
+/// Length of a frame's silhouette in pixels: covered pixels with at least one uncovered
+/// 4-neighbour inside the frame (the frame's border is not a silhouette). Dividing the pixels
+/// covered in one mask only by this length gives the mean silhouette displacement in pixels
+/// (what automatic LOD bounds, `lod`).
+pub fn silhouette_px(frame: &Frame) -> u64 {
+    let (w, h) = (frame.width as usize, frame.height as usize);
+    if frame.depth.len() != w * h {
+        return 0;
+    }
+    let covered = |x: usize, y: usize| frame.depth[y * w + x].is_finite();
+    let mut n = 0;
+    for y in 0..h {
+        for x in 0..w {
+            if !covered(x, y) {
+                continue;
+            }
+            let edge = (x > 0 && !covered(x - 1, y))
+                || (x + 1 < w && !covered(x + 1, y))
+                || (y > 0 && !covered(x, y - 1))
+                || (y + 1 < h && !covered(x, y + 1));
+            n += u64::from(edge);
+        }
+    }
+    n
+}
+
 /// Mean of `values`, NaN when empty.
 fn mean_of(values: impl Iterator<Item = f64>) -> f64 {
     let (sum, n) = values.fold((0.0, 0_u64), |(s, n), v| (s + v, n + 1));
@@ -795,6 +821,38 @@ mod tests {
 
     fn flat(w: usize, h: usize, rgb: [u8; 3]) -> Vec<u8> {
         [rgb[0], rgb[1], rgb[2], 255].repeat(w * h)
+    }
+
+    /// An axis-aligned covered rectangle `[x0, x0 + w) × [y0, y0 + h)` in a `size²` frame.
+    fn rect(size: usize, x0: usize, y0: usize, w: usize, h: usize) -> Frame {
+        let mut depth = vec![f32::INFINITY; size * size];
+        for y in y0..y0 + h {
+            depth[y * size + x0..y * size + x0 + w].fill(1.0);
+        }
+        Frame {
+            width: size as u32,
+            height: size as u32,
+            color: vec![0; size * size * 4],
+            depth,
+            stats: FrameStats::default(),
+        }
+    }
+
+    #[test]
+    fn silhouette_counts_boundary_pixels() {
+        // A 10×6 rectangle: 2·10 + 2·4 boundary pixels; the frame border is not a silhouette.
+        assert_eq!(silhouette_px(&rect(32, 5, 7, 10, 6)), 28);
+        assert_eq!(silhouette_px(&rect(8, 0, 0, 8, 8)), 0);
+        assert_eq!(silhouette_px(&rect(8, 0, 0, 8, 3)), 8);
+        assert_eq!(silhouette_px(&rect(8, 3, 3, 1, 1)), 1);
+        // Shifting a square by one pixel sideways moves two of its four sides by 1 px: the
+        // mismatch over the silhouette length is the mean displacement, 0.5 px (exact: 2·s
+        // mismatched pixels over 4·(s − 1) boundary pixels, s = 21 → 42 / 80).
+        let a = rect(64, 10, 10, 21, 21);
+        let b = rect(64, 11, 10, 21, 21);
+        let c = compare(&b, &a).expect("same size");
+        assert_eq!(c.mask_mismatch_px, 42);
+        assert_eq!(silhouette_px(&a), 80);
     }
 
     /// A shaded disc on transparent black with depth; `seed` adds colour and depth noise.

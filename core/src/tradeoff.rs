@@ -233,6 +233,9 @@ pub struct Point {
     pub ssim: f64,
     /// Mean number of pixels covered in one mask only.
     pub mask_mismatch_px: f64,
+    /// Mean silhouette displacement, pixels: pixels covered in one mask only over the length
+    /// of the reference silhouette ([`metrics::silhouette_px`]), summed over the views.
+    pub silhouette_error_px: f64,
     /// Mean of the per-view median depth error, in bounding radii.
     pub depth_median_r: f64,
     /// On the Pareto front of (ms per frame ↓, masked PSNR ↑).
@@ -337,6 +340,7 @@ fn measure(
     let options = setting.options();
     let mut comparisons: Vec<Comparison> = Vec::with_capacity(views.len());
     let (mut ms, mut fetches) = (0.0, 0.0);
+    let (mut mismatch, mut silhouette) = (0_u64, 0_u64);
     for (view, truth) in views.iter().zip(truths) {
         let mut frame = inputs.renderer.render(field, view, &options)?;
         for _ in 1..inputs.repeats.max(1) {
@@ -347,7 +351,10 @@ fn measure(
         }
         ms += frame.stats.render_ms;
         fetches += frame.stats.fetches as f64 / frame.pixel_count().max(1) as f64;
-        comparisons.push(metrics::compare(&frame, truth)?);
+        let comparison = metrics::compare(&frame, truth)?;
+        mismatch += comparison.mask_mismatch_px;
+        silhouette += metrics::silhouette_px(truth);
+        comparisons.push(comparison);
     }
     let n = views.len() as f64;
     let mean = metrics::mean_comparison(&comparisons)
@@ -360,6 +367,7 @@ fn measure(
         psnr: mean.psnr,
         ssim: mean.ssim,
         mask_mismatch_px: mean.mask_mismatch_px,
+        silhouette_error_px: mismatch as f64 / silhouette.max(1) as f64,
         depth_median_r: mean.depth.median / radius.max(f64::MIN_POSITIVE),
         pareto: false,
     })
@@ -391,7 +399,7 @@ pub fn pareto_front(cost: &[f64], quality: &[f64]) -> Vec<bool> {
 }
 
 /// The CSV header of [`write_csv`].
-pub const CSV_HEADER: &str = "cameras,step,tolerance,method,depth_bits,size,ms_per_frame,fetches_per_pixel,masked_psnr,psnr,ssim,mask_mismatch_px,depth_median_r,pareto";
+pub const CSV_HEADER: &str = "cameras,step,tolerance,method,depth_bits,size,ms_per_frame,fetches_per_pixel,masked_psnr,psnr,ssim,mask_mismatch_px,silhouette_error_px,depth_median_r,pareto";
 
 /// Writes the points as CSV (atomically; one row per setting, [`CSV_HEADER`] first).
 ///
@@ -404,7 +412,7 @@ pub fn write_csv(path: &Path, points: &[Point]) -> Result<(), TradeoffError> {
             let s = &p.setting;
             writeln!(
                 w,
-                "{},{},{},{},{},{},{:.3},{:.2},{:.3},{:.3},{:.5},{:.1},{:.3e},{}",
+                "{},{},{},{},{},{},{:.3},{:.2},{:.3},{:.3},{:.5},{:.1},{:.4},{:.3e},{}",
                 s.cameras,
                 s.step,
                 s.tolerance,
@@ -417,6 +425,7 @@ pub fn write_csv(path: &Path, points: &[Point]) -> Result<(), TradeoffError> {
                 p.psnr,
                 p.ssim,
                 p.mask_mismatch_px,
+                p.silhouette_error_px,
                 p.depth_median_r,
                 p.pareto
             )?;
@@ -516,6 +525,13 @@ pub struct CalibrationPoint {
     pub masked_psnr: f64,
     /// Mean median depth error, bounding radii.
     pub depth_median_r: f64,
+    /// Mean silhouette displacement in bounding-sphere diameters: the calibration's
+    /// [`Point::silhouette_error_px`] over the bounding sphere's projected diameter in its
+    /// views. Times an object's projected diameter in pixels, it predicts the setting's
+    /// silhouette error in pixels (what automatic LOD bounds, [`crate::lod`]). Absent in
+    /// calibrations made before it was measured.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub silhouette_error: Option<f64>,
 }
 
 /// What a render should meet.
@@ -619,6 +635,11 @@ impl Calibration {
             repeats: 1,
         };
         let mpx = f64::from(CALIBRATION_SIZE).powi(2) / 1e6;
+        let projected = crate::lod::projected_diameter_px(
+            &views[0].basis(u32::MAX).map_err(RenderError::from)?,
+            frame.center.into(),
+            frame.radius,
+        );
         let points = sweep(&inputs, &grid, progress)?
             .into_iter()
             .map(|p| CalibrationPoint {
@@ -627,6 +648,7 @@ impl Calibration {
                 ms_per_mpx: p.ms_per_frame / mpx,
                 masked_psnr: p.masked_psnr,
                 depth_median_r: p.depth_median_r,
+                silhouette_error: Some(p.silhouette_error_px / projected),
             })
             .collect();
         Ok(Calibration {
@@ -765,6 +787,7 @@ mod tests {
             ms_per_mpx,
             masked_psnr,
             depth_median_r: 1e-3,
+            silhouette_error: None,
         };
         Calibration {
             size: 256,

@@ -11,6 +11,27 @@ fn default_log_filter() -> &'static str {
     }
 }
 
+/// `lumigraph info ASSET | head` closes stdout early; `println!` then panics with "failed
+/// printing to stdout: Broken pipe". Like other Unix tools, exit quietly (status 141, as a
+/// SIGPIPE death reports) instead of printing a panic. Any other panic keeps the default hook.
+fn quiet_broken_pipe() {
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let payload = info.payload();
+        let message = payload
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| payload.downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if message.starts_with("failed printing to stdout")
+            && message.to_ascii_lowercase().contains("broken pipe")
+        {
+            std::process::exit(141);
+        }
+        default_hook(info);
+    }));
+}
+
 fn main() -> std::process::ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -19,6 +40,7 @@ fn main() -> std::process::ExitCode {
         )
         .with_writer(std::io::stderr)
         .init();
+    quiet_broken_pipe();
     let cli = lumigraph_server::cli::Cli::parse();
     match lumigraph_server::cli::run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,

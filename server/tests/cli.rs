@@ -704,3 +704,121 @@ fn calibrated_goals_pick_settings_and_report_predictions() {
         "re-bake",
     );
 }
+
+#[test]
+fn auto_lod_chooses_per_view_and_reports_predicted_beside_measured() {
+    let asset = demo_asset();
+    let info = String::from_utf8_lossy(&lumigraph(&["info", s(asset)]).stdout).into_owned();
+    assert!(info.contains("\"silhouette_error\""), "{info}");
+    // A near and a far view of the demo (bounding radius about 2.9): the far one is small on
+    // screen and may take a coarser level; each line names the choice and its prediction.
+    let views = write(
+        "lod_views.json",
+        br#"[{"eye":[0,2,9],"target":[0,0,0],"yfov_deg":40,"width":96,"height":96},
+             {"eye":[0,8,90],"target":[0,0,0],"yfov_deg":40,"width":96,"height":96}]"#,
+    );
+    let out = path("lod_out");
+    let o = lumigraph(&[
+        "render",
+        s(asset),
+        "--views",
+        s(&views),
+        "-o",
+        s(&out),
+        "--auto-lod",
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(stdout.matches("auto LOD: object").count(), 2, "{stdout}");
+    assert!(stdout.contains("predicted silhouette error"), "{stdout}");
+    assert!(out.join("001.png").is_file());
+    // eval reports the decision and the measured silhouette error per view.
+    let o = lumigraph(&[
+        "eval",
+        s(asset),
+        "--demo",
+        "--views",
+        s(&views),
+        "--auto-lod=0.5",
+        "--lod-blend",
+        "0",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    for row in report["views"].as_array().expect("views") {
+        let lod = &row["lod"];
+        assert!(lod["projected_px"].as_f64().expect("px") > 0.0, "{row}");
+        assert!(lod["blend"].is_null(), "band 0: no cross-fade");
+        assert!(row["silhouette_error_px"].as_f64().is_some(), "{row}");
+    }
+    let near = report["views"][0]["lod"]["projected_px"]
+        .as_f64()
+        .expect("near");
+    let far = report["views"][1]["lod"]["projected_px"]
+        .as_f64()
+        .expect("far");
+    assert!(near > 5.0 * far, "{near} vs {far}");
+    // Bad policies, conflicts and uncalibrated assets fail cleanly.
+    let view = write("lod_view.json", VIEW.as_bytes());
+    let base = ["render", s(asset), "--view", s(&view), "-o", s(&out)];
+    let with = |extra: &[&'static str]| -> Vec<&str> {
+        let mut v: Vec<&str> = base.to_vec();
+        v.extend_from_slice(extra);
+        v
+    };
+    assert_fails(&with(&["--auto-lod=0"]), "max_error_px");
+    assert_fails(&with(&["--auto-lod=nan"]), "max_error_px");
+    assert_fails(&with(&["--auto-lod", "--lod-blend", "3"]), "blend_band");
+    assert_fails(
+        &with(&["--auto-lod", "--lod-min-psnr", "99"]),
+        "no calibrated setting",
+    );
+    assert_fails(
+        &with(&["--auto-lod", "--method", "fixed"]),
+        "default-method",
+    );
+    assert_fails(&with(&["--auto-lod", "--budget-ms", "9"]), "cannot be used");
+    assert_fails(&with(&["--lod-blend", "0.1"]), "--auto-lod");
+    let plain = path("plain_lod.lfa");
+    let o = lumigraph(&[
+        "bake",
+        "--demo",
+        "-o",
+        s(&plain),
+        "--cameras",
+        "12",
+        "--resolution",
+        "32",
+        "--no-calibrate",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_fails(
+        &[
+            "render",
+            s(&plain),
+            "--view",
+            s(&view),
+            "-o",
+            s(&out),
+            "--auto-lod",
+        ],
+        "re-bake",
+    );
+}
+
+#[test]
+fn closed_stdout_ends_quietly_not_with_a_panic() {
+    // `lumigraph info ASSET | head -1`: the reader goes away after the first line.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_lumigraph"))
+        .args(["info", s(demo_asset())])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    drop(child.stdout.take());
+    let o = child.wait_with_output().expect("wait");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(o.status.code(), Some(141), "{stderr}");
+}

@@ -14,6 +14,7 @@ use lumigraph_core::asset::{AssetFile, Provenance};
 use lumigraph_core::bake::{BakeOptions, Baker, sha256_hex};
 use lumigraph_core::frame::Frame;
 use lumigraph_core::gpu::Gpu;
+use lumigraph_core::lod::{Ladder, Level, LodDecision, LodPolicy};
 use lumigraph_core::mesh::{Mesh, demo_mesh, load_mesh};
 use lumigraph_core::metrics::{self, Comparison};
 use lumigraph_core::reference::ReferenceRenderer;
@@ -166,6 +167,28 @@ pub struct QualityArgs {
     /// Pick the most accurate setting the calibration predicts to render within this time (ms).
     #[arg(long, allow_hyphen_values = true, conflicts_with_all = ["lod", "step", "tolerance", "method"])]
     pub budget_ms: Option<f64>,
+    /// Automatic LOD: per view, the cheapest cameras and step whose calibrated silhouette error
+    /// at the object's projected size stays under PX pixels (`--auto-lod` = 1 px); a --lod or
+    /// --step given as well is kept. Cross-fades near switches (no popping).
+    #[arg(long, value_name = "PX", num_args = 0..=1, require_equals = true, default_missing_value = "1", allow_hyphen_values = true, conflicts_with_all = ["target_psnr", "budget_ms"])]
+    pub auto_lod: Option<f64>,
+    /// With --auto-lod: only settings whose calibrated masked PSNR reaches DB.
+    #[arg(
+        long,
+        value_name = "DB",
+        requires = "auto_lod",
+        allow_hyphen_values = true
+    )]
+    pub lod_min_psnr: Option<f64>,
+    /// With --auto-lod: cross-fade band below each switch, as a fraction of the projected size
+    /// (default 0.25; 0 = hard switches).
+    #[arg(
+        long,
+        value_name = "FRACTION",
+        requires = "auto_lod",
+        allow_hyphen_values = true
+    )]
+    pub lod_blend: Option<f64>,
 }
 
 impl QualityArgs {
@@ -184,6 +207,35 @@ impl QualityArgs {
                 )
             })?;
         Ok(Some((goal, calibration)))
+    }
+
+    /// The automatic-LOD ladder (`--auto-lod`) of the asset's calibration, if asked for.
+    fn ladder(&self, asset: &AssetFile) -> Result<Option<Ladder>> {
+        let Some(max_error_px) = self.auto_lod else {
+            return Ok(None);
+        };
+        let policy = LodPolicy {
+            max_error_px,
+            min_psnr: self.lod_min_psnr,
+            blend_band: self
+                .lod_blend
+                .unwrap_or(lumigraph_core::lod::DEFAULT_BLEND_BAND),
+        };
+        policy.validate()?;
+        let calibration =
+            Calibration::from_quality(asset.header().quality.as_ref())?.ok_or_else(|| {
+                anyhow::anyhow!(
+                    "--auto-lod needs the asset's calibration, which this asset lacks (baked \
+                     with --no-calibrate, by the Python API or the service): re-bake it with \
+                     `lumigraph bake`"
+                )
+            })?;
+        Ok(Some(Ladder::new(
+            &calibration,
+            &policy,
+            asset.header().geometry.camera_count,
+            &self.options(),
+        )?))
     }
 
     fn options(&self) -> RenderOptions {
@@ -572,6 +624,35 @@ fn describe(choice: &Choice) -> String {
     )
 }
 
+fn describe_level(level: &Level) -> String {
+    format!("{} cameras, step 1/{:.0}", level.cameras, 1.0 / level.step)
+}
+
+fn describe_lod(d: &LodDecision, pixels: u64) -> String {
+    let blend = match d.blend {
+        Some((next, w)) => format!(
+            ", cross-fading {:.0} % into {}",
+            100.0 * w,
+            describe_level(&next)
+        ),
+        None => String::new(),
+    };
+    format!(
+        "auto LOD: object {:.0} px across → {}{blend}: predicted silhouette error {:.2} px{}, \
+         masked PSNR {:.2} dB, {:.1} ms",
+        d.projected_px,
+        describe_level(&d.level),
+        d.error_px,
+        if d.met {
+            ""
+        } else {
+            " (no setting meets the bound: the most accurate)"
+        },
+        d.level.masked_psnr,
+        d.predicted_ms(pixels)
+    )
+}
+
 /// Reads `--view` / `--views`; returns the views and whether OUT is a folder.
 fn read_views(args: &ViewArgs) -> Result<(Vec<View>, bool)> {
     let (path, many) = match (&args.view, &args.views) {
@@ -660,7 +741,19 @@ fn render(args: &RenderArgs) -> Result<()> {
         .upload(&asset)
         .with_context(|| format!("cannot load asset {}", args.asset.display()))?;
     let goal = args.quality.goal(&asset)?;
+    let ladder = args.quality.ladder(&asset)?;
     for (i, view) in views.iter().enumerate() {
+        if let Some(ladder) = &ladder {
+            let (frame, decision) = ladder.render_auto(&renderer, &field, view)?;
+            write_outputs(&frame, i, many, &args.output, &args.depth)?;
+            println!(
+                "view {i:03}: {}; measured {:.2} ms ({} px covered)",
+                describe_lod(&decision, u64::from(view.width) * u64::from(view.height)),
+                frame.stats.render_ms,
+                frame.covered_count()
+            );
+            continue;
+        }
         let choice = goal.as_ref().map(|g| choose(&asset, g, view)).transpose()?;
         let options = choice.map_or(options, |c| c.options());
         let frame = renderer.render(&field, view, &options)?;
@@ -684,7 +777,12 @@ fn render(args: &RenderArgs) -> Result<()> {
 
 fn render_scene(args: &RenderArgs, views: &[View], many: bool) -> Result<()> {
     let q = &args.quality;
-    if q.lod.is_some() || q.step.is_some() || q.tolerance.is_some() || q.method != Method::Default {
+    if q.lod.is_some()
+        || q.step.is_some()
+        || q.tolerance.is_some()
+        || q.method != Method::Default
+        || q.auto_lod.is_some()
+    {
         bail!(
             "quality flags do not apply to a scene: set \"options\" per light-field object in {}",
             args.asset.display()
@@ -785,6 +883,12 @@ struct EvalView {
     index: usize,
     ms: f64,
     fetches_per_pixel: f64,
+    /// Output pixels.
+    pixels: u64,
+    /// Pixels covered in one mask only over the reference's silhouette length.
+    silhouette_error_px: f64,
+    /// The automatic-LOD decision (with --auto-lod): predicted beside measured.
+    lod: Option<LodDecision>,
     #[serde(flatten)]
     comparison: Comparison,
 }
@@ -804,6 +908,7 @@ fn eval(args: &EvalArgs) -> Result<()> {
         Some(goal) => Some(choose(&asset, &goal, &views[0])?),
         None => None,
     };
+    let ladder = args.quality.ladder(&asset)?;
     let options = choice.map_or_else(|| args.quality.options(), |c| c.options());
     let settings = options.resolve(u32::from(header.geometry.camera_level))?;
     // The reference must shade exactly as the bake did.
@@ -822,15 +927,26 @@ fn eval(args: &EvalArgs) -> Result<()> {
     let bar = progress_bar(views.len() as u64, "evaluating views");
     let mut rows = Vec::with_capacity(views.len());
     for (index, view) in views.iter().enumerate() {
-        let frame = renderer.render(&field, view, &options)?;
+        let (frame, lod) = match &ladder {
+            Some(ladder) => {
+                let (frame, decision) = ladder.render_auto(&renderer, &field, view)?;
+                (frame, Some(decision))
+            }
+            None => (renderer.render(&field, view, &options)?, None),
+        };
         let truth = reference.render(&gpu_mesh, view, &bake_options.shading)?;
         let comparison = metrics::compare(&frame, &truth)?;
+        let silhouette_error_px =
+            comparison.mask_mismatch_px as f64 / metrics::silhouette_px(&truth).max(1) as f64;
         let fetches_per_pixel =
             frame.stats.fetches as f64 / (f64::from(view.width) * f64::from(view.height));
         rows.push(EvalView {
             index,
             ms: frame.stats.render_ms,
             fetches_per_pixel,
+            pixels: u64::from(view.width) * u64::from(view.height),
+            silhouette_error_px,
+            lod,
             comparison,
         });
         bar.inc(1);
@@ -875,6 +991,13 @@ fn print_eval_table(report: &EvalReport) {
     println!("view  masked_psnr  psnr    inter_psnr  ssim    mae    mismatch_px  depth_med     ms");
     for row in &report.views {
         let c = &row.comparison;
+        if let Some(d) = &row.lod {
+            println!(
+                "      {}; measured silhouette error {:.2} px",
+                describe_lod(d, row.pixels),
+                row.silhouette_error_px
+            );
+        }
         println!(
             "{:>4}  {:>11.2}  {:>6.2}  {:>10.2}  {:>6.4}  {:>5.2}  {:>11}  {:>9.2e}  {:>7.2}",
             row.index,

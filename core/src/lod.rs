@@ -1,0 +1,836 @@
+//! Automatic level of detail (issue #5 item 2, seed 000 §3.1).
+//!
+//! A light field renders at a discrete level (12/42/162/642 cameras, all from one asset) and a
+//! continuous one (the march step; the tolerance follows it as step / 2). Seed 000 picks them
+//! from the object's distance; here the pick is made from what distance changes, the object's
+//! *projected diameter* `P` in pixels (its bounding sphere seen from the eye, so distance, field
+//! of view and output size all count), under a quality floor:
+//!
+//! - Every calibrated setting (the asset's quality report, [`Calibration`]) carries its mean
+//!   silhouette displacement `e` in bounding diameters, measured against the mesh at bake time.
+//!   At projected size `P` that setting's predicted silhouette error is `e · P` pixels.
+//! - The floor is `e · P ≤ max_error_px` (default 1 px), optionally with `masked PSNR ≥
+//!   min_psnr`. Only settings on the Pareto front of (cost, silhouette error) are candidates.
+//!   Of those that meet the floor, the cheapest (calibrated ms per pixel) is chosen; settings
+//!   within 10 % of the cheapest count as equally cheap and the most accurate of them wins, so
+//!   timing noise does not pick a worse level. When none meets it (a large object), the
+//!   cheapest of those within 10 % of the smallest error is chosen.
+//! - Masked PSNR alone cannot drive LOD: with one ray per pixel it barely depends on the output
+//!   size (BENCHMARKS.md: ±0.15 dB between 256² and 512²). A pixel-space error does.
+//! - No popping: as `P` grows towards the size where the chosen setting stops meeting the
+//!   floor, the frame cross-fades into the next setting over a band of sizes
+//!   ([`LodPolicy::blend_band`], default the last 15 %): colour and depth are interpolated where
+//!   both settings cover a pixel, and pixels that only one covers switch in a 4×4 ordered-dither
+//!   pattern, so the image changes continuously with `P` (tested against a hard switch).
+//!   Inside the band a frame costs both settings' renders.
+//! - Explicit settings override: a pinned camera count or step restricts the choice to it (the
+//!   step's nearest calibrated value stands for it in the predictions); a pinned tolerance is
+//!   passed through.
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::frame::{Frame, FrameStats};
+use crate::render::{GpuLightField, Method, RenderError, RenderOptions, Renderer};
+use crate::tradeoff::Calibration;
+use crate::view::{View, ViewBasis};
+
+/// Default bound on the predicted silhouette error, pixels.
+pub const DEFAULT_MAX_ERROR_PX: f64 = 1.0;
+/// Default cross-fade band: the last 15 % of projected sizes before a switch.
+pub const DEFAULT_BLEND_BAND: f64 = 0.15;
+/// Settings whose calibrated cost is within this factor of the cheapest count as equally cheap:
+/// camera count changes lavapipe's time per frame by ±7 % (BENCHMARKS.md), which is noise.
+const COST_TIE: f64 = 1.10;
+/// When no setting meets the bound, errors within this factor of the smallest count as equally
+/// accurate (4 calibration views do not resolve finer), and the cheapest of them is chosen.
+const ERROR_TIE: f64 = 1.10;
+
+/// Errors of automatic LOD.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum LodError {
+    /// The policy or the pinned knobs cannot be served.
+    #[error("automatic LOD: {0}")]
+    Policy(String),
+    /// A render failed.
+    #[error(transparent)]
+    Render(#[from] RenderError),
+}
+
+/// What automatic LOD must keep.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LodPolicy {
+    /// Largest predicted silhouette error, pixels.
+    pub max_error_px: f64,
+    /// Optional floor on the calibrated masked PSNR, dB.
+    pub min_psnr: Option<f64>,
+    /// Cross-fade band below each switch, as a fraction of the switch's projected size
+    /// (0 = hard switches).
+    pub blend_band: f64,
+}
+
+impl Default for LodPolicy {
+    fn default() -> Self {
+        Self {
+            max_error_px: DEFAULT_MAX_ERROR_PX,
+            min_psnr: None,
+            blend_band: DEFAULT_BLEND_BAND,
+        }
+    }
+}
+
+impl LodPolicy {
+    /// Checks the ranges.
+    ///
+    /// # Errors
+    /// [`LodError::Policy`] naming the bad field.
+    pub fn validate(&self) -> Result<(), LodError> {
+        if !(self.max_error_px.is_finite() && self.max_error_px > 0.0) {
+            return Err(LodError::Policy(format!(
+                "max_error_px {} must be finite and positive",
+                self.max_error_px
+            )));
+        }
+        if let Some(db) = self.min_psnr
+            && !(db.is_finite() && db > 0.0)
+        {
+            return Err(LodError::Policy(format!(
+                "min_psnr {db} dB must be finite and positive"
+            )));
+        }
+        if !(self.blend_band.is_finite() && (0.0..=1.0).contains(&self.blend_band)) {
+            return Err(LodError::Policy(format!(
+                "blend_band {} must be in [0, 1]",
+                self.blend_band
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Diameter in pixels of the image of a sphere (`center`, `radius`, world units) seen from the
+/// view's eye: `2·f·r / √(d² − r²)` for an eye at distance `d > r` (the cone of tangent rays,
+/// measured across its axis, so it does not change as the view turns); infinite with the eye
+/// inside or on the sphere.
+pub fn projected_diameter_px(basis: &ViewBasis, center: DVec3, radius: f64) -> f64 {
+    let d = (center - basis.eye).length();
+    if !(d > radius) {
+        return f64::INFINITY;
+    }
+    let px = 2.0 * basis.focal_px * radius / ((d - radius) * (d + radius)).sqrt();
+    if px.is_nan() { f64::INFINITY } else { px }
+}
+
+/// One calibrated setting automatic LOD can choose.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Level {
+    /// Cameras.
+    pub cameras: u32,
+    /// Step, bounding diameters (the pinned step when one is pinned).
+    pub step: f32,
+    /// Mean silhouette displacement, bounding diameters.
+    pub silhouette_error: f64,
+    /// Calibrated render time, ms per million pixels.
+    pub ms_per_mpx: f64,
+    /// Calibrated masked PSNR, dB.
+    pub masked_psnr: f64,
+}
+
+impl Level {
+    /// Largest projected diameter (pixels) at which this level keeps `max_error_px`.
+    fn max_projected_px(&self, max_error_px: f64) -> f64 {
+        if self.silhouette_error > 0.0 {
+            max_error_px / self.silhouette_error
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+/// The levels a policy chooses from, built once per asset and policy.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Ladder {
+    levels: Vec<Level>,
+    policy: LodPolicy,
+    tolerance: Option<f32>,
+}
+
+/// What automatic LOD decided for one frame.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct LodDecision {
+    /// Projected diameter of the bounding sphere, pixels.
+    pub projected_px: f64,
+    /// The chosen level.
+    pub level: Level,
+    /// Its predicted silhouette error at this size, pixels.
+    pub error_px: f64,
+    /// Whether some level meets the floor (else the cheapest of the most accurate ones).
+    pub met: bool,
+    /// The level being faded in (inside a blend band), with its weight in (0, 1].
+    pub blend: Option<(Level, f64)>,
+}
+
+impl LodDecision {
+    /// Predicted render time at `pixels` output pixels: both levels inside a blend band.
+    pub fn predicted_ms(&self, pixels: u64) -> f64 {
+        let mpx = pixels as f64 / 1e6;
+        self.level.ms_per_mpx * mpx + self.blend.map_or(0.0, |(l, _)| l.ms_per_mpx * mpx)
+    }
+}
+
+impl Ladder {
+    /// The levels of `calibration` usable under `policy` with at most `max_cameras` cameras,
+    /// restricted by the knobs `pinned` sets (`lod`, `step`; `tolerance` is passed through).
+    ///
+    /// # Errors
+    /// [`LodError::Policy`] for a bad policy, a pinned fixed method, a calibration without
+    /// silhouette errors (made before they were measured) or no level left.
+    pub fn new(
+        calibration: &Calibration,
+        policy: &LodPolicy,
+        max_cameras: u32,
+        pinned: &RenderOptions,
+    ) -> Result<Ladder, LodError> {
+        policy.validate()?;
+        if pinned.method != Method::Default {
+            return Err(LodError::Policy(
+                "it chooses among default-method settings: drop method=fixed or pin the lod \
+                 and step yourself"
+                    .to_owned(),
+            ));
+        }
+        let max_level = crate::geometry::level_for_camera_count(max_cameras)
+            .ok_or_else(|| LodError::Policy(format!("{max_cameras} is not a camera count")))?;
+        let resolved = pinned.resolve(max_level)?;
+        let pinned_cameras = pinned.lod.map(|_| resolved.cameras);
+        let pinned_step = pinned.step.map(|_| resolved.step);
+        let mut candidates: Vec<Level> = calibration
+            .points
+            .iter()
+            .filter_map(|p| {
+                let e = p.silhouette_error?;
+                let usable = e.is_finite()
+                    && e >= 0.0
+                    && p.ms_per_mpx.is_finite()
+                    && p.ms_per_mpx > 0.0
+                    && p.masked_psnr.is_finite()
+                    && p.cameras <= max_cameras
+                    && pinned_cameras.is_none_or(|c| c == p.cameras)
+                    && policy.min_psnr.is_none_or(|db| p.masked_psnr >= db);
+                usable.then_some(Level {
+                    cameras: p.cameras,
+                    step: p.step,
+                    silhouette_error: e,
+                    ms_per_mpx: p.ms_per_mpx,
+                    masked_psnr: p.masked_psnr,
+                })
+            })
+            .collect();
+        if calibration
+            .points
+            .iter()
+            .all(|p| p.silhouette_error.is_none())
+        {
+            return Err(LodError::Policy(
+                "the asset's calibration predates silhouette errors: re-bake it (calibration \
+                 on) to use automatic LOD"
+                    .to_owned(),
+            ));
+        }
+        if let Some(step) = pinned_step {
+            // The calibrated step nearest (in ratio) to the pinned one stands for it.
+            let ratio = |s: f32| (f64::from(s) / f64::from(step)).ln().abs();
+            if let Some(nearest) = candidates
+                .iter()
+                .map(|l| l.step)
+                .min_by(|a, b| ratio(*a).total_cmp(&ratio(*b)))
+            {
+                candidates.retain(|l| l.step == nearest);
+                for l in &mut candidates {
+                    l.step = step;
+                }
+            }
+        }
+        // Only the Pareto front of (cost, error): a level another one beats on both never
+        // helps, and dropping it keeps the ladder from alternating between camera counts.
+        let cost: Vec<f64> = candidates.iter().map(|l| l.ms_per_mpx).collect();
+        let accuracy: Vec<f64> = candidates.iter().map(|l| -l.silhouette_error).collect();
+        let front = crate::tradeoff::pareto_front(&cost, &accuracy);
+        let mut on_front = front.iter();
+        candidates.retain(|_| on_front.next().copied().unwrap_or(false));
+        // Levels costlier than the cheapest one within ERROR_TIE of the smallest error buy an
+        // accuracy the calibration cannot resolve: drop them, so that level is the top one.
+        let best = candidates
+            .iter()
+            .map(|l| l.silhouette_error)
+            .fold(f64::INFINITY, f64::min);
+        if let Some(top_cost) = candidates
+            .iter()
+            .filter(|l| l.silhouette_error <= best * ERROR_TIE)
+            .map(|l| l.ms_per_mpx)
+            .min_by(f64::total_cmp)
+        {
+            candidates.retain(|l| l.ms_per_mpx <= top_cost);
+        }
+        if candidates.is_empty() {
+            return Err(LodError::Policy(
+                "no calibrated setting is left under the pinned knobs and the PSNR floor"
+                    .to_owned(),
+            ));
+        }
+        Ok(Ladder {
+            levels: candidates,
+            policy: *policy,
+            tolerance: pinned.tolerance,
+        })
+    }
+
+    /// The levels, in calibration order.
+    pub fn levels(&self) -> &[Level] {
+        &self.levels
+    }
+
+    /// The level for projected size `px` and whether it meets the floor.
+    fn pick(&self, px: f64) -> (usize, bool) {
+        let bound = self.policy.max_error_px;
+        let feasible: Vec<usize> = (0..self.levels.len())
+            .filter(|&i| self.levels[i].silhouette_error * px <= bound)
+            .collect();
+        let most_accurate = |set: &mut dyn Iterator<Item = usize>| {
+            set.min_by(|&a, &b| {
+                let (la, lb) = (&self.levels[a], &self.levels[b]);
+                la.silhouette_error
+                    .total_cmp(&lb.silhouette_error)
+                    .then(la.ms_per_mpx.total_cmp(&lb.ms_per_mpx))
+            })
+        };
+        let cheapest = feasible
+            .iter()
+            .map(|&i| self.levels[i].ms_per_mpx)
+            .min_by(f64::total_cmp);
+        match cheapest {
+            Some(cost) => {
+                let mut ties = feasible
+                    .iter()
+                    .copied()
+                    .filter(|&i| self.levels[i].ms_per_mpx <= cost * COST_TIE);
+                (most_accurate(&mut ties).unwrap_or(feasible[0]), true)
+            }
+            None => (
+                most_accurate(&mut (0..self.levels.len())).unwrap_or(0),
+                false,
+            ),
+        }
+    }
+
+    /// The decision for an object of projected diameter `px` pixels.
+    pub fn decide(&self, px: f64) -> LodDecision {
+        let px = if px.is_nan() {
+            f64::INFINITY
+        } else {
+            px.max(0.0)
+        };
+        let (i, met) = self.pick(px);
+        let level = self.levels[i];
+        let mut blend = None;
+        let band = self.policy.blend_band;
+        if met && px.is_finite() && band > 0.0 {
+            // The next switch above: the smallest size past which the pick changes (picks
+            // only change where some level stops meeting the floor).
+            let mut thresholds: Vec<f64> = self
+                .levels
+                .iter()
+                .map(|l| l.max_projected_px(self.policy.max_error_px))
+                .filter(|t| t.is_finite() && *t >= px)
+                .collect();
+            thresholds.sort_by(f64::total_cmp);
+            for t in thresholds {
+                let (j, _) = self.pick(t * (1.0 + 1e-9));
+                if j != i {
+                    let start = t / (1.0 + band);
+                    if px > start {
+                        let x = ((px - start) / (t - start)).clamp(0.0, 1.0);
+                        blend = Some((self.levels[j], x * x * (3.0 - 2.0 * x)));
+                    }
+                    break;
+                }
+            }
+        }
+        LodDecision {
+            projected_px: px,
+            level,
+            error_px: level.silhouette_error * px,
+            met,
+            blend,
+        }
+    }
+
+    /// The decision for `view` of `field` (its bounding sphere in world units).
+    ///
+    /// # Errors
+    /// [`RenderError::View`] for an invalid view.
+    pub fn decide_view(&self, field: &GpuLightField, view: &View) -> Result<LodDecision, LodError> {
+        let basis = view.basis(u32::MAX).map_err(RenderError::from)?;
+        Ok(self.decide(projected_diameter_px(&basis, field.center, field.radius)))
+    }
+
+    /// The render options of a level (default method, pinned tolerance if any).
+    pub fn options(&self, level: &Level) -> RenderOptions {
+        RenderOptions {
+            lod: Some(level.cameras),
+            step: Some(level.step),
+            tolerance: self.tolerance,
+            method: Method::Default,
+        }
+    }
+
+    /// Renders `view` as `decision` says: one render, or two cross-faded inside a blend band.
+    ///
+    /// # Errors
+    /// [`RenderError`] from the renders.
+    pub fn render(
+        &self,
+        renderer: &Renderer,
+        field: &GpuLightField,
+        view: &View,
+        decision: &LodDecision,
+    ) -> Result<Frame, LodError> {
+        match decision.blend {
+            Some((next, w)) if w >= 1.0 => {
+                Ok(renderer.render(field, view, &self.options(&next))?)
+            }
+            Some((next, w)) => {
+                let a = renderer.render(field, view, &self.options(&decision.level))?;
+                let b = renderer.render(field, view, &self.options(&next))?;
+                Ok(cross_fade(&a, &b, w))
+            }
+            None => Ok(renderer.render(field, view, &self.options(&decision.level))?),
+        }
+    }
+
+    /// [`Ladder::decide_view`] then [`Ladder::render`].
+    ///
+    /// # Errors
+    /// As those.
+    pub fn render_auto(
+        &self,
+        renderer: &Renderer,
+        field: &GpuLightField,
+        view: &View,
+    ) -> Result<(Frame, LodDecision), LodError> {
+        let decision = self.decide_view(field, view)?;
+        let frame = self.render(renderer, field, view, &decision)?;
+        Ok((frame, decision))
+    }
+}
+
+/// 4×4 ordered-dither thresholds (Bayer), in sixteenths.
+const BAYER4: [[u8; 4]; 4] = [[0, 8, 2, 10], [12, 4, 14, 6], [3, 11, 1, 9], [15, 7, 13, 5]];
+
+/// Cross-fades `a` into `b` (same size) with weight `w` of `b`: colour and depth are
+/// interpolated where both cover a pixel; where one does, the pixel takes `b`'s state when its
+/// ordered-dither threshold is below `w`, else `a`'s. Stats are summed (both were rendered).
+/// Frames of different sizes give `a` unchanged.
+pub fn cross_fade(a: &Frame, b: &Frame, w: f64) -> Frame {
+    if (a.width, a.height) != (b.width, b.height)
+        || a.depth.len() != b.depth.len()
+        || a.color.len() != b.color.len()
+    {
+        return a.clone();
+    }
+    let w = if w.is_nan() { 0.0 } else { w.clamp(0.0, 1.0) };
+    let mut out = a.clone();
+    let width = a.width.max(1) as usize;
+    for k in 0..a.depth.len() {
+        let (da, db) = (a.depth[k], b.depth[k]);
+        let (ca, cb) = (da.is_finite(), db.is_finite());
+        let px = 4 * k..4 * k + 4;
+        if ca && cb {
+            out.depth[k] = (f64::from(da) * (1.0 - w) + f64::from(db) * w) as f32;
+            for (o, (&x, &y)) in out.color[px.clone()]
+                .iter_mut()
+                .zip(a.color[px.clone()].iter().zip(&b.color[px]))
+            {
+                *o = (f64::from(x) * (1.0 - w) + f64::from(y) * w).round() as u8;
+            }
+        } else if ca != cb {
+            let (x, y) = (k % width, k / width);
+            let threshold = (f64::from(BAYER4[y % 4][x % 4]) + 0.5) / 16.0;
+            if threshold < w {
+                out.depth[k] = db;
+                out.color[px.clone()].copy_from_slice(&b.color[px]);
+            }
+        }
+    }
+    out.stats = FrameStats {
+        render_ms: a.stats.render_ms + b.stats.render_ms,
+        rays: a.stats.rays + b.stats.rays,
+        steps: a.stats.steps + b.stats.steps,
+        fetches: a.stats.fetches + b.stats.fetches,
+    };
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tradeoff::CalibrationPoint;
+
+    fn point(cameras: u32, step: f32, e: f64, ms: f64, psnr: f64) -> CalibrationPoint {
+        CalibrationPoint {
+            cameras,
+            step,
+            ms_per_mpx: ms,
+            masked_psnr: psnr,
+            depth_median_r: 1e-3,
+            silhouette_error: Some(e),
+        }
+    }
+
+    /// A calibration shaped like the measured ones: coarser steps are cheaper and less accurate,
+    /// more cameras cost about the same and are more accurate.
+    fn calibration() -> Calibration {
+        let mut points = Vec::new();
+        for (ci, cameras) in [12, 42, 162].into_iter().enumerate() {
+            for (si, step) in [1.0 / 8.0, 1.0 / 16.0, 1.0 / 32.0, 1.0 / 64.0]
+                .into_iter()
+                .enumerate()
+            {
+                let e = 0.004 * 2f64.powi(-(si as i32)) + 0.008 / f64::from(1 + ci as u32);
+                let ms = 300.0 * (1.0 + si as f64) + 3.0 * ci as f64;
+                let psnr = 20.0 + 2.0 * ci as f64 + si as f64;
+                points.push(point(cameras, step, e, ms, psnr));
+            }
+        }
+        Calibration {
+            size: 256,
+            views: 4,
+            adapter: "test".to_owned(),
+            points,
+        }
+    }
+
+    fn ladder(policy: &LodPolicy, pinned: &RenderOptions) -> Ladder {
+        Ladder::new(&calibration(), policy, 162, pinned).expect("ladder")
+    }
+
+    #[test]
+    fn projected_diameter_matches_tangent_rays() {
+        // Eye on +z at distance d, sphere radius r at the origin, looking at it: the tangent
+        // ray's angle is asin(r / d), so the image radius is f · tan(asin(r / d)).
+        let view = View::look_at([0.0, 0.0, 5.0], [0.0, 0.0, 0.0], 40.0, 256, 256);
+        let basis = view.basis(4096).expect("view");
+        let px = projected_diameter_px(&basis, DVec3::ZERO, 2.0);
+        let expected = 2.0 * basis.focal_px * (2.0_f64 / 5.0).asin().tan();
+        assert!(
+            (px - expected).abs() < 1e-9 * expected,
+            "{px} vs {expected}"
+        );
+        // Turning the view does not change it; the eye inside or on the sphere gives infinity.
+        let turned = View::look_at([0.0, 0.0, 5.0], [3.0, 1.0, 0.0], 40.0, 256, 256);
+        let px2 = projected_diameter_px(&turned.basis(4096).expect("view"), DVec3::ZERO, 2.0);
+        assert!((px2 - px).abs() < 1e-9 * px);
+        assert!(projected_diameter_px(&basis, DVec3::ZERO, 5.0).is_infinite());
+        assert!(projected_diameter_px(&basis, DVec3::ZERO, 6.0).is_infinite());
+        // Scale invariance at the extremes: 1e-4 and 1e4 scenes project the same.
+        for s in [1e-4, 1e4] {
+            let v = View::look_at([0.0, 0.0, 5.0 * s], [0.0, 0.0, 0.0], 40.0, 256, 256);
+            let p = projected_diameter_px(&v.basis(4096).expect("view"), DVec3::ZERO, 2.0 * s);
+            assert!((p - px).abs() < 1e-9 * px, "scale {s}: {p}");
+        }
+    }
+
+    #[test]
+    fn decisions_meet_the_floor_and_never_coarsen_as_objects_grow() {
+        let policy = LodPolicy::default();
+        let l = ladder(&policy, &RenderOptions::default());
+        let mut previous_error = f64::INFINITY;
+        let mut switches = 0;
+        let mut last = None;
+        for k in 0..400 {
+            let px = 4.0 * 1.02_f64.powi(k);
+            let d = l.decide(px);
+            if d.met {
+                assert!(d.error_px <= policy.max_error_px + 1e-12, "{d:?}");
+            } else {
+                // Nothing meets the floor: the most accurate level.
+                let best = l
+                    .levels()
+                    .iter()
+                    .map(|x| x.silhouette_error)
+                    .fold(f64::INFINITY, f64::min);
+                assert_eq!(d.level.silhouette_error, best);
+            }
+            assert!(
+                d.level.silhouette_error <= previous_error,
+                "coarser at {px}: {d:?}"
+            );
+            previous_error = d.level.silhouette_error;
+            if last != Some((d.level.cameras, d.level.step.to_bits())) {
+                switches += 1;
+                last = Some((d.level.cameras, d.level.step.to_bits()));
+            }
+        }
+        // The sweep crosses several levels (small objects get the cheap step, big ones the
+        // accurate setting).
+        assert!(switches >= 3, "{switches} switches");
+        let small = l.decide(8.0);
+        assert_eq!(small.level.step, 1.0 / 8.0);
+        assert!(small.met);
+        let huge = l.decide(1e6);
+        assert!(!huge.met);
+        assert_eq!((huge.level.cameras, huge.level.step), (162, 1.0 / 64.0));
+        // NaN and the eye inside the sphere (infinite size) take the most accurate level.
+        assert_eq!(l.decide(f64::NAN).level, huge.level);
+        assert_eq!(l.decide(f64::INFINITY).level, huge.level);
+        assert_eq!(l.decide(-3.0).level, l.decide(0.0).level);
+    }
+
+    #[test]
+    fn blend_weights_are_continuous_across_switches() {
+        let policy = LodPolicy::default();
+        let l = ladder(&policy, &RenderOptions::default());
+        // Effective (colour) weight of each level as a function of size: continuous means
+        // consecutive sizes 0.1 % apart move every level's weight by little.
+        let weights = |d: &LodDecision| {
+            let mut w = std::collections::BTreeMap::new();
+            let fade = d.blend.map_or(0.0, |(_, x)| x);
+            *w.entry((d.level.cameras, d.level.step.to_bits()))
+                .or_insert(0.0) += 1.0 - fade;
+            if let Some((n, x)) = d.blend {
+                *w.entry((n.cameras, n.step.to_bits())).or_insert(0.0) += x;
+            }
+            w
+        };
+        let mut previous = weights(&l.decide(10.0));
+        let mut blended = 0;
+        let mut px = 10.0;
+        while px < 2000.0 {
+            px *= 1.001;
+            let d = l.decide(px);
+            blended += usize::from(d.blend.is_some());
+            let now = weights(&d);
+            let keys: std::collections::BTreeSet<_> =
+                previous.keys().chain(now.keys()).copied().collect();
+            for k in keys {
+                let a = previous.get(&k).copied().unwrap_or(0.0);
+                let b = now.get(&k).copied().unwrap_or(0.0);
+                // Smoothstep over a 25 % band moves at most 1.5 × 0.1 % / (0.25 / 1.25) per
+                // step ≈ 0.0075; 0.02 leaves room for the 1e-9 nudges at thresholds.
+                assert!(
+                    (a - b).abs() < 0.02,
+                    "jump at {px}: {previous:?} -> {now:?}"
+                );
+            }
+            previous = now;
+        }
+        assert!(blended > 100, "{blended} blended sizes");
+        // With no band, switches are hard.
+        let hard = ladder(
+            &LodPolicy {
+                blend_band: 0.0,
+                ..policy
+            },
+            &RenderOptions::default(),
+        );
+        assert!((1..2000).all(|p| hard.decide(f64::from(p)).blend.is_none()));
+    }
+
+    #[test]
+    fn pinned_knobs_and_floors_restrict_the_choice() {
+        let pinned_cams = ladder(
+            &LodPolicy::default(),
+            &RenderOptions {
+                lod: Some(42),
+                ..RenderOptions::default()
+            },
+        );
+        assert!(pinned_cams.levels().iter().all(|l| l.cameras == 42));
+        // A level 0-3 pins too.
+        let by_level = ladder(
+            &LodPolicy::default(),
+            &RenderOptions {
+                lod: Some(0),
+                ..RenderOptions::default()
+            },
+        );
+        assert!(by_level.levels().iter().all(|l| l.cameras == 12));
+        let pinned_step = ladder(
+            &LodPolicy::default(),
+            &RenderOptions {
+                step: Some(0.03),
+                tolerance: Some(0.02),
+                ..RenderOptions::default()
+            },
+        );
+        assert!(pinned_step.levels().iter().all(|l| l.step == 0.03));
+        // The nearest calibrated step (1/32) stood for 0.03.
+        assert!(
+            pinned_step.levels().iter().all(|l| calibration()
+                .points
+                .iter()
+                .any(|p| p.cameras == l.cameras
+                    && p.step == 1.0 / 32.0
+                    && p.silhouette_error == Some(l.silhouette_error)))
+        );
+        let o = pinned_step.options(&pinned_step.levels()[0]);
+        assert_eq!((o.step, o.tolerance), (Some(0.03), Some(0.02)));
+        let floor = ladder(
+            &LodPolicy {
+                min_psnr: Some(25.0),
+                ..LodPolicy::default()
+            },
+            &RenderOptions::default(),
+        );
+        assert!(floor.levels().iter().all(|l| l.masked_psnr >= 25.0));
+        assert!(!floor.levels().is_empty());
+    }
+
+    #[test]
+    fn dominated_and_needlessly_costly_levels_are_dropped() {
+        let c = Calibration {
+            size: 256,
+            views: 4,
+            adapter: "test".to_owned(),
+            points: vec![
+                point(12, 1.0 / 8.0, 0.008, 600.0, 21.0),
+                // Dominated by the next one (costlier and less accurate).
+                point(12, 1.0 / 16.0, 0.005, 800.0, 23.0),
+                point(42, 1.0 / 8.0, 0.004, 650.0, 23.5),
+                point(162, 1.0 / 32.0, 0.0016, 1000.0, 27.0),
+                // 5 % more accurate than the level above at 1.5× its cost: dropped.
+                point(42, 1.0 / 64.0, 0.00153, 1500.0, 28.0),
+            ],
+        };
+        let l =
+            Ladder::new(&c, &LodPolicy::default(), 162, &RenderOptions::default()).expect("ladder");
+        let kept: Vec<(u32, f32)> = l.levels().iter().map(|x| (x.cameras, x.step)).collect();
+        assert_eq!(
+            kept,
+            vec![(12, 1.0 / 8.0), (42, 1.0 / 8.0), (162, 1.0 / 32.0)]
+        );
+        // A large object takes the top level, not the costlier one.
+        let d = l.decide(5000.0);
+        assert!(!d.met);
+        assert_eq!((d.level.cameras, d.level.step), (162, 1.0 / 32.0));
+    }
+
+    #[test]
+    fn bad_policies_and_calibrations_are_refused() {
+        let c = calibration();
+        let none = RenderOptions::default();
+        for bad in [
+            LodPolicy {
+                max_error_px: 0.0,
+                ..LodPolicy::default()
+            },
+            LodPolicy {
+                max_error_px: f64::NAN,
+                ..LodPolicy::default()
+            },
+            LodPolicy {
+                max_error_px: f64::INFINITY,
+                ..LodPolicy::default()
+            },
+            LodPolicy {
+                min_psnr: Some(f64::NAN),
+                ..LodPolicy::default()
+            },
+            LodPolicy {
+                blend_band: -0.1,
+                ..LodPolicy::default()
+            },
+            LodPolicy {
+                blend_band: 2.0,
+                ..LodPolicy::default()
+            },
+        ] {
+            assert!(matches!(
+                Ladder::new(&c, &bad, 162, &none),
+                Err(LodError::Policy(_))
+            ));
+        }
+        let fixed = RenderOptions {
+            method: Method::Fixed,
+            ..RenderOptions::default()
+        };
+        assert!(Ladder::new(&c, &LodPolicy::default(), 162, &fixed).is_err());
+        let too_high = LodPolicy {
+            min_psnr: Some(99.0),
+            ..LodPolicy::default()
+        };
+        assert!(Ladder::new(&c, &too_high, 162, &none).is_err());
+        let mut old = c.clone();
+        for p in &mut old.points {
+            p.silhouette_error = None;
+        }
+        let err = Ladder::new(&old, &LodPolicy::default(), 162, &none).expect_err("old");
+        assert!(err.to_string().contains("re-bake"), "{err}");
+        // The asset's camera count bounds the levels.
+        let small = Ladder::new(&c, &LodPolicy::default(), 42, &none).expect("ladder");
+        assert!(small.levels().iter().all(|l| l.cameras <= 42));
+        assert!(Ladder::new(&c, &LodPolicy::default(), 43, &none).is_err());
+    }
+
+    #[test]
+    fn cross_fade_interpolates_shared_pixels_and_dithers_the_rest() {
+        let frame = |covered: &dyn Fn(usize) -> bool, value: u8, depth: f32| Frame {
+            width: 16,
+            height: 16,
+            color: (0..256)
+                .flat_map(|k| {
+                    if covered(k) {
+                        [value, value, value, 255]
+                    } else {
+                        [0; 4]
+                    }
+                })
+                .collect(),
+            depth: (0..256)
+                .map(|k| if covered(k) { depth } else { f32::INFINITY })
+                .collect(),
+            stats: FrameStats {
+                render_ms: 1.0,
+                ..FrameStats::default()
+            },
+        };
+        // a covers the left half, b the top half.
+        let a = frame(&|k| k % 16 < 8, 100, 2.0);
+        let b = frame(&|k| k / 16 < 8, 200, 4.0);
+        let none = cross_fade(&a, &b, 0.0);
+        assert_eq!((none.color, none.depth), (a.color.clone(), a.depth.clone()));
+        // Both renders' costs are counted.
+        assert_eq!(cross_fade(&a, &b, 0.3).stats.render_ms, 2.0);
+        let full = cross_fade(&a, &b, 1.0);
+        assert_eq!(
+            (full.color.clone(), full.depth.clone()),
+            (b.color.clone(), b.depth.clone())
+        );
+        let half = cross_fade(&a, &b, 0.5);
+        // Shared quadrant: colour 150, depth 3.
+        assert_eq!(half.color[0], 150);
+        assert!((half.depth[0] - 3.0).abs() < 1e-6);
+        // One-sided quadrants: exactly half of each switches (ordered dither, 8 of 16).
+        let b_only = (0..256).filter(|k| k % 16 >= 8 && k / 16 < 8);
+        let switched = b_only.filter(|&k| half.depth[k].is_finite()).count();
+        assert_eq!(switched, 32);
+        let a_only = (0..256).filter(|k| k % 16 < 8 && k / 16 >= 8);
+        let kept = a_only.filter(|&k| half.depth[k].is_finite()).count();
+        assert_eq!(kept, 32);
+        // Coverage changes monotonically with the weight: a pixel that switched stays switched.
+        let mut previous = cross_fade(&a, &b, 0.0).coverage();
+        for i in 1..=16 {
+            let now = cross_fade(&a, &b, f64::from(i) / 16.0).coverage();
+            let changed = previous.iter().zip(&now).filter(|(x, y)| x != y).count();
+            assert_eq!(changed, 8, "step {i}: 4 b-only gained + 4 a-only lost");
+            previous = now;
+        }
+        // Mismatched sizes give a unchanged; NaN weight counts as 0.
+        let mut small = b.clone();
+        small.width = 8;
+        assert_eq!(cross_fade(&a, &small, 0.5), a);
+        assert_eq!(cross_fade(&a, &b, f64::NAN).color, a.color);
+    }
+}

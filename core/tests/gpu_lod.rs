@@ -1,0 +1,235 @@
+//! Automatic LOD on the GPU (issue #5 item 2): the calibration's silhouette error predicts
+//! what a render measures against the mesh, and a level switch cross-fades instead of popping.
+
+use std::sync::{Arc, OnceLock};
+
+use lumigraph_core::asset::{AssetFile, Provenance};
+use lumigraph_core::bake::{BakeOptions, Baker};
+use lumigraph_core::frame::Frame;
+use lumigraph_core::gpu::Gpu;
+use lumigraph_core::lod::{Ladder, LodPolicy, projected_diameter_px};
+use lumigraph_core::mesh::{Mesh, demo_mesh};
+use lumigraph_core::metrics;
+use lumigraph_core::reference::ReferenceRenderer;
+use lumigraph_core::render::{RenderOptions, Renderer};
+use lumigraph_core::shading::Shading;
+use lumigraph_core::tradeoff::{Calibration, CalibrationPoint};
+use lumigraph_core::view::View;
+
+struct Ctx {
+    renderer: Renderer,
+    reference: ReferenceRenderer,
+    mesh: Mesh,
+    asset: AssetFile,
+    calibration: Calibration,
+}
+
+/// The demo baked with 42 cameras at 64 px and calibrated (as `lumigraph bake` does).
+fn ctx() -> &'static Ctx {
+    static CTX: OnceLock<Ctx> = OnceLock::new();
+    CTX.get_or_init(|| {
+        let gpu: Arc<Gpu> = Gpu::shared().expect("a GPU adapter (install mesa-vulkan-drivers)");
+        let baker = Baker::new(gpu.clone());
+        let renderer = Renderer::new(gpu.clone());
+        let reference = ReferenceRenderer::new(gpu);
+        let mesh = demo_mesh().expect("demo");
+        let options = BakeOptions {
+            cameras: 42,
+            resolution: 64,
+            ..Default::default()
+        };
+        let baked = lumigraph_core::tradeoff::bake_calibrated(
+            &baker,
+            &renderer,
+            &reference,
+            &mesh,
+            &options,
+            &Provenance::default(),
+            &mut |_, _| {},
+        )
+        .expect("calibrated bake");
+        let asset = AssetFile::from_bytes(baked.bytes).expect("asset");
+        let stored = Calibration::from_quality(asset.header().quality.as_ref())
+            .expect("readable")
+            .expect("stored");
+        // Stored as JSON in the header: equal up to float printing (last-digit rounding).
+        assert_eq!(stored.points.len(), baked.calibration.points.len());
+        for (a, b) in stored.points.iter().zip(&baked.calibration.points) {
+            let (ea, eb) = (
+                a.silhouette_error.expect("a"),
+                b.silhouette_error.expect("b"),
+            );
+            assert!((ea - eb).abs() <= 1e-12 * eb, "{ea} vs {eb}");
+        }
+        Ctx {
+            renderer,
+            reference,
+            mesh,
+            asset,
+            calibration: baked.calibration,
+        }
+    })
+}
+
+/// A view of the asset whose bounding sphere projects to `px` pixels across in a `size²` frame.
+fn view_at(asset: &AssetFile, px: f64, size: u32, azimuth: f64) -> View {
+    let frame = &asset.header().frame;
+    let (c, r) = (frame.center, frame.radius);
+    let f = f64::from(size) / 2.0 / 20f64.to_radians().tan();
+    let d = r * (1.0 + (2.0 * f / px).powi(2)).sqrt();
+    let dir = [azimuth.cos() * 0.8, 0.45, azimuth.sin() * 0.8];
+    let n = dir.iter().map(|x| x * x).sum::<f64>().sqrt();
+    View::look_at(
+        [
+            c[0] + d * dir[0] / n,
+            c[1] + d * dir[1] / n,
+            c[2] + d * dir[2] / n,
+        ],
+        c,
+        40.0,
+        size,
+        size,
+    )
+}
+
+#[test]
+fn calibration_silhouette_error_predicts_the_measured_one() {
+    let ctx = ctx();
+    let points = &ctx.calibration.points;
+    assert_eq!(points.len(), 2 * 4, "12 and 42 cameras × 4 steps");
+    for p in points {
+        let e = p.silhouette_error.expect("measured");
+        // Bounding diameters: the silhouette moves by well under a tenth of the object.
+        assert!(e.is_finite() && e > 0.0 && e < 0.1, "{p:?}");
+    }
+    let field = ctx.renderer.upload(&ctx.asset).expect("upload");
+    let gpu_mesh = ctx.reference.upload(&ctx.mesh).expect("mesh");
+    let ladder = Ladder::new(
+        &ctx.calibration,
+        &LodPolicy::default(),
+        42,
+        &RenderOptions::default(),
+    )
+    .expect("ladder");
+    // Three sizes × three views: the mean measured silhouette error (pixels covered in one
+    // mask only over the reference silhouette's length) against the mean prediction. The
+    // calibration used 4 other views at 256², so per-view scatter is large; the mean must agree
+    // within half the prediction plus 0.3 px (sub-pixel rounding of a point-sampled silhouette).
+    for px in [40.0, 80.0, 140.0] {
+        let (mut predicted, mut measured) = (0.0, 0.0);
+        for k in 0..3 {
+            let view = view_at(&ctx.asset, px, 160, 0.4 + 2.1 * f64::from(k));
+            let (frame, decision) = ladder
+                .render_auto(&ctx.renderer, &field, &view)
+                .expect("render");
+            assert!((decision.projected_px - px).abs() < 1e-6 * px);
+            let truth = ctx
+                .reference
+                .render(&gpu_mesh, &view, &Shading::default())
+                .expect("reference");
+            let c = metrics::compare(&frame, &truth).expect("compare");
+            predicted += decision.error_px / 3.0;
+            measured +=
+                c.mask_mismatch_px as f64 / metrics::silhouette_px(&truth).max(1) as f64 / 3.0;
+        }
+        eprintln!("{px} px: predicted {predicted:.3} px, measured {measured:.3} px");
+        assert!(
+            (measured - predicted).abs() <= 0.5 * predicted + 0.3,
+            "{px} px: predicted {predicted:.3} px, measured {measured:.3} px"
+        );
+    }
+}
+
+/// Mean absolute RGB difference per pixel (0–255).
+fn mean_diff(a: &Frame, b: &Frame) -> f64 {
+    let sum: u64 = a
+        .color
+        .chunks_exact(4)
+        .zip(b.color.chunks_exact(4))
+        .map(|(x, y)| (0..3).map(|c| u64::from(x[c].abs_diff(y[c]))).sum::<u64>())
+        .sum();
+    sum as f64 / (3 * a.pixel_count()) as f64
+}
+
+#[test]
+fn level_switches_cross_fade_instead_of_popping() {
+    let ctx = ctx();
+    let field = ctx.renderer.upload(&ctx.asset).expect("upload");
+    // Two levels far apart, switching at 100 px: 12 cameras with step 1/8 up to 100 px, then
+    // 42 cameras with step 1/32.
+    let point = |cameras, step, e, ms| CalibrationPoint {
+        cameras,
+        step,
+        ms_per_mpx: ms,
+        masked_psnr: 25.0,
+        depth_median_r: 1e-3,
+        silhouette_error: Some(e),
+    };
+    let calibration = Calibration {
+        points: vec![
+            point(12, 1.0 / 8.0, 0.01, 600.0),
+            point(42, 1.0 / 32.0, 0.002, 1000.0),
+        ],
+        ..ctx.calibration.clone()
+    };
+    // One fixed view; the projected size given to the ladder sweeps 80 → 101 px in 1 % steps,
+    // so every difference between frames comes from the level, none from motion.
+    let view = view_at(&ctx.asset, 100.0, 128, 0.7);
+    let sizes: Vec<f64> = (0..=25)
+        .map(|k| 80.0 * 1.01_f64.powi(k))
+        .filter(|&p| p < 101.0)
+        .collect();
+    let sweep = |band: f64| -> (Vec<Frame>, usize) {
+        let ladder = Ladder::new(
+            &calibration,
+            &LodPolicy {
+                blend_band: band,
+                ..LodPolicy::default()
+            },
+            42,
+            &RenderOptions::default(),
+        )
+        .expect("ladder");
+        let mut blended = 0;
+        let frames = sizes
+            .iter()
+            .map(|&px| {
+                let d = ladder.decide(px);
+                blended += usize::from(d.blend.is_some());
+                ladder
+                    .render(&ctx.renderer, &field, &view, &d)
+                    .expect("render")
+            })
+            .collect();
+        (frames, blended)
+    };
+    let (hard, hard_blended) = sweep(0.0);
+    let (soft, soft_blended) = sweep(0.15);
+    assert_eq!(hard_blended, 0);
+    assert!(soft_blended >= 10, "{soft_blended} blended sizes");
+    let level_gap = mean_diff(&hard[0], &hard[hard.len() - 1]);
+    // The two levels differ visibly (else this test could not fail).
+    assert!(level_gap > 0.5, "levels differ by {level_gap}");
+    let max_step = |frames: &[Frame]| {
+        frames
+            .windows(2)
+            .map(|w| mean_diff(&w[0], &w[1]))
+            .fold(0.0, f64::max)
+    };
+    let (hard_jump, soft_jump) = (max_step(&hard), max_step(&soft));
+    eprintln!(
+        "levels differ by {level_gap:.3}; largest step: hard {hard_jump:.3}, soft {soft_jump:.3}"
+    );
+    // A hard switch changes the whole difference in one step.
+    assert!(hard_jump > 0.9 * level_gap, "{hard_jump} vs {level_gap}");
+    // The cross-fade spreads it over the band: smoothstep's steepest 1 % step over a 15 % band
+    // moves the weight by about 1.5 × 0.01 / 0.13 ≈ 0.12; 0.25 leaves room for dithering.
+    assert!(soft_jump < 0.25 * level_gap, "{soft_jump} vs {level_gap}");
+    // Both ends agree with the pure levels.
+    assert_eq!(soft[0].color, hard[0].color);
+    assert_eq!(soft[soft.len() - 1].color, hard[hard.len() - 1].color);
+    // And the projection helper agrees with the view's own geometry.
+    let basis = view.basis(4096).expect("view");
+    let px = projected_diameter_px(&basis, field.center, field.radius);
+    assert!((px - 100.0).abs() < 1e-6, "{px}");
+}
