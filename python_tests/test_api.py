@@ -8,6 +8,7 @@ import runpy
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -241,10 +242,16 @@ def test_readme_quick_start_is_the_tested_example() -> None:
     assert starts[0].strip() == example.strip(), "README quick start differs from pylib/examples/quickstart.py"
 
 
+@pytest.fixture(scope="module")
+def calibrated_lf(demo_mesh: lg.Mesh) -> lg.LightField:
+    """The demo at 42 cameras, 64-px maps, calibrated (a few seconds)."""
+    return lg.bake_mesh(demo_mesh, cameras=42, resolution=64, progress=False, calibrate=True)
+
+
 def test_calibrated_goals_choose_settings_and_render_them(
-    demo_mesh: lg.Mesh, demo_views: list[lg.View]
+    calibrated_lf: lg.LightField, demo_mesh: lg.Mesh, demo_views: list[lg.View]
 ) -> None:
-    lf = lg.bake_mesh(demo_mesh, cameras=42, resolution=64, progress=False, calibrate=True)
+    lf = calibrated_lf
     points = lf.info["quality"]["calibration"]["points"]
     # Every camera count the asset holds × 4 steps, each with a finite prediction.
     assert {(p["cameras"], p["step"]) for p in points} == {
@@ -292,3 +299,75 @@ def test_calibrated_goals_choose_settings_and_render_them(
         plain.render(view, budget_ms=100.0)
     # The calibration survives save / open.
     assert lg.LightField.from_bytes(lf.to_bytes()).choose(view, budget_ms=1e6) == roomy
+
+
+def _view_at(lf: lg.LightField, px: float, size: int) -> lg.View:
+    """A view in which the bounding sphere projects to ``px`` pixels across."""
+    (cx, cy, cz), r = lf.bounding_sphere
+    f = size / 2 / np.tan(np.radians(20.0))
+    d = r * np.sqrt(1.0 + (2.0 * f / px) ** 2)
+    return lg.View(
+        eye=(cx, cy + 0.3 * d, cz + d * np.sqrt(1 - 0.09)),
+        target=(cx, cy, cz),
+        yfov_deg=40.0,
+        width=size,
+        height=size,
+    )
+
+
+def test_auto_lod_picks_by_projected_size_and_renders_the_choice(
+    calibrated_lf: lg.LightField, demo_mesh: lg.Mesh
+) -> None:
+    lf = calibrated_lf
+    points = lf.info["quality"]["calibration"]["points"]
+    assert all(p["silhouette_error"] > 0 for p in points)
+    small = lf.choose_lod(_view_at(lf, 20.0, 128), lod_blend=0.0)
+    large = lf.choose_lod(_view_at(lf, 400.0, 128), lod_blend=0.0)
+    # The projected size follows the tangent-cone formula (1e-9 relative).
+    assert small["projected_px"] == pytest.approx(20.0, rel=1e-9)
+    assert large["projected_px"] == pytest.approx(400.0, rel=1e-9)
+    # Small on screen: the bound is met with a level at least as coarse as for a large object.
+
+    def level_error(choice: dict[str, Any]) -> float:
+        return float(
+            next(
+                p["silhouette_error"]
+                for p in points
+                if p["cameras"] == choice["cameras"] and abs(p["step"] - choice["step"]) < 1e-7
+            )
+        )
+
+    small_e, large_e = level_error(small), level_error(large)
+    assert small["met"] is True and small["error_px"] <= 1.0
+    assert small["error_px"] == pytest.approx(small_e * 20.0)
+    assert small_e >= large_e
+    assert small["blend"] is None
+    # render(auto_lod=...) renders exactly the decision (no blend with lod_blend=0).
+    view = _view_at(lf, 60.0, 96)
+    d = lf.choose_lod(view, lod_blend=0.0)
+    auto = lf.render(view, auto_lod=1.0, lod_blend=0.0)
+    explicit = lf.render(view, lod=d["cameras"], step=d["step"])
+    np.testing.assert_array_equal(auto.color, explicit.color)
+    np.testing.assert_array_equal(auto.depth, explicit.depth)
+    assert len(lf.render_many([view, view], auto_lod=1.0)) == 2
+    # Pinned knobs are kept.
+    pinned = lf.choose_lod(view, lod=12)
+    assert pinned["cameras"] == 12
+    # Bad policies, conflicts and uncalibrated light fields fail clearly.
+    bads: list[dict[str, Any]] = [
+        {"auto_lod": 0.0},
+        {"auto_lod": float("nan")},
+        {"auto_lod": 1.0, "lod_blend": 2.0},
+    ]
+    for bad in bads:
+        with pytest.raises(ValueError):
+            lf.render(view, **bad)
+    with pytest.raises(ValueError, match="not both"):
+        lf.render(view, auto_lod=1.0, budget_ms=50.0)
+    with pytest.raises(ValueError, match="need auto_lod"):
+        lf.render(view, lod_blend=0.1)
+    with pytest.raises(ValueError, match="default-method"):
+        lf.render(view, auto_lod=1.0, method="fixed")
+    plain = lg.bake_mesh(demo_mesh, cameras=12, resolution=32, progress=False)
+    with pytest.raises(ValueError, match="calibrate=True"):
+        plain.render(view, auto_lod=1.0)

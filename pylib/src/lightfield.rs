@@ -7,6 +7,7 @@ use std::sync::{Arc, Mutex};
 use lumigraph_core::asset::{AssetFile, Provenance};
 use lumigraph_core::bake::BakeOptions;
 use lumigraph_core::frame::Frame;
+use lumigraph_core::lod::{Ladder, LodError, LodPolicy};
 use lumigraph_core::render::{GpuLightField, Method, RenderOptions};
 use lumigraph_core::shading::Shading;
 use lumigraph_core::tradeoff::{self, Calibration, Choice, Goal};
@@ -112,6 +113,91 @@ impl PyLightField {
             .map(|f| PyFrame::new(f, background))
             .collect())
     }
+}
+
+impl PyLightField {
+    /// The automatic-LOD ladder of this light field's calibration for `policy`, with the
+    /// explicit knobs pinned.
+    fn ladder(&self, policy: &LodPolicy, explicit: &RenderOptions) -> PyResult<Ladder> {
+        policy
+            .validate()
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let calibration = Calibration::from_quality(self.asset.header().quality.as_ref())
+            .map_err(|e| PyValueError::new_err(e.to_string()))?
+            .ok_or_else(|| {
+                PyValueError::new_err(
+                    "this light field has no calibration: bake it with calibrate=True (or \
+                     `lumigraph bake`) to use auto_lod",
+                )
+            })?;
+        Ladder::new(
+            &calibration,
+            policy,
+            self.asset.header().geometry.camera_count,
+            explicit,
+        )
+        .map_err(|e| match e {
+            LodError::Render(r) => errors::render(&r),
+            other => PyValueError::new_err(other.to_string()),
+        })
+    }
+
+    /// Renders every view with automatic LOD (GIL released); frames with their decisions.
+    fn render_lod_all(
+        &self,
+        py: Python<'_>,
+        views: &[View],
+        ladder: &Ladder,
+        background: Option<[u8; 4]>,
+    ) -> PyResult<Vec<PyFrame>> {
+        let frames: Vec<Frame> = py.detach(|| {
+            let field = self.uploaded()?;
+            let renderer = engines::renderer().map_err(|e| errors::gpu_for_render(&e))?;
+            views
+                .iter()
+                .map(|v| {
+                    ladder
+                        .render_auto(renderer, &field, v)
+                        .map(|(frame, _)| frame)
+                        .map_err(|e| match e {
+                            LodError::Render(r) => errors::render(&r),
+                            other => PyValueError::new_err(other.to_string()),
+                        })
+                })
+                .collect::<PyResult<Vec<Frame>>>()
+        })?;
+        Ok(frames
+            .into_iter()
+            .map(|f| PyFrame::new(f, background))
+            .collect())
+    }
+}
+
+/// The automatic-LOD policy of `auto_lod` / `lod_min_psnr` / `lod_blend` (None: no auto LOD).
+fn lod_policy(
+    auto_lod: Option<f64>,
+    lod_min_psnr: Option<f64>,
+    lod_blend: Option<f64>,
+    goal: Option<&Goal>,
+) -> PyResult<Option<LodPolicy>> {
+    let Some(max_error_px) = auto_lod else {
+        if lod_min_psnr.is_some() || lod_blend.is_some() {
+            return Err(PyValueError::new_err(
+                "lod_min_psnr / lod_blend need auto_lod",
+            ));
+        }
+        return Ok(None);
+    };
+    if goal.is_some() {
+        return Err(PyValueError::new_err(
+            "give auto_lod or target_psnr / budget_ms, not both",
+        ));
+    }
+    Ok(Some(LodPolicy {
+        max_error_px,
+        min_psnr: lod_min_psnr,
+        blend_band: lod_blend.unwrap_or(lumigraph_core::lod::DEFAULT_BLEND_BAND),
+    }))
 }
 
 /// The goal of `target_psnr` / `budget_ms`, checked against explicit knobs.
@@ -319,7 +405,7 @@ impl PyLightField {
         Ok(d)
     }
 
-    /// render(view, *, lod=None, step=None, tolerance=None, method="default", background=None) -> Frame
+    /// render(view, *, lod=None, step=None, tolerance=None, method="default", background=None, target_psnr=None, budget_ms=None, auto_lod=None, lod_min_psnr=None, lod_blend=None) -> Frame
     ///
     /// Renders one view with depth-corrected ray casting on the GPU (GIL released).
     ///
@@ -336,11 +422,19 @@ impl PyLightField {
     ///         (the seed's fixed-step search, the baseline).
     ///     background: RGB or RGBA integers 0..255 for pixels outside coverage. Default
     ///         transparent black.
+    ///     target_psnr / budget_ms: let the calibration choose the cheapest setting reaching a
+    ///         masked PSNR, or the most accurate one within a time (see :meth:`choose`).
+    ///     auto_lod: automatic LOD: the cheapest cameras and step whose calibrated silhouette
+    ///         error at the object's projected size stays under this many pixels (1.0 is a
+    ///         good start); explicit ``lod``/``step`` are kept. See :meth:`choose_lod`.
+    ///     lod_min_psnr: with auto_lod, only settings whose calibrated masked PSNR reaches it.
+    ///     lod_blend: with auto_lod, the cross-fade band below each switch as a fraction of
+    ///         the projected size (default 0.15; 0 = hard switches).
     ///
     /// Raises:
     ///     ValueError: a bad view or option. TypeError: an argument of the wrong type.
     ///     AssetError: a corrupt page. RenderError: the device failed.
-    #[pyo3(signature = (view, *, lod = None, step = None, tolerance = None, method = "default", background = None, target_psnr = None, budget_ms = None))]
+    #[pyo3(signature = (view, *, lod = None, step = None, tolerance = None, method = "default", background = None, target_psnr = None, budget_ms = None, auto_lod = None, lod_min_psnr = None, lod_blend = None))]
     fn render(
         &self,
         py: Python<'_>,
@@ -352,11 +446,22 @@ impl PyLightField {
         background: Option<&Bound<'_, PyAny>>,
         target_psnr: Option<f64>,
         budget_ms: Option<f64>,
+        auto_lod: Option<f64>,
+        lod_min_psnr: Option<f64>,
+        lod_blend: Option<f64>,
     ) -> PyResult<PyFrame> {
         let view = view::parse_view(view)?;
         let options = render_options(lod, step, tolerance, method)?;
         let goal = goal_of(target_psnr, budget_ms, &options)?;
+        let policy = lod_policy(auto_lod, lod_min_psnr, lod_blend, goal.as_ref())?;
         let background = background.map(parse_background).transpose()?;
+        if let Some(policy) = policy {
+            let ladder = self.ladder(&policy, &options)?;
+            let mut frames = self.render_lod_all(py, &[view], &ladder, background)?;
+            return frames
+                .pop()
+                .ok_or_else(|| errors::RenderError::new_err("no frame rendered"));
+        }
         let jobs = self.jobs(vec![view], options, goal)?;
         let mut frames = self.render_all(py, jobs, background)?;
         frames
@@ -364,11 +469,11 @@ impl PyLightField {
             .ok_or_else(|| errors::RenderError::new_err("no frame rendered"))
     }
 
-    /// render_many(views, *, lod=None, step=None, tolerance=None, method="default", background=None) -> list[Frame]
+    /// render_many(views, *, lod=None, step=None, tolerance=None, method="default", background=None, target_psnr=None, budget_ms=None, auto_lod=None, lod_min_psnr=None, lod_blend=None) -> list[Frame]
     ///
     /// Renders a batch of views (a list of :class:`View` or dicts) with one release of the GIL;
     /// options as in :meth:`render`. Every view is validated before any is rendered.
-    #[pyo3(signature = (views, *, lod = None, step = None, tolerance = None, method = "default", background = None, target_psnr = None, budget_ms = None))]
+    #[pyo3(signature = (views, *, lod = None, step = None, tolerance = None, method = "default", background = None, target_psnr = None, budget_ms = None, auto_lod = None, lod_min_psnr = None, lod_blend = None))]
     fn render_many(
         &self,
         py: Python<'_>,
@@ -380,10 +485,23 @@ impl PyLightField {
         background: Option<&Bound<'_, PyAny>>,
         target_psnr: Option<f64>,
         budget_ms: Option<f64>,
+        auto_lod: Option<f64>,
+        lod_min_psnr: Option<f64>,
+        lod_blend: Option<f64>,
     ) -> PyResult<Vec<PyFrame>> {
         let views = view::parse_views(views)?;
         let options = render_options(lod, step, tolerance, method)?;
         let goal = goal_of(target_psnr, budget_ms, &options)?;
+        let policy = lod_policy(auto_lod, lod_min_psnr, lod_blend, goal.as_ref())?;
+        if let Some(policy) = policy {
+            let ladder = self.ladder(&policy, &options)?;
+            for v in &views {
+                v.basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX)
+                    .map_err(|e| PyValueError::new_err(e.to_string()))?;
+            }
+            let background = background.map(parse_background).transpose()?;
+            return self.render_lod_all(py, &views, &ladder, background);
+        }
         // Check the options once up front, so a bad knob fails before any GPU work.
         options
             .resolve(u32::from(self.asset.header().geometry.camera_level))
@@ -423,6 +541,66 @@ impl PyLightField {
         out.set_item("predicted_psnr", c.predicted_psnr)?;
         out.set_item("predicted_ms", c.predicted_ms)?;
         out.set_item("met", c.met)?;
+        Ok(out)
+    }
+
+    /// choose_lod(view, *, auto_lod=1.0, lod_min_psnr=None, lod_blend=None, lod=None, step=None, tolerance=None) -> dict
+    ///
+    /// What :meth:`render` with ``auto_lod`` would use for this view: ``{"projected_px",
+    /// "cameras", "step", "error_px", "met", "predicted_psnr", "predicted_ms", "blend"}``.
+    /// ``blend`` is None, or ``{"cameras", "step", "weight"}`` of the level being cross-faded
+    /// in near a switch. ``auto_lod`` bounds the predicted silhouette error in pixels;
+    /// explicit ``lod``/``step`` are kept (``tolerance`` too).
+    ///
+    /// Raises:
+    ///     ValueError: a bad view or policy, no calibration, or no level left.
+    #[pyo3(signature = (view, *, auto_lod = 1.0, lod_min_psnr = None, lod_blend = None, lod = None, step = None, tolerance = None))]
+    fn choose_lod<'py>(
+        &self,
+        py: Python<'py>,
+        view: &Bound<'_, PyAny>,
+        auto_lod: f64,
+        lod_min_psnr: Option<f64>,
+        lod_blend: Option<f64>,
+        lod: Option<u32>,
+        step: Option<f32>,
+        tolerance: Option<f32>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let view = view::parse_view(view)?;
+        let options = render_options(lod, step, tolerance, "default")?;
+        let policy = lod_policy(Some(auto_lod), lod_min_psnr, lod_blend, None)?
+            .ok_or_else(|| PyValueError::new_err("auto_lod is required"))?;
+        let ladder = self.ladder(&policy, &options)?;
+        let basis = view
+            .basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX)
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let f = &self.asset.header().frame;
+        let d = ladder.decide(lumigraph_core::lod::projected_diameter_px(
+            &basis,
+            f.center.into(),
+            f.radius,
+        ));
+        let out = PyDict::new(py);
+        out.set_item("projected_px", d.projected_px)?;
+        out.set_item("cameras", d.level.cameras)?;
+        out.set_item("step", d.level.step)?;
+        out.set_item("error_px", d.error_px)?;
+        out.set_item("met", d.met)?;
+        out.set_item("predicted_psnr", d.level.masked_psnr)?;
+        out.set_item(
+            "predicted_ms",
+            d.predicted_ms(u64::from(view.width) * u64::from(view.height)),
+        )?;
+        match d.blend {
+            Some((next, w)) => {
+                let b = PyDict::new(py);
+                b.set_item("cameras", next.cameras)?;
+                b.set_item("step", next.step)?;
+                b.set_item("weight", w)?;
+                out.set_item("blend", b)?;
+            }
+            None => out.set_item("blend", py.None())?,
+        }
         Ok(out)
     }
 

@@ -137,6 +137,9 @@ class LightField:
         background: Sequence[int] | None = None,
         target_psnr: float | None = None,
         budget_ms: float | None = None,
+        auto_lod: float | None = None,
+        lod_min_psnr: float | None = None,
+        lod_blend: float | None = None,
     ) -> Frame: ...
     def render_many(
         self,
@@ -149,6 +152,9 @@ class LightField:
         background: Sequence[int] | None = None,
         target_psnr: float | None = None,
         budget_ms: float | None = None,
+        auto_lod: float | None = None,
+        lod_min_psnr: float | None = None,
+        lod_blend: float | None = None,
     ) -> list[Frame]: ...
     def choose(
         self,
@@ -156,6 +162,17 @@ class LightField:
         *,
         target_psnr: float | None = None,
         budget_ms: float | None = None,
+    ) -> dict[str, Any]: ...
+    def choose_lod(
+        self,
+        view: _ViewLike,
+        *,
+        auto_lod: float = 1.0,
+        lod_min_psnr: float | None = None,
+        lod_blend: float | None = None,
+        lod: int | None = None,
+        step: float | None = None,
+        tolerance: float | None = None,
     ) -> dict[str, Any]: ...
 
 def orbit_views(
