@@ -18,7 +18,9 @@ struct RenderParams {
     edge_gap: f32,
     refine_iterations: u32,
     front_mass: f32,
-    pad0: f32,
+    // Weight of the second setting (`*_b`): a pixel whose 4×4 ordered-dither threshold is below
+    // it renders with that setting (a dithered cross-fade between two levels in one pass).
+    blend: f32,
     pad1: f32,
     pad2: f32,
     // Box around every surface point the maps hold (see `visible_box` in render.rs).
@@ -26,6 +28,14 @@ struct RenderParams {
     pad3: f32,
     box_max: vec3<f32>,
     pad4: f32,
+    level_b: u32,
+    step_b: f32,
+    tolerance_b: f32,
+    max_steps_b: u32,
+    method_b: u32,
+    pad5: u32,
+    pad6: u32,
+    pad7: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
@@ -41,6 +51,21 @@ struct RenderParams {
 @group(1) @binding(4) var linear_sampler: sampler;
 
 const METHOD_FIXED: u32 = 0u;
+
+// This pixel's setting: the first one of `params`, or the `*_b` one (see `blend`).
+var<private> g_level: u32;
+var<private> g_step: f32;
+var<private> g_tolerance: f32;
+var<private> g_max_steps: u32;
+var<private> g_method: u32;
+
+// 4×4 ordered-dither (Bayer) rank of a pixel, 0..15: bits of (x ^ y) and y interleaved,
+// reversed. Every 4×4 block holds each rank once.
+fn bayer4(p: vec2<u32>) -> u32 {
+    let a = (p.x ^ p.y) & 3u;
+    let b = p.y & 3u;
+    return ((a & 1u) << 3u) | ((b & 1u) << 2u) | (((a >> 1u) & 1u) << 1u) | ((b >> 1u) & 1u);
+}
 const BOUNDING_RADIUS: f32 = 0.70710678;
 
 // One camera's view of a point x: where it projects and what its depth map says there.
@@ -135,7 +160,7 @@ struct March {
 fn march_fixed(o: vec3<f32>, d: vec3<f32>, t_in: f32, t_out: f32, cams: vec3<u32>, c0: Camera, c1: Camera, c2: Camera) -> March {
     var m = March(t_in, false, 0u, 0u);
     var t = t_in;
-    for (var s = 0u; s < params.max_steps; s++) {
+    for (var s = 0u; s < g_max_steps; s++) {
         if t > t_out {
             break;
         }
@@ -143,12 +168,12 @@ fn march_fixed(o: vec3<f32>, d: vec3<f32>, t_in: f32, t_out: f32, cams: vec3<u32
         m.steps += 1u;
         m.fetches += 3u;
         let f = vec3<f32>(probe(c0, cams.x, x, false).f, probe(c1, cams.y, x, false).f, probe(c2, cams.z, x, false).f);
-        if min(min(abs(f.x), abs(f.y)), abs(f.z)) < params.tolerance {
+        if min(min(abs(f.x), abs(f.y)), abs(f.z)) < g_tolerance {
             m.t = t;
             m.hit = true;
             return m;
         }
-        t += params.step;
+        t += g_step;
     }
     return m;
 }
@@ -173,11 +198,11 @@ fn march_refined(o: vec3<f32>, d: vec3<f32>, t_in: f32, t_out: f32, cams: vec3<u
     let x0 = o + t_in * d;
     var f_prev = vec3<f32>(probe_camera(cams, c0, c1, c2, 0u, x0), probe_camera(cams, c0, c1, c2, 1u, x0), probe_camera(cams, c0, c1, c2, 2u, x0));
     m.fetches += 3u;
-    for (var s = 0u; s < params.max_steps; s++) {
+    for (var s = 0u; s < g_max_steps; s++) {
         if t_prev >= t_out {
             break;
         }
-        let t = min(t_prev + params.step, t_out);
+        let t = min(t_prev + g_step, t_out);
         let x = o + t * d;
         m.steps += 1u;
         let f = vec3<f32>(probe_camera(cams, c0, c1, c2, 0u, x), probe_camera(cams, c0, c1, c2, 1u, x), probe_camera(cams, c0, c1, c2, 2u, x));
@@ -201,7 +226,7 @@ fn march_refined(o: vec3<f32>, d: vec3<f32>, t_in: f32, t_out: f32, cams: vec3<u
                         f_hi = f_mid;
                     }
                 }
-                if f_hi - f_lo < params.tolerance {
+                if f_hi - f_lo < g_tolerance {
                     let t_cross = lo + (hi - lo) * (-f_lo) / max(f_hi - f_lo, 1e-12);
                     best_t = min(best_t, t_cross);
                 }
@@ -224,6 +249,12 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let index = gid.y * params.width + gid.x;
+    let use_b = (f32(bayer4(gid.xy)) + 0.5) / 16.0 < params.blend;
+    g_level = select(params.level, params.level_b, use_b);
+    g_step = select(params.step, params.step_b, use_b);
+    g_tolerance = select(params.tolerance, params.tolerance_b, use_b);
+    g_max_steps = select(params.max_steps, params.max_steps_b, use_b);
+    g_method = select(params.method, params.method_b, use_b);
     out_color[index] = 0u;
     out_depth[index] = -1.0;
     let px = (f32(gid.x) + 0.5 - 0.5 * f32(params.width)) / params.focal_px;
@@ -236,7 +267,7 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     var t_in = max(bounds.x, 0.0);
     var t_out = bounds.y;
-    if params.method != METHOD_FIXED {
+    if g_method != METHOD_FIXED {
         // Clip to the visible box (slab test; near-zero direction components are replaced by
         // ±1e-20 so every product stays finite). The fixed baseline keeps the seed's sphere.
         let dd = select(d, select(vec3<f32>(1e-20), vec3<f32>(-1e-20), d < vec3<f32>(0.0)), abs(d) < vec3<f32>(1e-20));
@@ -255,13 +286,13 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     // it exists whenever the line meets the bounding sphere inside it.
     let cs = sphere_roots(o, d, 1.0);
     let entry = normalize(o + cs.x * d);
-    let loc = locate(entry, params.level);
+    let loc = locate(entry, g_level);
     // Each camera's frame is read from the storage buffer once per pixel, not once per probe.
     let c0 = cameras[loc.cameras.x];
     let c1 = cameras[loc.cameras.y];
     let c2 = cameras[loc.cameras.z];
     var m: March;
-    if params.method == METHOD_FIXED {
+    if g_method == METHOD_FIXED {
         m = march_fixed(o, d, t_in, t_out, loc.cameras, c0, c1, c2);
     } else {
         m = march_refined(o, d, t_in, t_out, loc.cameras, loc.weights, c0, c1, c2);
@@ -275,7 +306,7 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         var fallback_f = 1e30;
         for (var i = 0u; i < 3u; i++) {
             let k = loc.cameras[i];
-            let edge_aware = params.method != METHOD_FIXED;
+            let edge_aware = g_method != METHOD_FIXED;
             let pb = probe(cameras[k], k, x, edge_aware);
             var c: vec4<f32>;
             if edge_aware {
@@ -286,7 +317,7 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 fetches += 2u;
             }
             // Agreement: full weight within half the tolerance, fading to zero at the tolerance.
-            let agree = clamp(2.0 - 2.0 * abs(pb.f) / params.tolerance, 0.0, 1.0);
+            let agree = clamp(2.0 - 2.0 * abs(pb.f) / g_tolerance, 0.0, 1.0);
             let w = loc.weights[i] * agree;
             color += w * c;
             total += w;

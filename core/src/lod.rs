@@ -10,7 +10,8 @@
 //!   silhouette displacement `e` in bounding diameters, measured against the mesh at bake time.
 //!   At projected size `P` that setting's predicted silhouette error is `e · P` pixels.
 //! - The floor is `e · P ≤ max_error_px` (default 1 px), optionally with `masked PSNR ≥
-//!   min_psnr`. Only settings on the Pareto front of (cost, silhouette error) are candidates.
+//!   min_psnr`, and by default within 2 dB of the most accurate level's calibrated masked PSNR
+//!   (`max_psnr_drop`). Only settings on the Pareto front of (cost, silhouette error) are candidates.
 //!   Of those that meet the floor, the cheapest (calibrated ms per pixel) is chosen; settings
 //!   within 10 % of the cheapest count as equally cheap and the most accurate of them wins, so
 //!   timing noise does not pick a worse level. When none meets it (a large object), the
@@ -18,11 +19,11 @@
 //! - Masked PSNR alone cannot drive LOD: with one ray per pixel it barely depends on the output
 //!   size (BENCHMARKS.md: ±0.15 dB between 256² and 512²). A pixel-space error does.
 //! - No popping: as `P` grows towards the size where the chosen setting stops meeting the
-//!   floor, the frame cross-fades into the next setting over a band of sizes
-//!   ([`LodPolicy::blend_band`], default the last 15 %): colour and depth are interpolated where
-//!   both settings cover a pixel, and pixels that only one covers switch in a 4×4 ordered-dither
-//!   pattern, so the image changes continuously with `P` (tested against a hard switch).
-//!   Inside the band a frame costs both settings' renders.
+//!   floor, the frame dissolves into the next setting over a band of sizes
+//!   ([`LodPolicy::blend_band`], default the last 15 %): a smoothstep weight `w` of the pixels,
+//!   picked by a 4×4 ordered-dither pattern, render with the next setting in the same single
+//!   pass ([`Renderer::render_blend`]), so the band costs no extra render and the image
+//!   changes a few pixels at a time as `P` changes (tested against a hard switch).
 //! - Explicit settings override: a pinned camera count or step restricts the choice to it (the
 //!   step's nearest calibrated value stands for it in the predictions); a pinned tolerance is
 //!   passed through.
@@ -30,13 +31,15 @@
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-use crate::frame::{Frame, FrameStats};
+use crate::frame::Frame;
 use crate::render::{GpuLightField, Method, RenderError, RenderOptions, Renderer};
 use crate::tradeoff::Calibration;
 use crate::view::{View, ViewBasis};
 
 /// Default bound on the predicted silhouette error, pixels.
 pub const DEFAULT_MAX_ERROR_PX: f64 = 1.0;
+/// Default largest drop of calibrated masked PSNR below the most accurate level, dB.
+pub const DEFAULT_MAX_PSNR_DROP: f64 = 2.0;
 /// Default cross-fade band: the last 15 % of projected sizes before a switch.
 pub const DEFAULT_BLEND_BAND: f64 = 0.15;
 /// Settings whose calibrated cost is within this factor of the cheapest count as equally cheap:
@@ -66,6 +69,11 @@ pub struct LodPolicy {
     pub max_error_px: f64,
     /// Optional floor on the calibrated masked PSNR, dB.
     pub min_psnr: Option<f64>,
+    /// Largest drop of calibrated masked PSNR below the most accurate level's, dB (default 2;
+    /// `null` or infinity: no limit). Masked PSNR hardly depends on the object's size, so
+    /// this keeps interior colour errors of coarse levels in check where the pixel bound alone
+    /// would allow them.
+    pub max_psnr_drop: Option<f64>,
     /// Cross-fade band below each switch, as a fraction of the switch's projected size
     /// (0 = hard switches).
     pub blend_band: f64,
@@ -76,6 +84,7 @@ impl Default for LodPolicy {
         Self {
             max_error_px: DEFAULT_MAX_ERROR_PX,
             min_psnr: None,
+            max_psnr_drop: Some(DEFAULT_MAX_PSNR_DROP),
             blend_band: DEFAULT_BLEND_BAND,
         }
     }
@@ -98,6 +107,13 @@ impl LodPolicy {
         {
             return Err(LodError::Policy(format!(
                 "min_psnr {db} dB must be finite and positive"
+            )));
+        }
+        if let Some(db) = self.max_psnr_drop
+            && !(db >= 0.0)
+        {
+            return Err(LodError::Policy(format!(
+                "max_psnr_drop {db} dB must be non-negative (infinity: no limit)"
             )));
         }
         if !(self.blend_band.is_finite() && (0.0..=1.0).contains(&self.blend_band)) {
@@ -173,10 +189,14 @@ pub struct LodDecision {
 }
 
 impl LodDecision {
-    /// Predicted render time at `pixels` output pixels: both levels inside a blend band.
+    /// Predicted render time at `pixels` output pixels (inside a blend band, the levels'
+    /// times weighted by their share of the pixels).
     pub fn predicted_ms(&self, pixels: u64) -> f64 {
         let mpx = pixels as f64 / 1e6;
-        self.level.ms_per_mpx * mpx + self.blend.map_or(0.0, |(l, _)| l.ms_per_mpx * mpx)
+        match self.blend {
+            Some((next, w)) => ((1.0 - w) * self.level.ms_per_mpx + w * next.ms_per_mpx) * mpx,
+            None => self.level.ms_per_mpx * mpx,
+        }
     }
 }
 
@@ -273,6 +293,18 @@ impl Ladder {
             .min_by(f64::total_cmp)
         {
             candidates.retain(|l| l.ms_per_mpx <= top_cost);
+        }
+        // The PSNR floor relative to the top level (the most accurate one left).
+        if let (Some(drop), Some(top)) = (
+            policy.max_psnr_drop,
+            candidates.iter().min_by(|a, b| {
+                a.silhouette_error
+                    .total_cmp(&b.silhouette_error)
+                    .then(a.ms_per_mpx.total_cmp(&b.ms_per_mpx))
+            }),
+        ) {
+            let floor = top.masked_psnr - drop;
+            candidates.retain(|l| l.masked_psnr >= floor);
         }
         if candidates.is_empty() {
             return Err(LodError::Policy(
@@ -386,7 +418,8 @@ impl Ladder {
         }
     }
 
-    /// Renders `view` as `decision` says: one render, or two cross-faded inside a blend band.
+    /// Renders `view` as `decision` says; inside a blend band, one pass in which the fraction
+    /// `weight` of pixels (an ordered-dither pattern) renders with the next level.
     ///
     /// # Errors
     /// [`RenderError`] from the renders.
@@ -397,17 +430,13 @@ impl Ladder {
         view: &View,
         decision: &LodDecision,
     ) -> Result<Frame, LodError> {
-        match decision.blend {
-            Some((next, w)) if w >= 1.0 => {
-                Ok(renderer.render(field, view, &self.options(&next))?)
-            }
+        let a = self.options(&decision.level);
+        Ok(match decision.blend {
             Some((next, w)) => {
-                let a = renderer.render(field, view, &self.options(&decision.level))?;
-                let b = renderer.render(field, view, &self.options(&next))?;
-                Ok(cross_fade(&a, &b, w))
+                renderer.render_blend(field, view, &a, &self.options(&next), w as f32)?
             }
-            None => Ok(renderer.render(field, view, &self.options(&decision.level))?),
-        }
+            None => renderer.render(field, view, &a)?,
+        })
     }
 
     /// [`Ladder::decide_view`] then [`Ladder::render`].
@@ -424,53 +453,6 @@ impl Ladder {
         let frame = self.render(renderer, field, view, &decision)?;
         Ok((frame, decision))
     }
-}
-
-/// 4×4 ordered-dither thresholds (Bayer), in sixteenths.
-const BAYER4: [[u8; 4]; 4] = [[0, 8, 2, 10], [12, 4, 14, 6], [3, 11, 1, 9], [15, 7, 13, 5]];
-
-/// Cross-fades `a` into `b` (same size) with weight `w` of `b`: colour and depth are
-/// interpolated where both cover a pixel; where one does, the pixel takes `b`'s state when its
-/// ordered-dither threshold is below `w`, else `a`'s. Stats are summed (both were rendered).
-/// Frames of different sizes give `a` unchanged.
-pub fn cross_fade(a: &Frame, b: &Frame, w: f64) -> Frame {
-    if (a.width, a.height) != (b.width, b.height)
-        || a.depth.len() != b.depth.len()
-        || a.color.len() != b.color.len()
-    {
-        return a.clone();
-    }
-    let w = if w.is_nan() { 0.0 } else { w.clamp(0.0, 1.0) };
-    let mut out = a.clone();
-    let width = a.width.max(1) as usize;
-    for k in 0..a.depth.len() {
-        let (da, db) = (a.depth[k], b.depth[k]);
-        let (ca, cb) = (da.is_finite(), db.is_finite());
-        let px = 4 * k..4 * k + 4;
-        if ca && cb {
-            out.depth[k] = (f64::from(da) * (1.0 - w) + f64::from(db) * w) as f32;
-            for (o, (&x, &y)) in out.color[px.clone()]
-                .iter_mut()
-                .zip(a.color[px.clone()].iter().zip(&b.color[px]))
-            {
-                *o = (f64::from(x) * (1.0 - w) + f64::from(y) * w).round() as u8;
-            }
-        } else if ca != cb {
-            let (x, y) = (k % width, k / width);
-            let threshold = (f64::from(BAYER4[y % 4][x % 4]) + 0.5) / 16.0;
-            if threshold < w {
-                out.depth[k] = db;
-                out.color[px.clone()].copy_from_slice(&b.color[px]);
-            }
-        }
-    }
-    out.stats = FrameStats {
-        render_ms: a.stats.render_ms + b.stats.render_ms,
-        rays: a.stats.rays + b.stats.rays,
-        steps: a.stats.steps + b.stats.steps,
-        fetches: a.stats.fetches + b.stats.fetches,
-    };
-    out
 }
 
 #[cfg(test)]
@@ -512,6 +494,14 @@ mod tests {
         }
     }
 
+    /// The default policy without the PSNR-drop floor (the synthetic PSNRs span 7 dB).
+    fn no_drop() -> LodPolicy {
+        LodPolicy {
+            max_psnr_drop: None,
+            ..LodPolicy::default()
+        }
+    }
+
     fn ladder(policy: &LodPolicy, pinned: &RenderOptions) -> Ladder {
         Ladder::new(&calibration(), policy, 162, pinned).expect("ladder")
     }
@@ -544,7 +534,7 @@ mod tests {
 
     #[test]
     fn decisions_meet_the_floor_and_never_coarsen_as_objects_grow() {
-        let policy = LodPolicy::default();
+        let policy = no_drop();
         let l = ladder(&policy, &RenderOptions::default());
         let mut previous_error = f64::INFINITY;
         let mut switches = 0;
@@ -590,7 +580,7 @@ mod tests {
 
     #[test]
     fn blend_weights_are_continuous_across_switches() {
-        let policy = LodPolicy::default();
+        let policy = no_drop();
         let l = ladder(&policy, &RenderOptions::default());
         // Effective (colour) weight of each level as a function of size: continuous means
         // consecutive sizes 0.1 % apart move every level's weight by little.
@@ -641,7 +631,7 @@ mod tests {
     #[test]
     fn pinned_knobs_and_floors_restrict_the_choice() {
         let pinned_cams = ladder(
-            &LodPolicy::default(),
+            &no_drop(),
             &RenderOptions {
                 lod: Some(42),
                 ..RenderOptions::default()
@@ -650,7 +640,7 @@ mod tests {
         assert!(pinned_cams.levels().iter().all(|l| l.cameras == 42));
         // A level 0-3 pins too.
         let by_level = ladder(
-            &LodPolicy::default(),
+            &no_drop(),
             &RenderOptions {
                 lod: Some(0),
                 ..RenderOptions::default()
@@ -658,7 +648,7 @@ mod tests {
         );
         assert!(by_level.levels().iter().all(|l| l.cameras == 12));
         let pinned_step = ladder(
-            &LodPolicy::default(),
+            &no_drop(),
             &RenderOptions {
                 step: Some(0.03),
                 tolerance: Some(0.02),
@@ -704,8 +694,7 @@ mod tests {
                 point(42, 1.0 / 64.0, 0.00153, 1500.0, 28.0),
             ],
         };
-        let l =
-            Ladder::new(&c, &LodPolicy::default(), 162, &RenderOptions::default()).expect("ladder");
+        let l = Ladder::new(&c, &no_drop(), 162, &RenderOptions::default()).expect("ladder");
         let kept: Vec<(u32, f32)> = l.levels().iter().map(|x| (x.cameras, x.step)).collect();
         assert_eq!(
             kept,
@@ -715,6 +704,27 @@ mod tests {
         let d = l.decide(5000.0);
         assert!(!d.met);
         assert_eq!((d.level.cameras, d.level.step), (162, 1.0 / 32.0));
+        // The default 2 dB drop below the top level (27 dB) leaves only levels ≥ 25 dB.
+        let floor =
+            Ladder::new(&c, &LodPolicy::default(), 162, &RenderOptions::default()).expect("ladder");
+        let kept: Vec<(u32, f32)> = floor.levels().iter().map(|x| (x.cameras, x.step)).collect();
+        assert_eq!(kept, vec![(162, 1.0 / 32.0)]);
+        let wide = Ladder::new(
+            &c,
+            &LodPolicy {
+                max_psnr_drop: Some(4.0),
+                ..LodPolicy::default()
+            },
+            162,
+            &RenderOptions::default(),
+        )
+        .expect("ladder");
+        assert_eq!(wide.levels().len(), 2, "42 × 1/8 at 23.5 dB joins");
+        let unlimited = LodPolicy {
+            max_psnr_drop: Some(f64::INFINITY),
+            ..LodPolicy::default()
+        };
+        assert!(Ladder::new(&c, &unlimited, 162, &RenderOptions::default()).is_ok());
     }
 
     #[test]
@@ -743,6 +753,14 @@ mod tests {
                 ..LodPolicy::default()
             },
             LodPolicy {
+                max_psnr_drop: Some(-1.0),
+                ..LodPolicy::default()
+            },
+            LodPolicy {
+                max_psnr_drop: Some(f64::NAN),
+                ..LodPolicy::default()
+            },
+            LodPolicy {
                 blend_band: 2.0,
                 ..LodPolicy::default()
             },
@@ -756,7 +774,7 @@ mod tests {
             method: Method::Fixed,
             ..RenderOptions::default()
         };
-        assert!(Ladder::new(&c, &LodPolicy::default(), 162, &fixed).is_err());
+        assert!(Ladder::new(&c, &no_drop(), 162, &fixed).is_err());
         let too_high = LodPolicy {
             min_psnr: Some(99.0),
             ..LodPolicy::default()
@@ -766,71 +784,11 @@ mod tests {
         for p in &mut old.points {
             p.silhouette_error = None;
         }
-        let err = Ladder::new(&old, &LodPolicy::default(), 162, &none).expect_err("old");
+        let err = Ladder::new(&old, &no_drop(), 162, &none).expect_err("old");
         assert!(err.to_string().contains("re-bake"), "{err}");
         // The asset's camera count bounds the levels.
-        let small = Ladder::new(&c, &LodPolicy::default(), 42, &none).expect("ladder");
+        let small = Ladder::new(&c, &no_drop(), 42, &none).expect("ladder");
         assert!(small.levels().iter().all(|l| l.cameras <= 42));
-        assert!(Ladder::new(&c, &LodPolicy::default(), 43, &none).is_err());
-    }
-
-    #[test]
-    fn cross_fade_interpolates_shared_pixels_and_dithers_the_rest() {
-        let frame = |covered: &dyn Fn(usize) -> bool, value: u8, depth: f32| Frame {
-            width: 16,
-            height: 16,
-            color: (0..256)
-                .flat_map(|k| {
-                    if covered(k) {
-                        [value, value, value, 255]
-                    } else {
-                        [0; 4]
-                    }
-                })
-                .collect(),
-            depth: (0..256)
-                .map(|k| if covered(k) { depth } else { f32::INFINITY })
-                .collect(),
-            stats: FrameStats {
-                render_ms: 1.0,
-                ..FrameStats::default()
-            },
-        };
-        // a covers the left half, b the top half.
-        let a = frame(&|k| k % 16 < 8, 100, 2.0);
-        let b = frame(&|k| k / 16 < 8, 200, 4.0);
-        let none = cross_fade(&a, &b, 0.0);
-        assert_eq!((none.color, none.depth), (a.color.clone(), a.depth.clone()));
-        // Both renders' costs are counted.
-        assert_eq!(cross_fade(&a, &b, 0.3).stats.render_ms, 2.0);
-        let full = cross_fade(&a, &b, 1.0);
-        assert_eq!(
-            (full.color.clone(), full.depth.clone()),
-            (b.color.clone(), b.depth.clone())
-        );
-        let half = cross_fade(&a, &b, 0.5);
-        // Shared quadrant: colour 150, depth 3.
-        assert_eq!(half.color[0], 150);
-        assert!((half.depth[0] - 3.0).abs() < 1e-6);
-        // One-sided quadrants: exactly half of each switches (ordered dither, 8 of 16).
-        let b_only = (0..256).filter(|k| k % 16 >= 8 && k / 16 < 8);
-        let switched = b_only.filter(|&k| half.depth[k].is_finite()).count();
-        assert_eq!(switched, 32);
-        let a_only = (0..256).filter(|k| k % 16 < 8 && k / 16 >= 8);
-        let kept = a_only.filter(|&k| half.depth[k].is_finite()).count();
-        assert_eq!(kept, 32);
-        // Coverage changes monotonically with the weight: a pixel that switched stays switched.
-        let mut previous = cross_fade(&a, &b, 0.0).coverage();
-        for i in 1..=16 {
-            let now = cross_fade(&a, &b, f64::from(i) / 16.0).coverage();
-            let changed = previous.iter().zip(&now).filter(|(x, y)| x != y).count();
-            assert_eq!(changed, 8, "step {i}: 4 b-only gained + 4 a-only lost");
-            previous = now;
-        }
-        // Mismatched sizes give a unchanged; NaN weight counts as 0.
-        let mut small = b.clone();
-        small.width = 8;
-        assert_eq!(cross_fade(&a, &small, 0.5), a);
-        assert_eq!(cross_fade(&a, &b, f64::NAN).color, a.color);
+        assert!(Ladder::new(&c, &no_drop(), 43, &none).is_err());
     }
 }

@@ -213,13 +213,44 @@ struct RenderParams {
     edge_gap: f32,
     refine_iterations: u32,
     front_mass: f32,
-    pad: [f32; 3],
+    blend: f32,
+    pad: [f32; 2],
     box_min: [f32; 3],
     pad_min: f32,
     box_max: [f32; 3],
     pad_max: f32,
+    level_b: u32,
+    step_b: f32,
+    tolerance_b: f32,
+    max_steps_b: u32,
+    method_b: u32,
+    pad_b: [u32; 3],
 }
-const _: () = assert!(std::mem::size_of::<RenderParams>() == 144);
+const _: () = assert!(std::mem::size_of::<RenderParams>() == 176);
+
+/// One setting as the shader takes it: level, step and tolerance in light-field units,
+/// step bound, method code.
+struct ShaderSetting {
+    level: u32,
+    step: f32,
+    tolerance: f32,
+    max_steps: u32,
+    method: u32,
+}
+
+impl ShaderSetting {
+    fn of(resolved: &ResolvedOptions) -> Self {
+        let diameter_lf = std::f32::consts::SQRT_2;
+        let step = resolved.step * diameter_lf;
+        ShaderSetting {
+            level: resolved.level,
+            step,
+            tolerance: resolved.tolerance * diameter_lf,
+            max_steps: (diameter_lf / step).ceil() as u32 + 2,
+            method: u32::from(resolved.method != Method::Fixed),
+        }
+    }
+}
 
 /// Per-size output buffers, reused between frames of the same size.
 struct Targets {
@@ -610,16 +641,37 @@ impl Renderer {
         view: &View,
         options: &RenderOptions,
     ) -> Result<Frame, RenderError> {
+        self.render_blend(field, view, options, options, 0.0)
+    }
+
+    /// Renders `view` with a dithered cross-fade between two settings in one pass: a pixel
+    /// whose 4×4 ordered-dither threshold `(rank + ½) / 16` is below `weight` renders with `b`,
+    /// every other pixel with `a` (automatic LOD's transition, [`crate::lod`]). `weight` 0 is
+    /// [`Renderer::render`] with `a`; 1 is with `b`.
+    ///
+    /// # Errors
+    /// As [`Renderer::render`]; [`RenderError::Option`] for a weight outside [0, 1].
+    pub fn render_blend(
+        &self,
+        field: &GpuLightField,
+        view: &View,
+        a: &RenderOptions,
+        b: &RenderOptions,
+        weight: f32,
+    ) -> Result<Frame, RenderError> {
         let basis = view.basis(self.max_px)?;
-        let resolved = options.resolve(field.max_level)?;
+        if !(weight.is_finite() && (0.0..=1.0).contains(&weight)) {
+            return Err(RenderError::Option(format!(
+                "blend weight {weight} must be in [0, 1]"
+            )));
+        }
+        let first = ShaderSetting::of(&a.resolve(field.max_level)?);
+        let second = ShaderSetting::of(&b.resolve(field.max_level)?);
         let start = Instant::now();
         let lf_eye = (basis.eye - field.center) / field.scale;
         if !lf_eye.is_finite() {
             return Err(RenderError::View(ViewError::NotFinite("eye")));
         }
-        let diameter_lf = std::f32::consts::SQRT_2;
-        let step = resolved.step * diameter_lf;
-        let max_steps = (diameter_lf / step).ceil() as u32 + 2;
         let params = RenderParams {
             eye: lf_eye.as_vec3().to_array(),
             width: view.width,
@@ -628,21 +680,28 @@ impl Renderer {
             up: basis.true_up.as_vec3().to_array(),
             focal_px: basis.focal_px as f32,
             forward: basis.forward.as_vec3().to_array(),
-            level: resolved.level,
-            step,
-            tolerance: resolved.tolerance * diameter_lf,
-            max_steps,
-            method: u32::from(resolved.method != Method::Fixed),
+            level: first.level,
+            step: first.step,
+            tolerance: first.tolerance,
+            max_steps: first.max_steps,
+            method: first.method,
             resolution: field.resolution as f32,
             depth_scale: field.scale as f32,
             edge_gap: EDGE_GAP,
             refine_iterations: REFINE_ITERATIONS,
             front_mass: FRONT_MASS,
-            pad: [0.0; 3],
+            blend: weight,
+            pad: [0.0; 2],
             box_min: field.visible_box[0],
             pad_min: 0.0,
             box_max: field.visible_box[1],
             pad_max: 0.0,
+            level_b: second.level,
+            step_b: second.step,
+            tolerance_b: second.tolerance,
+            max_steps_b: second.max_steps,
+            method_b: second.method,
+            pad_b: [0; 3],
         };
         let pixels = u64::from(view.width) * u64::from(view.height);
         let mut guard = self

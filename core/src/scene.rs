@@ -23,6 +23,7 @@ use crate::asset::{AssetError, AssetFile};
 use crate::frame::{Frame, FrameStats};
 use crate::gpu::GpuError;
 use crate::gpu::mesh::GpuMesh;
+use crate::lod::{Ladder, LodError, LodPolicy};
 use crate::mesh::{MeshError, load_mesh};
 use crate::reference::{ReferenceError, ReferenceRenderer};
 use crate::render::{GpuLightField, RenderError, RenderOptions, Renderer};
@@ -79,6 +80,14 @@ pub enum SceneError {
         index: usize,
         /// The cause.
         source: RenderError,
+    },
+    /// An object's automatic LOD cannot be served (bad policy, no calibration) or failed.
+    #[error("scene object {index}: {source}")]
+    Lod {
+        /// Object index.
+        index: usize,
+        /// The cause.
+        source: LodError,
     },
     /// A mesh render failed.
     #[error("scene object {index}: {source}")]
@@ -223,6 +232,10 @@ pub enum SceneObject {
         /// Quality knobs for this instance.
         #[serde(default)]
         options: RenderOptions,
+        /// Automatic LOD for this instance (the asset's calibration picks cameras and step from
+        /// the instance's projected size); knobs set in `options` stay fixed.
+        #[serde(default)]
+        auto_lod: Option<LodPolicy>,
     },
     /// A polygon mesh (any format `lumigraph bake` reads), rasterized.
     Mesh {
@@ -250,6 +263,7 @@ enum Layer {
         field: usize,
         placement: Similarity,
         options: RenderOptions,
+        ladder: Option<Ladder>,
     },
     Mesh {
         mesh: usize,
@@ -310,6 +324,8 @@ impl Scene {
                 file.objects.len()
             )));
         }
+        // Asset index → its calibration (read once per asset, for automatic LOD).
+        let mut calibrations: HashMap<usize, Option<crate::tradeoff::Calibration>> = HashMap::new();
         let mut field_index: HashMap<PathBuf, usize> = HashMap::new();
         let mut mesh_index: HashMap<PathBuf, usize> = HashMap::new();
         let mut fields = Vec::new();
@@ -321,6 +337,7 @@ impl Scene {
                     asset,
                     transform,
                     options,
+                    auto_lod,
                 } => {
                     let placement = transform
                         .similarity()
@@ -339,16 +356,48 @@ impl Scene {
                             .upload(&file)
                             .map_err(|source| SceneError::Render { index, source })?;
                         fields.push(Arc::new(uploaded));
+                        // A malformed calibration only matters to objects asking for LOD.
+                        calibrations.insert(
+                            fields.len() - 1,
+                            crate::tradeoff::Calibration::from_quality(
+                                file.header().quality.as_ref(),
+                            )
+                            .ok()
+                            .flatten(),
+                        );
                         field_index.insert(key, fields.len() - 1);
                         fields.len() - 1
                     };
                     options
                         .resolve(fields[field].max_level)
                         .map_err(|source| SceneError::Render { index, source })?;
+                    let ladder = match auto_lod {
+                        None => None,
+                        Some(policy) => {
+                            let calibration = calibrations
+                                .get(&field)
+                                .and_then(Option::as_ref)
+                                .ok_or_else(|| SceneError::Lod {
+                                    index,
+                                    source: LodError::Policy(format!(
+                                        "{} has no readable calibration: re-bake it with \
+                                         `lumigraph bake` (calibration on)",
+                                        path.display()
+                                    )),
+                                })?;
+                            let cameras =
+                                crate::geometry::CAMERA_COUNTS[fields[field].max_level as usize];
+                            Some(
+                                Ladder::new(calibration, policy, cameras, options)
+                                    .map_err(|source| SceneError::Lod { index, source })?,
+                            )
+                        }
+                    };
                     layers.push(Layer::Field {
                         field,
                         placement,
                         options: *options,
+                        ladder,
                     });
                 }
                 SceneObject::Mesh {
@@ -431,11 +480,20 @@ impl Scene {
                     field,
                     placement,
                     options,
+                    ladder,
                 } => {
                     let local = placement.view_to_local(view);
-                    let frame = renderer
-                        .render(&self.fields[*field], &local, options)
-                        .map_err(|source| SceneError::Render { index, source })?;
+                    let frame = match ladder {
+                        Some(ladder) => {
+                            ladder
+                                .render_auto(renderer, &self.fields[*field], &local)
+                                .map_err(|source| SceneError::Lod { index, source })?
+                                .0
+                        }
+                        None => renderer
+                            .render(&self.fields[*field], &local, options)
+                            .map_err(|source| SceneError::Render { index, source })?,
+                    };
                     (frame, placement.scale())
                 }
                 Layer::Mesh {

@@ -12,6 +12,7 @@ use lumigraph_core::mesh::{Mesh, demo_mesh};
 use lumigraph_core::metrics;
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::{RenderOptions, Renderer};
+use lumigraph_core::scene::{Scene, Transform};
 use lumigraph_core::shading::Shading;
 use lumigraph_core::tradeoff::{Calibration, CalibrationPoint};
 use lumigraph_core::view::View;
@@ -21,6 +22,8 @@ struct Ctx {
     reference: ReferenceRenderer,
     mesh: Mesh,
     asset: AssetFile,
+    /// The encoded asset (for scene files).
+    bytes: Vec<u8>,
     calibration: Calibration,
 }
 
@@ -48,6 +51,7 @@ fn ctx() -> &'static Ctx {
             &mut |_, _| {},
         )
         .expect("calibrated bake");
+        let bytes = baked.bytes.clone();
         let asset = AssetFile::from_bytes(baked.bytes).expect("asset");
         let stored = Calibration::from_quality(asset.header().quality.as_ref())
             .expect("readable")
@@ -66,6 +70,7 @@ fn ctx() -> &'static Ctx {
             reference,
             mesh,
             asset,
+            bytes,
             calibration: baked.calibration,
         }
     })
@@ -222,8 +227,9 @@ fn level_switches_cross_fade_instead_of_popping() {
     );
     // A hard switch changes the whole difference in one step.
     assert!(hard_jump > 0.9 * level_gap, "{hard_jump} vs {level_gap}");
-    // The cross-fade spreads it over the band: smoothstep's steepest 1 % step over a 15 % band
-    // moves the weight by about 1.5 × 0.01 / 0.13 ≈ 0.12; 0.25 leaves room for dithering.
+    // The dissolve spreads it over the band: smoothstep's steepest 1 % step over a 15 % band
+    // moves the weight by about 1.5 × 0.01 / 0.13 ≈ 0.12, and the ordered dither switches that
+    // share of the pixels (in sixteenths, so up to 2/16 per step); 0.25 leaves room.
     assert!(soft_jump < 0.25 * level_gap, "{soft_jump} vs {level_gap}");
     // Both ends agree with the pure levels.
     assert_eq!(soft[0].color, hard[0].color);
@@ -232,4 +238,147 @@ fn level_switches_cross_fade_instead_of_popping() {
     let basis = view.basis(4096).expect("view");
     let px = projected_diameter_px(&basis, field.center, field.radius);
     assert!((px - 100.0).abs() < 1e-6, "{px}");
+}
+
+#[test]
+fn scene_instances_choose_their_own_level() {
+    let ctx = ctx();
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::write(dir.path().join("cal.lfa"), &ctx.bytes).expect("write");
+    let field = ctx.renderer.upload(&ctx.asset).expect("upload");
+    let frame = &ctx.asset.header().frame;
+    let (c, r) = (frame.center, frame.radius);
+    // A near instance at the asset's place and a far one 40 radii behind it.
+    let far_shift = [0.0, 0.0, -40.0 * r];
+    let view = View::look_at([c[0], c[1], c[2] + 3.0 * r], c, 40.0, 128, 128);
+    let transforms = [
+        Transform::default(),
+        Transform {
+            translation: far_shift,
+            ..Transform::default()
+        },
+    ];
+    let ladder = Ladder::new(
+        &ctx.calibration,
+        &LodPolicy {
+            blend_band: 0.0,
+            ..LodPolicy::default()
+        },
+        42,
+        &RenderOptions::default(),
+    )
+    .expect("ladder");
+    let decisions: Vec<_> = transforms
+        .iter()
+        .map(|t| {
+            let local = t.similarity().expect("similarity").view_to_local(&view);
+            ladder.decide_view(&field, &local).expect("decide")
+        })
+        .collect();
+    assert!(decisions[0].projected_px > 10.0 * decisions[1].projected_px);
+    // The far instance, small on screen, takes a level at least as coarse.
+    assert!(decisions[1].level.silhouette_error >= decisions[0].level.silhouette_error);
+    let object = |t: [f64; 3], extra: &str| {
+        format!(
+            r#"{{"type": "lightfield", "asset": "cal.lfa", "transform": {{"translation": [{}, {}, {}]}}, {extra}}}"#,
+            t[0], t[1], t[2]
+        )
+    };
+    let auto = r#""auto_lod": {"blend_band": 0}"#;
+    let scene_auto = format!(
+        r#"{{"objects": [{}, {}]}}"#,
+        object([0.0; 3], auto),
+        object(far_shift, auto)
+    );
+    let pinned = |d: &lumigraph_core::lod::LodDecision| {
+        format!(
+            r#""options": {{"lod": {}, "step": {}}}"#,
+            d.level.cameras, d.level.step
+        )
+    };
+    let scene_pinned = format!(
+        r#"{{"objects": [{}, {}]}}"#,
+        object([0.0; 3], &pinned(&decisions[0])),
+        object(far_shift, &pinned(&decisions[1]))
+    );
+    let render = |json: &str| {
+        Scene::from_json(json, dir.path(), &ctx.renderer, &ctx.reference)
+            .expect("scene")
+            .render(&ctx.renderer, &ctx.reference, &view)
+            .expect("render")
+    };
+    let (a, b) = (render(&scene_auto), render(&scene_pinned));
+    assert!(a.covered_count() > 100);
+    assert_eq!(a.color, b.color);
+    assert_eq!(a.depth, b.depth);
+    // Bad policies name the object.
+    let bad = format!(
+        r#"{{"objects": [{}]}}"#,
+        object([0.0; 3], r#""auto_lod": {"max_error_px": -1}"#)
+    );
+    let err = Scene::from_json(&bad, dir.path(), &ctx.renderer, &ctx.reference)
+        .err()
+        .expect("refused");
+    assert!(err.to_string().contains("object 0"), "{err}");
+    assert!(err.to_string().contains("max_error_px"), "{err}");
+}
+
+#[test]
+fn blended_render_dithers_between_two_settings_in_one_pass() {
+    let ctx = ctx();
+    let field = ctx.renderer.upload(&ctx.asset).expect("upload");
+    let view = view_at(&ctx.asset, 100.0, 96, 1.9);
+    let a = RenderOptions {
+        lod: Some(12),
+        step: Some(1.0 / 8.0),
+        ..RenderOptions::default()
+    };
+    let b = RenderOptions {
+        lod: Some(42),
+        step: Some(1.0 / 32.0),
+        ..RenderOptions::default()
+    };
+    let r = &ctx.renderer;
+    let fa = r.render(&field, &view, &a).expect("a");
+    let fb = r.render(&field, &view, &b).expect("b");
+    let blend = |w: f32| r.render_blend(&field, &view, &a, &b, w).expect("blend");
+    // Weights 0 and 1 are the plain renders, bit for bit.
+    let (b0, b1) = (blend(0.0), blend(1.0));
+    assert_eq!((&b0.color, &b0.depth), (&fa.color, &fa.depth));
+    assert_eq!((&b1.color, &b1.depth), (&fb.color, &fb.depth));
+    // In between, every pixel is exactly a's or b's, and b's pixels follow the 4×4 ordered
+    // dither: rank (x ^ y, y interleaved and bit-reversed) + ½ below 16·w.
+    let bayer = |x: usize, y: usize| {
+        let (p, q) = ((x ^ y) & 3, y & 3);
+        ((p & 1) << 3) | ((q & 1) << 2) | (((p >> 1) & 1) << 1) | ((q >> 1) & 1)
+    };
+    for w in [0.25_f32, 0.5, 0.8] {
+        let f = blend(w);
+        let width = f.width as usize;
+        let mut from_b = 0;
+        let mut differing = 0_usize;
+        for k in 0..f.depth.len() {
+            let use_b = (bayer(k % width, k / width) as f32 + 0.5) / 16.0 < w;
+            let src = if use_b { &fb } else { &fa };
+            assert_eq!(
+                f.color[4 * k..4 * k + 4],
+                src.color[4 * k..4 * k + 4],
+                "pixel {k}"
+            );
+            assert_eq!(f.depth[k].to_bits(), src.depth[k].to_bits(), "pixel {k}");
+            if fa.color[4 * k..4 * k + 4] != fb.color[4 * k..4 * k + 4] {
+                differing += 1;
+                from_b += usize::from(use_b);
+            }
+        }
+        let share = from_b as f64 / differing.max(1) as f64;
+        assert!(differing > 50, "{differing}");
+        assert!((share - f64::from(w)).abs() < 0.15, "w {w}: share {share}");
+    }
+    for bad in [-0.1, 1.5, f32::NAN] {
+        let err = r
+            .render_blend(&field, &view, &a, &b, bad)
+            .expect_err("refused");
+        assert!(err.to_string().contains("blend weight"), "{err}");
+    }
 }

@@ -177,13 +177,14 @@ impl PyLightField {
 fn lod_policy(
     auto_lod: Option<f64>,
     lod_min_psnr: Option<f64>,
+    lod_max_psnr_drop: Option<f64>,
     lod_blend: Option<f64>,
     goal: Option<&Goal>,
 ) -> PyResult<Option<LodPolicy>> {
     let Some(max_error_px) = auto_lod else {
-        if lod_min_psnr.is_some() || lod_blend.is_some() {
+        if lod_min_psnr.is_some() || lod_max_psnr_drop.is_some() || lod_blend.is_some() {
             return Err(PyValueError::new_err(
-                "lod_min_psnr / lod_blend need auto_lod",
+                "lod_min_psnr / lod_max_psnr_drop / lod_blend need auto_lod",
             ));
         }
         return Ok(None);
@@ -196,6 +197,9 @@ fn lod_policy(
     Ok(Some(LodPolicy {
         max_error_px,
         min_psnr: lod_min_psnr,
+        max_psnr_drop: Some(
+            lod_max_psnr_drop.unwrap_or(lumigraph_core::lod::DEFAULT_MAX_PSNR_DROP),
+        ),
         blend_band: lod_blend.unwrap_or(lumigraph_core::lod::DEFAULT_BLEND_BAND),
     }))
 }
@@ -405,7 +409,7 @@ impl PyLightField {
         Ok(d)
     }
 
-    /// render(view, *, lod=None, step=None, tolerance=None, method="default", background=None, target_psnr=None, budget_ms=None, auto_lod=None, lod_min_psnr=None, lod_blend=None) -> Frame
+    /// render(view, *, lod=None, step=None, tolerance=None, method="default", background=None, target_psnr=None, budget_ms=None, auto_lod=None, lod_min_psnr=None, lod_max_psnr_drop=None, lod_blend=None) -> Frame
     ///
     /// Renders one view with depth-corrected ray casting on the GPU (GIL released).
     ///
@@ -428,13 +432,15 @@ impl PyLightField {
     ///         error at the object's projected size stays under this many pixels (1.0 is a
     ///         good start); explicit ``lod``/``step`` are kept. See :meth:`choose_lod`.
     ///     lod_min_psnr: with auto_lod, only settings whose calibrated masked PSNR reaches it.
+    ///     lod_max_psnr_drop: with auto_lod, only settings within this many dB of the most
+    ///         accurate level's calibrated masked PSNR (default 2; ``math.inf``: no limit).
     ///     lod_blend: with auto_lod, the cross-fade band below each switch as a fraction of
     ///         the projected size (default 0.15; 0 = hard switches).
     ///
     /// Raises:
     ///     ValueError: a bad view or option. TypeError: an argument of the wrong type.
     ///     AssetError: a corrupt page. RenderError: the device failed.
-    #[pyo3(signature = (view, *, lod = None, step = None, tolerance = None, method = "default", background = None, target_psnr = None, budget_ms = None, auto_lod = None, lod_min_psnr = None, lod_blend = None))]
+    #[pyo3(signature = (view, *, lod = None, step = None, tolerance = None, method = "default", background = None, target_psnr = None, budget_ms = None, auto_lod = None, lod_min_psnr = None, lod_max_psnr_drop = None, lod_blend = None))]
     fn render(
         &self,
         py: Python<'_>,
@@ -448,12 +454,19 @@ impl PyLightField {
         budget_ms: Option<f64>,
         auto_lod: Option<f64>,
         lod_min_psnr: Option<f64>,
+        lod_max_psnr_drop: Option<f64>,
         lod_blend: Option<f64>,
     ) -> PyResult<PyFrame> {
         let view = view::parse_view(view)?;
         let options = render_options(lod, step, tolerance, method)?;
         let goal = goal_of(target_psnr, budget_ms, &options)?;
-        let policy = lod_policy(auto_lod, lod_min_psnr, lod_blend, goal.as_ref())?;
+        let policy = lod_policy(
+            auto_lod,
+            lod_min_psnr,
+            lod_max_psnr_drop,
+            lod_blend,
+            goal.as_ref(),
+        )?;
         let background = background.map(parse_background).transpose()?;
         if let Some(policy) = policy {
             let ladder = self.ladder(&policy, &options)?;
@@ -469,11 +482,11 @@ impl PyLightField {
             .ok_or_else(|| errors::RenderError::new_err("no frame rendered"))
     }
 
-    /// render_many(views, *, lod=None, step=None, tolerance=None, method="default", background=None, target_psnr=None, budget_ms=None, auto_lod=None, lod_min_psnr=None, lod_blend=None) -> list[Frame]
+    /// render_many(views, *, lod=None, step=None, tolerance=None, method="default", background=None, target_psnr=None, budget_ms=None, auto_lod=None, lod_min_psnr=None, lod_max_psnr_drop=None, lod_blend=None) -> list[Frame]
     ///
     /// Renders a batch of views (a list of :class:`View` or dicts) with one release of the GIL;
     /// options as in :meth:`render`. Every view is validated before any is rendered.
-    #[pyo3(signature = (views, *, lod = None, step = None, tolerance = None, method = "default", background = None, target_psnr = None, budget_ms = None, auto_lod = None, lod_min_psnr = None, lod_blend = None))]
+    #[pyo3(signature = (views, *, lod = None, step = None, tolerance = None, method = "default", background = None, target_psnr = None, budget_ms = None, auto_lod = None, lod_min_psnr = None, lod_max_psnr_drop = None, lod_blend = None))]
     fn render_many(
         &self,
         py: Python<'_>,
@@ -487,12 +500,19 @@ impl PyLightField {
         budget_ms: Option<f64>,
         auto_lod: Option<f64>,
         lod_min_psnr: Option<f64>,
+        lod_max_psnr_drop: Option<f64>,
         lod_blend: Option<f64>,
     ) -> PyResult<Vec<PyFrame>> {
         let views = view::parse_views(views)?;
         let options = render_options(lod, step, tolerance, method)?;
         let goal = goal_of(target_psnr, budget_ms, &options)?;
-        let policy = lod_policy(auto_lod, lod_min_psnr, lod_blend, goal.as_ref())?;
+        let policy = lod_policy(
+            auto_lod,
+            lod_min_psnr,
+            lod_max_psnr_drop,
+            lod_blend,
+            goal.as_ref(),
+        )?;
         if let Some(policy) = policy {
             let ladder = self.ladder(&policy, &options)?;
             for v in &views {
@@ -544,7 +564,7 @@ impl PyLightField {
         Ok(out)
     }
 
-    /// choose_lod(view, *, auto_lod=1.0, lod_min_psnr=None, lod_blend=None, lod=None, step=None, tolerance=None) -> dict
+    /// choose_lod(view, *, auto_lod=1.0, lod_min_psnr=None, lod_max_psnr_drop=None, lod_blend=None, lod=None, step=None, tolerance=None) -> dict
     ///
     /// What :meth:`render` with ``auto_lod`` would use for this view: ``{"projected_px",
     /// "cameras", "step", "error_px", "met", "predicted_psnr", "predicted_ms", "blend"}``.
@@ -554,13 +574,14 @@ impl PyLightField {
     ///
     /// Raises:
     ///     ValueError: a bad view or policy, no calibration, or no level left.
-    #[pyo3(signature = (view, *, auto_lod = 1.0, lod_min_psnr = None, lod_blend = None, lod = None, step = None, tolerance = None))]
+    #[pyo3(signature = (view, *, auto_lod = 1.0, lod_min_psnr = None, lod_max_psnr_drop = None, lod_blend = None, lod = None, step = None, tolerance = None))]
     fn choose_lod<'py>(
         &self,
         py: Python<'py>,
         view: &Bound<'_, PyAny>,
         auto_lod: f64,
         lod_min_psnr: Option<f64>,
+        lod_max_psnr_drop: Option<f64>,
         lod_blend: Option<f64>,
         lod: Option<u32>,
         step: Option<f32>,
@@ -568,8 +589,14 @@ impl PyLightField {
     ) -> PyResult<Bound<'py, PyDict>> {
         let view = view::parse_view(view)?;
         let options = render_options(lod, step, tolerance, "default")?;
-        let policy = lod_policy(Some(auto_lod), lod_min_psnr, lod_blend, None)?
-            .ok_or_else(|| PyValueError::new_err("auto_lod is required"))?;
+        let policy = lod_policy(
+            Some(auto_lod),
+            lod_min_psnr,
+            lod_max_psnr_drop,
+            lod_blend,
+            None,
+        )?
+        .ok_or_else(|| PyValueError::new_err("auto_lod is required"))?;
         let ladder = self.ladder(&policy, &options)?;
         let basis = view
             .basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX)

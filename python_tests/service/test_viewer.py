@@ -133,4 +133,12 @@ def test_viewer_wheel_zoom_and_settings(server: Server, page: Page) -> None:
     page.wait_for_function(
         "window.lumigraphViewer.last.codec === 0 && window.lumigraphViewer.last.quality === 1",
         timeout=30_000)
+    # Automatic LOD on: the next full frame arrives and no error is shown.
+    frame_id = last(page)["frameId"]
+    page.fill("#auto_lod", "1")
+    page.dispatch_event("#auto_lod", "change")
+    page.wait_for_function(
+        f"window.lumigraphViewer.last.frameId > {frame_id}"
+        " && window.lumigraphViewer.last.quality === 1", timeout=30_000)
+    assert not page.locator("#error").is_visible(), page.locator("#error").inner_text()
     assert not page.errors, page.errors  # type: ignore[attr-defined]

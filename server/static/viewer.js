@@ -87,6 +87,7 @@
       method: $("method").value,
       step: numberOrNull($("step")),
       tolerance: numberOrNull($("tolerance")),
+      auto_lod: numberOrNull($("auto_lod")),
       still_codec: $("still_codec").value,
       interactive: $("interactive").checked,
       target_fps: numberOrNull($("target_fps")) || 20,
@@ -259,7 +260,7 @@
   canvas.addEventListener("dblclick", () => { resetCamera(); requestView(false); });
   window.addEventListener("resize", () => requestView(false));
 
-  for (const id of ["lod", "method", "step", "tolerance", "still_codec", "interactive", "target_fps", "rest_ms", "background"]) {
+  for (const id of ["lod", "method", "step", "tolerance", "auto_lod", "still_codec", "interactive", "target_fps", "rest_ms", "background"]) {
     $(id).addEventListener("change", () => { sendSettings(); requestView(false); });
   }
   $("asset").addEventListener("change", (e) => connect(e.target.value));

@@ -731,6 +731,53 @@ async fn bake_jobs() {
     .await;
     assert_eq!(unreachable.status, StatusCode::OK);
     assert_eq!(unreachable.header("x-goal-met"), "false");
+    // Automatic LOD reports its decision; pinned knobs stay.
+    let auto = post_json(
+        &state,
+        "/v1/assets/baked/render",
+        serde_json::json!({"view": view_json(16, 16), "auto_lod": 1.0, "lod": 12}).to_string(),
+    )
+    .await;
+    assert_eq!(
+        auto.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&auto.body)
+    );
+    assert_eq!(auto.header("x-chosen-cameras"), "12");
+    for name in ["x-projected-px", "x-predicted-error-px", "x-chosen-step"] {
+        assert!(
+            auto.header(name).parse::<f64>().is_ok_and(|v| v > 0.0),
+            "{name}: {}",
+            auto.header(name)
+        );
+    }
+    for (body, needle) in [
+        (
+            serde_json::json!({"view": view_json(8, 8), "auto_lod": 1.0, "budget_ms": 10.0}),
+            "not both",
+        ),
+        (
+            serde_json::json!({"view": view_json(8, 8), "auto_lod": 0.0}),
+            "max_error_px",
+        ),
+        (
+            serde_json::json!({"view": view_json(8, 8), "lod_blend": 0.1}),
+            "need auto_lod",
+        ),
+        (
+            serde_json::json!({"view": view_json(8, 8), "auto_lod": 1.0, "method": "fixed"}),
+            "default-method",
+        ),
+    ] {
+        let reply = post_json(&state, "/v1/assets/baked/render", body.to_string()).await;
+        assert_eq!(reply.status, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+        assert!(
+            String::from_utf8_lossy(&reply.body).contains(needle),
+            "{body}: {}",
+            String::from_utf8_lossy(&reply.body)
+        );
+    }
     for (body, needle) in [
         (
             serde_json::json!({"view": view_json(8, 8), "budget_ms": 10.0, "target_psnr": 20.0}),
@@ -1115,6 +1162,47 @@ async fn websocket_goals_choose_full_quality_settings() {
         (header.request_id, header.width, header.height),
         (5, 40, 24)
     );
+    assert!(is_png(&image));
+    // Automatic LOD instead of the goal (cleared with null); with a goal it is refused.
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "settings", "auto_lod": 1.0}),
+    )
+    .await;
+    let error = next_json(&mut ws).await;
+    assert!(
+        error["message"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("not both"),
+        "{error}"
+    );
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "settings", "target_psnr": null, "auto_lod": 1.0, "lod_blend": 0.0}),
+    )
+    .await;
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "view", "id": 6, "view": view_json(40, 24)}),
+    )
+    .await;
+    // A settings change re-renders the current view (request 5) first; acknowledge frames so
+    // flow control lets the next one through.
+    let mut answer = next_frame(&mut ws).await;
+    for _ in 0..4 {
+        send_json(
+            &mut ws,
+            serde_json::json!({"type": "ack", "frame": answer.0.frame_id}),
+        )
+        .await;
+        if answer.0.request_id == 6 {
+            break;
+        }
+        answer = next_frame(&mut ws).await;
+    }
+    let (header, image) = answer;
+    assert_eq!((header.request_id, header.width), (6, 40));
     assert!(is_png(&image));
     ws.close(None).await.expect("close");
 

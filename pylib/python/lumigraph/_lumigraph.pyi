@@ -139,6 +139,7 @@ class LightField:
         budget_ms: float | None = None,
         auto_lod: float | None = None,
         lod_min_psnr: float | None = None,
+        lod_max_psnr_drop: float | None = None,
         lod_blend: float | None = None,
     ) -> Frame: ...
     def render_many(
@@ -154,6 +155,7 @@ class LightField:
         budget_ms: float | None = None,
         auto_lod: float | None = None,
         lod_min_psnr: float | None = None,
+        lod_max_psnr_drop: float | None = None,
         lod_blend: float | None = None,
     ) -> list[Frame]: ...
     def choose(
@@ -169,6 +171,7 @@ class LightField:
         *,
         auto_lod: float = 1.0,
         lod_min_psnr: float | None = None,
+        lod_max_psnr_drop: float | None = None,
         lod_blend: float | None = None,
         lod: int | None = None,
         step: float | None = None,

@@ -180,6 +180,15 @@ pub struct QualityArgs {
         allow_hyphen_values = true
     )]
     pub lod_min_psnr: Option<f64>,
+    /// With --auto-lod: only settings within DB of the most accurate level's calibrated masked
+    /// PSNR (default 2; inf: no limit).
+    #[arg(
+        long,
+        value_name = "DB",
+        requires = "auto_lod",
+        allow_hyphen_values = true
+    )]
+    pub lod_max_psnr_drop: Option<f64>,
     /// With --auto-lod: cross-fade band below each switch, as a fraction of the projected size
     /// (default 0.25; 0 = hard switches).
     #[arg(
@@ -217,6 +226,10 @@ impl QualityArgs {
         let policy = LodPolicy {
             max_error_px,
             min_psnr: self.lod_min_psnr,
+            max_psnr_drop: Some(
+                self.lod_max_psnr_drop
+                    .unwrap_or(lumigraph_core::lod::DEFAULT_MAX_PSNR_DROP),
+            ),
             blend_band: self
                 .lod_blend
                 .unwrap_or(lumigraph_core::lod::DEFAULT_BLEND_BAND),

@@ -6,6 +6,7 @@ use std::time::Instant;
 
 use lumigraph_core::frame::Frame;
 use lumigraph_core::image_io;
+use lumigraph_core::lod::{Ladder, LodDecision, LodError, LodPolicy};
 use lumigraph_core::render::{Method, RenderOptions, Renderer};
 use lumigraph_core::tradeoff::{Calibration, Goal, TradeoffError};
 use lumigraph_core::view::View;
@@ -140,6 +141,75 @@ pub fn goal_calibration(
     Ok(Some((goal, Arc::new(calibration))))
 }
 
+/// The automatic-LOD ladder of a render request or stream session (`auto_lod` = the bound on
+/// the predicted silhouette error in pixels, with an optional PSNR floor and blend band); the
+/// knobs sent as well stay pinned. `None` without `auto_lod`.
+pub fn lod_ladder(
+    auto_lod: Option<f64>,
+    lod_min_psnr: Option<f64>,
+    lod_max_psnr_drop: Option<f64>,
+    lod_blend: Option<f64>,
+    knobs: &Knobs,
+    has_goal: bool,
+    asset: &LoadedAsset,
+) -> Result<Option<Arc<Ladder>>, AppError> {
+    let Some(max_error_px) = auto_lod else {
+        if lod_min_psnr.is_some() || lod_max_psnr_drop.is_some() || lod_blend.is_some() {
+            return Err(AppError::Invalid(
+                "lod_min_psnr / lod_max_psnr_drop / lod_blend need auto_lod".to_owned(),
+            ));
+        }
+        return Ok(None);
+    };
+    if has_goal {
+        return Err(AppError::Invalid(
+            "give auto_lod or target_psnr / budget_ms, not both".to_owned(),
+        ));
+    }
+    let policy = LodPolicy {
+        max_error_px,
+        min_psnr: lod_min_psnr,
+        max_psnr_drop: Some(
+            lod_max_psnr_drop.unwrap_or(lumigraph_core::lod::DEFAULT_MAX_PSNR_DROP),
+        ),
+        blend_band: lod_blend.unwrap_or(lumigraph_core::lod::DEFAULT_BLEND_BAND),
+    };
+    let options = knobs.to_options(asset)?;
+    let calibration = Calibration::from_quality(asset.header.quality.as_ref())
+        .map_err(|e| AppError::Invalid(e.to_string()))?
+        .ok_or_else(|| {
+            AppError::Invalid(format!(
+                "asset {} has no calibration: bake it with calibrate=true (the default of POST \
+                 /v1/bake and `lumigraph bake`) to render with auto_lod",
+                asset.id
+            ))
+        })?;
+    Ladder::new(
+        &calibration,
+        &policy,
+        asset.header.geometry.camera_count,
+        &options,
+    )
+    .map(|l| Some(Arc::new(l)))
+    .map_err(lod_error)
+}
+
+fn lod_error(err: LodError) -> AppError {
+    match err {
+        LodError::Render(e) => render_error(e),
+        other => AppError::Invalid(other.to_string()),
+    }
+}
+
+/// What a render runs: fixed options, or automatic LOD.
+#[derive(Clone, Debug)]
+pub enum Plan {
+    /// These options.
+    Options(RenderOptions),
+    /// The ladder's choice for the view's projected size (two renders inside a blend band).
+    Lod(Arc<Ladder>),
+}
+
 /// How a colour frame is encoded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Encoding {
@@ -260,6 +330,8 @@ pub struct Rendered {
     pub frame: Frame,
     /// Wall-clock render time including queueing on the device, milliseconds.
     pub render_ms: f64,
+    /// The automatic-LOD decision, for [`Plan::Lod`].
+    pub lod: Option<LodDecision>,
 }
 
 impl RenderPool {
@@ -277,12 +349,12 @@ impl RenderPool {
         &self.renderer
     }
 
-    /// Renders `view` of `asset`; 503 when the queue is full.
+    /// Renders `view` of `asset` as `plan` says; 503 when the queue is full.
     pub async fn render(
         &self,
         asset: Arc<LoadedAsset>,
         view: View,
-        options: RenderOptions,
+        plan: Plan,
     ) -> Result<Rendered, AppError> {
         let _queued = self.queue.clone().try_acquire_owned().map_err(|_| {
             AppError::Unavailable("the render queue is full; retry shortly".to_owned())
@@ -296,14 +368,27 @@ impl RenderPool {
         let renderer = Arc::clone(&self.renderer);
         let result = tokio::task::spawn_blocking(move || {
             let start = Instant::now();
-            let frame = renderer.render(&asset.field, &view, &options);
+            let frame = match plan {
+                Plan::Options(options) => renderer
+                    .render(&asset.field, &view, &options)
+                    .map(|f| (f, None))
+                    .map_err(render_error),
+                Plan::Lod(ladder) => ladder
+                    .render_auto(&renderer, &asset.field, &view)
+                    .map(|(f, d)| (f, Some(d)))
+                    .map_err(lod_error),
+            };
             (frame, start.elapsed().as_secs_f64() * 1e3)
         })
         .await
         .map_err(|e| AppError::Internal(anyhow::Error::new(e).context("render task failed")))?;
         let (frame, render_ms) = result;
-        let frame = frame.map_err(render_error)?;
-        Ok(Rendered { frame, render_ms })
+        let (frame, lod) = frame?;
+        Ok(Rendered {
+            frame,
+            render_ms,
+            lod,
+        })
     }
 }
 

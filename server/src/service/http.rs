@@ -21,8 +21,8 @@ use tokio::io::AsyncWriteExt as _;
 use super::assets::{AssetSummary, LoadedAsset, load_file, validate_id};
 use super::error::{AppError, ErrorBody, ErrorKind};
 use super::frames::{
-    ColorFormat, DepthFormat, Encoding, Knobs, encode_blocking, encode_color, encode_depth,
-    goal_calibration,
+    ColorFormat, DepthFormat, Encoding, Knobs, Plan, encode_blocking, encode_color, encode_depth,
+    goal_calibration, lod_ladder,
 };
 use super::jobs::{JobState, JobStatus};
 use super::{AppState, random_id};
@@ -312,6 +312,20 @@ pub struct RenderRequest {
     /// Instead of the knobs: the most accurate setting predicted to render within this many
     /// milliseconds at the view's size (same response headers).
     pub budget_ms: Option<f64>,
+    /// Automatic LOD: the cheapest cameras and step whose calibrated silhouette error at the
+    /// object's projected size stays under this many pixels (knobs sent as well stay pinned).
+    /// The decision comes back in `X-Projected-Px`, `X-Chosen-Cameras`, `X-Chosen-Step`,
+    /// `X-Predicted-Error-Px`, `X-Predicted-Psnr`, `X-Goal-Met` and, inside a cross-fade band,
+    /// `X-Lod-Blend: CAMERAS,STEP,WEIGHT`.
+    pub auto_lod: Option<f64>,
+    /// With `auto_lod`: only settings whose calibrated masked PSNR reaches this (dB).
+    pub lod_min_psnr: Option<f64>,
+    /// With `auto_lod`: only settings within this many dB of the most accurate level's
+    /// calibrated masked PSNR (default 2; a large value lifts the limit).
+    pub lod_max_psnr_drop: Option<f64>,
+    /// With `auto_lod`: cross-fade band below each switch, as a fraction of the projected size
+    /// (default 0.15; 0 = hard switches).
+    pub lod_blend: Option<f64>,
 }
 
 fn ms_header(value: f64) -> HeaderValue {
@@ -362,10 +376,23 @@ pub async fn render_asset(
         tolerance: request.tolerance,
         method: request.method,
     };
-    let goal = goal_calibration(request.target_psnr, request.budget_ms, &knobs, &asset)?;
-    let (options, choice) = match goal {
-        None => (knobs.to_options(&asset)?, None),
-        Some((goal, calibration)) => {
+    let ladder = lod_ladder(
+        request.auto_lod,
+        request.lod_min_psnr,
+        request.lod_max_psnr_drop,
+        request.lod_blend,
+        &knobs,
+        request.target_psnr.is_some() || request.budget_ms.is_some(),
+        &asset,
+    )?;
+    let goal = match ladder {
+        Some(_) => None,
+        None => goal_calibration(request.target_psnr, request.budget_ms, &knobs, &asset)?,
+    };
+    let (plan, choice) = match (goal, ladder) {
+        (_, Some(ladder)) => (Plan::Lod(ladder), None),
+        (None, None) => (Plan::Options(knobs.to_options(&asset)?), None),
+        (Some((goal, calibration)), None) => {
             let choice = calibration
                 .choose(
                     goal,
@@ -374,13 +401,14 @@ pub async fn render_asset(
                     asset.header.geometry.camera_count,
                 )
                 .map_err(|e| AppError::Invalid(e.to_string()))?;
-            (choice.options(), Some(choice))
+            (Plan::Options(choice.options()), Some(choice))
         }
     };
     let rendered = state
         .pool()
-        .render(Arc::clone(&asset), request.view.clone(), options)
+        .render(Arc::clone(&asset), request.view.clone(), plan)
         .await?;
+    let lod = rendered.lod;
     let encoding = Encoding {
         format: request.format,
         quality,
@@ -420,8 +448,26 @@ pub async fn render_asset(
         HeaderValue::from(height),
     );
     headers.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    let text = |v: String| HeaderValue::from_str(&v).unwrap_or(HeaderValue::from_static("?"));
+    if let Some(d) = lod {
+        for (name, value) in [
+            ("x-projected-px", format!("{:.2}", d.projected_px)),
+            ("x-chosen-cameras", d.level.cameras.to_string()),
+            ("x-chosen-step", d.level.step.to_string()),
+            ("x-predicted-error-px", format!("{:.3}", d.error_px)),
+            ("x-predicted-psnr", format!("{:.3}", d.level.masked_psnr)),
+            ("x-goal-met", d.met.to_string()),
+        ] {
+            headers.insert(HeaderName::from_static(name), text(value));
+        }
+        if let Some((next, w)) = d.blend {
+            headers.insert(
+                HeaderName::from_static("x-lod-blend"),
+                text(format!("{},{},{w:.4}", next.cameras, next.step)),
+            );
+        }
+    }
     if let Some(c) = choice {
-        let text = |v: String| HeaderValue::from_str(&v).unwrap_or(HeaderValue::from_static("?"));
         headers.insert(
             HeaderName::from_static("x-chosen-cameras"),
             HeaderValue::from(c.cameras),

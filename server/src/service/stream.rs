@@ -26,8 +26,9 @@ use super::AppState;
 use super::assets::{AssetSummary, LoadedAsset};
 use super::error::AppError;
 use super::frames::{
-    ColorFormat, Encoding, Knobs, encode_blocking, encode_color, goal_calibration,
+    ColorFormat, Encoding, Knobs, Plan, encode_blocking, encode_color, goal_calibration, lod_ladder,
 };
+use lumigraph_core::lod::Ladder;
 use lumigraph_core::tradeoff::{Calibration, Goal};
 
 /// Version of the stream protocol, sent in `hello`.
@@ -139,6 +140,20 @@ pub struct Settings {
     /// ms at the frame's size; excludes the knobs and `target_psnr`.
     #[serde(default)]
     pub budget_ms: Option<f64>,
+    /// Automatic LOD for every frame (interactive frames, smaller, may take coarser levels):
+    /// the bound on the predicted silhouette error in pixels; the knobs stay pinned; excludes
+    /// `target_psnr` / `budget_ms`.
+    #[serde(default)]
+    pub auto_lod: Option<f64>,
+    /// With `auto_lod`: only settings whose calibrated masked PSNR reaches this (dB).
+    #[serde(default)]
+    pub lod_min_psnr: Option<f64>,
+    /// With `auto_lod`: only settings within this many dB of the most accurate level (default 2).
+    #[serde(default)]
+    pub lod_max_psnr_drop: Option<f64>,
+    /// With `auto_lod`: cross-fade band below each switch (fraction of the projected size).
+    #[serde(default)]
+    pub lod_blend: Option<f64>,
 }
 
 impl Settings {
@@ -163,6 +178,10 @@ impl Settings {
             state: None,
             target_psnr: None,
             budget_ms: None,
+            auto_lod: None,
+            lod_min_psnr: None,
+            lod_max_psnr_drop: None,
+            lod_blend: None,
         }
     }
 }
@@ -180,6 +199,8 @@ struct Effective {
     opacity: f32,
     /// A quality or time goal for full-quality frames, with the calibration that serves it.
     goal: Option<(Goal, Arc<Calibration>)>,
+    /// Automatic LOD for every frame.
+    ladder: Option<Arc<Ladder>>,
 }
 
 fn validate_settings(settings: Settings, asset: &LoadedAsset) -> Result<Effective, String> {
@@ -262,6 +283,16 @@ fn validate_settings(settings: Settings, asset: &LoadedAsset) -> Result<Effectiv
         tolerance: s.tolerance,
         method: s.method,
     };
+    let ladder = lod_ladder(
+        s.auto_lod,
+        s.lod_min_psnr,
+        s.lod_max_psnr_drop,
+        s.lod_blend,
+        &knobs,
+        s.target_psnr.is_some() || s.budget_ms.is_some(),
+        asset,
+    )
+    .map_err(|e| e.to_string())?;
     let goal =
         goal_calibration(s.target_psnr, s.budget_ms, &knobs, asset).map_err(|e| e.to_string())?;
     if let Some((goal, calibration)) = &goal {
@@ -286,6 +317,7 @@ fn validate_settings(settings: Settings, asset: &LoadedAsset) -> Result<Effectiv
         opacity,
         settings,
         goal,
+        ladder,
     })
 }
 
@@ -681,10 +713,14 @@ impl Sender<'_> {
             view.width = ((f64::from(view.width) * scale).round() as u32).max(1);
             view.height = ((f64::from(view.height) * scale).round() as u32).max(1);
         }
+        let plan = match &effective.ladder {
+            Some(ladder) => Plan::Lod(Arc::clone(ladder)),
+            None => Plan::Options(options),
+        };
         let rendered = match self
             .state
             .pool()
-            .render(Arc::clone(self.asset), view, options)
+            .render(Arc::clone(self.asset), view, plan)
             .await
         {
             Ok(r) => r,
@@ -708,6 +744,7 @@ impl Sender<'_> {
                     .map_or(sample, |old| 0.7 * old + 0.3 * sample),
             );
         }
+        let lod_cameras = rendered.lod.map(|d| d.level.cameras);
         let opacity = effective.opacity;
         let mut frame = rendered.frame;
         let encoded = encode_blocking(move || {
@@ -741,7 +778,7 @@ impl Sender<'_> {
             render_ms: rendered.render_ms as f32,
             encode_ms: encode_ms as f32,
             dropped: u32::try_from(self.dropped).unwrap_or(u32::MAX),
-            cameras: u16::try_from(cameras).unwrap_or(u16::MAX),
+            cameras: u16::try_from(lod_cameras.unwrap_or(cameras)).unwrap_or(u16::MAX),
         };
         let mut message = Vec::with_capacity(FRAME_HEADER_LEN + bytes.len());
         header.write(&mut message);
