@@ -371,3 +371,17 @@ def test_auto_lod_picks_by_projected_size_and_renders_the_choice(
     plain = lg.bake_mesh(demo_mesh, cameras=12, resolution=32, progress=False)
     with pytest.raises(ValueError, match="calibrate=True"):
         plain.render(view, auto_lod=1.0)
+
+
+def test_guide_renders_the_same_scene_with_less_work(demo_lf: lg.LightField) -> None:
+    view = _view_at(demo_lf, 150.0, 128)
+    plain = demo_lf.render(view)
+    guided = demo_lf.render(view, guide=4)
+    # Coverage within 2 % and the work (fetches, coarse pass included) lower.
+    assert abs(int(guided.coverage.sum()) - int(plain.coverage.sum())) <= 0.02 * plain.coverage.sum()
+    assert guided.stats["fetches"] < plain.stats["fetches"]
+    for bad in (1, 17):
+        with pytest.raises(ValueError, match="guide"):
+            demo_lf.render(view, guide=bad)
+    with pytest.raises(ValueError, match="default method"):
+        demo_lf.render(view, guide=4, method="fixed")

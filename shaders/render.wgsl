@@ -21,7 +21,9 @@ struct RenderParams {
     // Weight of the second setting (`*_b`): a pixel whose 4×4 ordered-dither threshold is below
     // it renders with that setting (a dithered cross-fade between two levels in one pass).
     blend: f32,
-    pad1: f32,
+    // Coarse-to-fine guidance (0 = off): this pass is `coarse_factor` times finer than the
+    // coarse pass whose z-depths `coarse` holds (coarse_width × coarse_height, −1 = miss).
+    coarse_factor: u32,
     pad2: f32,
     // Box around every surface point the maps hold (see `visible_box` in render.rs).
     box_min: vec3<f32>,
@@ -33,8 +35,8 @@ struct RenderParams {
     tolerance_b: f32,
     max_steps_b: u32,
     method_b: u32,
-    pad5: u32,
-    pad6: u32,
+    coarse_width: u32,
+    coarse_height: u32,
     pad7: u32,
 }
 
@@ -42,6 +44,7 @@ struct RenderParams {
 @group(0) @binding(1) var<storage, read_write> out_color: array<u32>;
 @group(0) @binding(2) var<storage, read_write> out_depth: array<f32>;
 @group(0) @binding(3) var<storage, read_write> counters: array<atomic<u32>, 4>;
+@group(0) @binding(4) var<storage, read> coarse: array<f32>;
 
 @group(1) @binding(0) var<storage, read> cameras: array<Camera>;
 @group(1) @binding(1) var<storage, read> hierarchy: array<HierTriangle>;
@@ -279,6 +282,51 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         t_out = min(t_out, min(min(far.x, far.y), far.z));
         if t_in > t_out {
             return;
+        }
+        if params.coarse_factor > 0u {
+            // Coarse-to-fine (the `guide` knob): the 3×3 coarse pixels around this one bound
+            // where its surface can be. All nine missed: so does this pixel — a feature
+            // narrower than the coarse spacing can vanish, the knob's price. Else march from
+            // before the nearest of their hits to past the farthest.
+            let f = f32(params.coarse_factor);
+            let cw = i32(params.coarse_width);
+            let ch = i32(params.coarse_height);
+            let half_fine = 0.5 * vec2<f32>(f32(params.width), f32(params.height));
+            let half_coarse = 0.5 * vec2<f32>(f32(cw), f32(ch));
+            let c = (vec2<f32>(gid.xy) + 0.5 - half_fine) / f + half_coarse - 0.5;
+            let nearest = vec2<i32>(round(c));
+            var z_min = 1e30;
+            var z_max = -1e30;
+            var misses = 0u;
+            for (var dy = -1; dy <= 1; dy++) {
+                for (var dx = -1; dx <= 1; dx++) {
+                    let p = clamp(nearest + vec2<i32>(dx, dy), vec2<i32>(0), vec2<i32>(cw - 1, ch - 1));
+                    let z = coarse[p.y * cw + p.x];
+                    if z < 0.0 {
+                        misses += 1u;
+                    } else {
+                        z_min = min(z_min, z);
+                        z_max = max(z_max, z);
+                    }
+                }
+            }
+            if misses == 9u {
+                return;
+            }
+            // A step of margin plus the neighbourhood's own depth spread: on a steep or curved
+            // surface this pixel's depth can lie beyond its neighbours' range. Where some
+            // neighbours missed (a silhouette), three more steps past the farthest hit.
+            let dz = dot(d, params.forward) * params.depth_scale;
+            let margin = g_step + (z_max - z_min) / dz;
+            t_in = max(t_in, z_min / dz - margin);
+            if misses == 0u {
+                t_out = min(t_out, z_max / dz + margin);
+            } else {
+                t_out = min(t_out, z_max / dz + margin + 3.0 * g_step);
+            }
+            if t_in > t_out {
+                return;
+            }
         }
     }
     atomicAdd(&counters[2], 1u);

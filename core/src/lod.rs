@@ -25,8 +25,8 @@
 //!   pass ([`Renderer::render_blend`]), so the band costs no extra render and the image
 //!   changes a few pixels at a time as `P` changes (tested against a hard switch).
 //! - Explicit settings override: a pinned camera count or step restricts the choice to it (the
-//!   step's nearest calibrated value stands for it in the predictions); a pinned tolerance is
-//!   passed through.
+//!   step's nearest calibrated value stands for it in the predictions); a pinned tolerance or
+//!   coarse-to-fine `guide` is passed through.
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -171,6 +171,7 @@ pub struct Ladder {
     levels: Vec<Level>,
     policy: LodPolicy,
     tolerance: Option<f32>,
+    guide: Option<u32>,
 }
 
 /// What automatic LOD decided for one frame.
@@ -316,6 +317,7 @@ impl Ladder {
             levels: candidates,
             policy: *policy,
             tolerance: pinned.tolerance,
+            guide: pinned.guide,
         })
     }
 
@@ -408,13 +410,14 @@ impl Ladder {
         Ok(self.decide(projected_diameter_px(&basis, field.center, field.radius)))
     }
 
-    /// The render options of a level (default method, pinned tolerance if any).
+    /// The render options of a level (default method, pinned tolerance and guide if any).
     pub fn options(&self, level: &Level) -> RenderOptions {
         RenderOptions {
             lod: Some(level.cameras),
             step: Some(level.step),
             tolerance: self.tolerance,
             method: Method::Default,
+            guide: self.guide,
         }
     }
 

@@ -100,7 +100,15 @@ pub struct RenderOptions {
     pub tolerance: Option<f32>,
     /// Marching method.
     pub method: Method,
+    /// Coarse-to-fine guidance, default method only: first render every `guide`-th pixel per
+    /// axis (2–16), and let their hits bound each pixel's march; a pixel whose 3×3 coarse
+    /// neighbours all miss is skipped, so a feature narrower than about `guide` pixels can
+    /// vanish. `None` or 0: off.
+    pub guide: Option<u32>,
 }
+
+/// Largest coarse-to-fine factor ([`RenderOptions::guide`]).
+pub const MAX_GUIDE: u32 = 16;
 
 /// Options of [`Renderer::upload_with`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -122,6 +130,8 @@ pub struct ResolvedOptions {
     pub tolerance: f32,
     /// Method.
     pub method: Method,
+    /// Coarse-to-fine factor (0 = off).
+    pub guide: u32,
 }
 
 impl RenderOptions {
@@ -162,12 +172,24 @@ impl RenderOptions {
                 "tolerance {tolerance} must be finite and in (0, 1] bounding diameters"
             )));
         }
+        let guide = self.guide.unwrap_or(0);
+        if guide != 0 && !(2..=MAX_GUIDE).contains(&guide) {
+            return Err(RenderError::Option(format!(
+                "guide {guide}: use 0 (off) or a coarse factor 2 to {MAX_GUIDE}"
+            )));
+        }
+        if guide != 0 && self.method == Method::Fixed {
+            return Err(RenderError::Option(
+                "guide applies to the default method, not the fixed baseline".to_owned(),
+            ));
+        }
         Ok(ResolvedOptions {
             level,
             cameras: CAMERA_COUNTS[level as usize],
             step,
             tolerance,
             method: self.method,
+            guide,
         })
     }
 }
@@ -214,7 +236,8 @@ struct RenderParams {
     refine_iterations: u32,
     front_mass: f32,
     blend: f32,
-    pad: [f32; 2],
+    coarse_factor: u32,
+    pad: f32,
     box_min: [f32; 3],
     pad_min: f32,
     box_max: [f32; 3],
@@ -224,7 +247,9 @@ struct RenderParams {
     tolerance_b: f32,
     max_steps_b: u32,
     method_b: u32,
-    pad_b: [u32; 3],
+    coarse_width: u32,
+    coarse_height: u32,
+    pad_b: u32,
 }
 const _: () = assert!(std::mem::size_of::<RenderParams>() == 176);
 
@@ -252,15 +277,26 @@ impl ShaderSetting {
     }
 }
 
-/// Per-size output buffers, reused between frames of the same size.
+/// Per-size output buffers, reused between frames of the same size: the frame's own, and the
+/// coarse pass's (its colour is scratch, its depth guides the frame; both share the counters).
 struct Targets {
-    pixels: u64,
+    width: u32,
+    height: u32,
     uniform: wgpu::Buffer,
     color: wgpu::Buffer,
     depth: wgpu::Buffer,
     counters: wgpu::Buffer,
     readback: wgpu::Buffer,
     group: wgpu::BindGroup,
+    coarse_uniform: wgpu::Buffer,
+    coarse_group: wgpu::BindGroup,
+}
+
+/// Coarse-pass size for a frame guided with `factor`, or `None` when guidance is off or the
+/// frame is too small (under 4 coarse pixels a side).
+fn coarse_size(width: u32, height: u32, factor: u32) -> Option<(u32, u32)> {
+    (factor >= 2 && width >= 4 * factor && height >= 4 * factor)
+        .then(|| (width.div_ceil(factor), height.div_ceil(factor)))
 }
 
 /// The light-field render pipeline; one per process, shared by threads.
@@ -321,6 +357,7 @@ impl Renderer {
                 buffer_entry(1, storage),
                 buffer_entry(2, storage),
                 buffer_entry(3, storage),
+                buffer_entry(4, read_only),
             ],
         });
         let field_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -574,8 +611,11 @@ impl Renderer {
         })
     }
 
-    fn targets_for(&self, pixels: u64) -> Targets {
+    fn targets_for(&self, width: u32, height: u32) -> Targets {
         let device = &self.gpu.device;
+        let pixels = u64::from(width) * u64::from(height);
+        // Sized for the finest coarse pass (factor 2), so any factor fits.
+        let coarse_pixels = coarse_size(width, height, 2).map_or(1, |(w, h)| u64::from(w * h));
         let make = |label, size, usage| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -585,11 +625,9 @@ impl Renderer {
             })
         };
         let out = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
-        let uniform = make(
-            "render params",
-            std::mem::size_of::<RenderParams>() as u64,
-            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-        );
+        let uniform_usage = wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST;
+        let params_size = std::mem::size_of::<RenderParams>() as u64;
+        let uniform = make("render params", params_size, uniform_usage);
         let color = make("render colour", pixels * 4, out);
         let depth = make("render depth", pixels * 4, out);
         let counters = make("render counters", 16, out | wgpu::BufferUsages::COPY_DST);
@@ -598,36 +636,50 @@ impl Renderer {
             pixels * 8 + 16,
             wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
         );
-        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("render frame"),
-            layout: &self.frame_layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: uniform.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: color.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: depth.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: counters.as_entire_binding(),
-                },
+        let coarse_uniform = make("coarse params", params_size, uniform_usage);
+        let coarse_color = make("coarse colour", coarse_pixels * 4, out);
+        let coarse_depth = make("coarse depth", coarse_pixels * 4, out);
+        let unused = make("no guide", 16, wgpu::BufferUsages::STORAGE);
+        let group = |label, entries: [&wgpu::Buffer; 5]| {
+            let entries: Vec<wgpu::BindGroupEntry> = entries
+                .iter()
+                .enumerate()
+                .map(|(binding, buffer)| wgpu::BindGroupEntry {
+                    binding: binding as u32,
+                    resource: buffer.as_entire_binding(),
+                })
+                .collect();
+            device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some(label),
+                layout: &self.frame_layout,
+                entries: &entries,
+            })
+        };
+        let frame_group = group(
+            "render frame",
+            [&uniform, &color, &depth, &counters, &coarse_depth],
+        );
+        let coarse_group = group(
+            "render coarse pass",
+            [
+                &coarse_uniform,
+                &coarse_color,
+                &coarse_depth,
+                &counters,
+                &unused,
             ],
-        });
+        );
         Targets {
-            pixels,
+            width,
+            height,
             uniform,
             color,
             depth,
             counters,
             readback,
-            group,
+            group: frame_group,
+            coarse_uniform,
+            coarse_group,
         }
     }
 
@@ -665,7 +717,8 @@ impl Renderer {
                 "blend weight {weight} must be in [0, 1]"
             )));
         }
-        let first = ShaderSetting::of(&a.resolve(field.max_level)?);
+        let resolved_a = a.resolve(field.max_level)?;
+        let first = ShaderSetting::of(&resolved_a);
         let second = ShaderSetting::of(&b.resolve(field.max_level)?);
         let start = Instant::now();
         let lf_eye = (basis.eye - field.center) / field.scale;
@@ -691,7 +744,8 @@ impl Renderer {
             refine_iterations: REFINE_ITERATIONS,
             front_mass: FRONT_MASS,
             blend: weight,
-            pad: [0.0; 2],
+            coarse_factor: 0,
+            pad: 0.0,
             box_min: field.visible_box[0],
             pad_min: 0.0,
             box_max: field.visible_box[1],
@@ -701,28 +755,65 @@ impl Renderer {
             tolerance_b: second.tolerance,
             max_steps_b: second.max_steps,
             method_b: second.method,
-            pad_b: [0; 3],
+            coarse_width: 0,
+            coarse_height: 0,
+            pad_b: 0,
         };
+        // Coarse-to-fine (`guide`, the first setting's): a coarse pass renders every
+        // guide-th pixel per axis, and its depths bound each pixel's march (render.wgsl).
+        let guided = first.method != 0 && second.method != 0;
+        let factor = resolved_a.guide;
+        let coarse = coarse_size(view.width, view.height, factor).filter(|_| guided);
         let pixels = u64::from(view.width) * u64::from(view.height);
         let mut guard = self
             .targets
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        if guard.as_ref().is_none_or(|t| t.pixels != pixels) {
-            *guard = Some(self.targets_for(pixels));
+        if guard
+            .as_ref()
+            .is_none_or(|t| (t.width, t.height) != (view.width, view.height))
+        {
+            *guard = Some(self.targets_for(view.width, view.height));
         }
         let Some(targets) = guard.as_ref() else {
             return Err(GpuError::Operation("render targets missing".to_owned()).into());
         };
         let gpu = &self.gpu;
+        let mut fine = params;
+        if let Some((cw, ch)) = coarse {
+            let coarse_params = RenderParams {
+                width: cw,
+                height: ch,
+                focal_px: params.focal_px / factor as f32,
+                ..params
+            };
+            gpu.queue.write_buffer(
+                &targets.coarse_uniform,
+                0,
+                bytemuck::bytes_of(&coarse_params),
+            );
+            fine.coarse_factor = factor;
+            fine.coarse_width = cw;
+            fine.coarse_height = ch;
+        }
         gpu.queue
-            .write_buffer(&targets.uniform, 0, bytemuck::bytes_of(&params));
+            .write_buffer(&targets.uniform, 0, bytemuck::bytes_of(&fine));
         gpu.queue.write_buffer(&targets.counters, 0, &[0u8; 16]);
         let mut encoder = gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("render"),
             });
+        if let Some((cw, ch)) = coarse {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("render coarse"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &targets.coarse_group, &[]);
+            pass.set_bind_group(1, &field.group, &[]);
+            pass.dispatch_workgroups(cw.div_ceil(8), ch.div_ceil(8), 1);
+        }
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("render"),

@@ -80,6 +80,9 @@ pub struct Grid {
     pub tolerance_factors: Vec<f32>,
     /// Marching methods.
     pub methods: Vec<Method>,
+    /// Coarse-to-fine factors of the default method (0 = off; the fixed method always runs
+    /// unguided, once).
+    pub guides: Vec<u32>,
     /// Depth precision: 8 and/or 16 (16 only for 16-bit assets).
     pub depth_bits: Vec<u8>,
     /// Output sizes (square frames, pixels).
@@ -88,8 +91,8 @@ pub struct Grid {
 
 impl Grid {
     /// The default sweep for an asset: every camera count it holds from 12 up, steps 1/16–1/64,
-    /// tolerance ½ and 1 step, both methods, its depth precision and 8 bits, 256² and 512².
-    /// 96–192 settings.
+    /// tolerance ½ and 1 step, both methods (unguided), its depth precision and 8 bits, 256²
+    /// and 512². 96–192 settings.
     pub fn default_for(asset: &AssetFile) -> Grid {
         let max_level = usize::from(asset.header().geometry.camera_level).min(3);
         Grid {
@@ -97,6 +100,7 @@ impl Grid {
             steps: vec![1.0 / 16.0, 1.0 / 32.0, 1.0 / 64.0],
             tolerance_factors: vec![0.5, 1.0],
             methods: vec![Method::Default, Method::Fixed],
+            guides: vec![0],
             depth_bits: if stored_depth_bits(asset) == 16 {
                 vec![16, 8]
             } else {
@@ -106,14 +110,35 @@ impl Grid {
         }
     }
 
-    /// Number of settings (product of the list lengths).
+    /// Number of settings: the product of the list lengths, where each default method counts
+    /// once per guide and the fixed method once.
     pub fn len(&self) -> usize {
+        let methods: usize = self
+            .methods
+            .iter()
+            .map(|&m| {
+                if m == Method::Fixed {
+                    1
+                } else {
+                    self.guides.len()
+                }
+            })
+            .sum();
         self.cameras.len()
             * self.steps.len()
             * self.tolerance_factors.len()
-            * self.methods.len()
+            * methods
             * self.depth_bits.len()
             * self.sizes.len()
+    }
+
+    /// The guides `method` runs with.
+    fn guides_of(&self, method: Method) -> Vec<u32> {
+        if method == Method::Fixed {
+            vec![0]
+        } else {
+            self.guides.clone()
+        }
     }
 
     /// Whether any list is empty.
@@ -182,6 +207,14 @@ impl Grid {
                 return bad(format!("size {s}: use 1 to 4096 pixels"));
             }
         }
+        for &g in &self.guides {
+            RenderOptions {
+                guide: Some(g),
+                ..RenderOptions::default()
+            }
+            .resolve(max_level)
+            .map_err(|e| TradeoffError::Grid(e.to_string()))?;
+        }
         Ok(())
     }
 }
@@ -197,6 +230,8 @@ pub struct Setting {
     pub tolerance: f32,
     /// Method.
     pub method: Method,
+    /// Coarse-to-fine factor (0 = off).
+    pub guide: u32,
     /// Depth precision, bits.
     pub depth_bits: u8,
     /// Output size, pixels (square).
@@ -211,6 +246,7 @@ impl Setting {
             step: Some(self.step),
             tolerance: Some(self.tolerance),
             method: self.method,
+            guide: Some(self.guide),
         }
     }
 }
@@ -305,16 +341,21 @@ pub fn sweep(
                 for &step in &grid.steps {
                     for &factor in &grid.tolerance_factors {
                         for &method in &grid.methods {
-                            let setting = Setting {
-                                cameras,
-                                step,
-                                tolerance: factor * step,
-                                method,
-                                depth_bits: bits,
-                                size,
-                            };
-                            points.push(measure(inputs, &field, &views, &truths, setting, radius)?);
-                            progress(points.len(), total);
+                            for guide in grid.guides_of(method) {
+                                let setting = Setting {
+                                    cameras,
+                                    step,
+                                    tolerance: factor * step,
+                                    method,
+                                    guide,
+                                    depth_bits: bits,
+                                    size,
+                                };
+                                points.push(measure(
+                                    inputs, &field, &views, &truths, setting, radius,
+                                )?);
+                                progress(points.len(), total);
+                            }
                         }
                     }
                 }
@@ -399,7 +440,7 @@ pub fn pareto_front(cost: &[f64], quality: &[f64]) -> Vec<bool> {
 }
 
 /// The CSV header of [`write_csv`].
-pub const CSV_HEADER: &str = "cameras,step,tolerance,method,depth_bits,size,ms_per_frame,fetches_per_pixel,masked_psnr,psnr,ssim,mask_mismatch_px,silhouette_error_px,depth_median_r,pareto";
+pub const CSV_HEADER: &str = "cameras,step,tolerance,method,guide,depth_bits,size,ms_per_frame,fetches_per_pixel,masked_psnr,psnr,ssim,mask_mismatch_px,silhouette_error_px,depth_median_r,pareto";
 
 /// Writes the points as CSV (atomically; one row per setting, [`CSV_HEADER`] first).
 ///
@@ -412,11 +453,12 @@ pub fn write_csv(path: &Path, points: &[Point]) -> Result<(), TradeoffError> {
             let s = &p.setting;
             writeln!(
                 w,
-                "{},{},{},{},{},{},{:.3},{:.2},{:.3},{:.3},{:.5},{:.1},{:.4},{:.3e},{}",
+                "{},{},{},{},{},{},{},{:.3},{:.2},{:.3},{:.3},{:.5},{:.1},{:.4},{:.3e},{}",
                 s.cameras,
                 s.step,
                 s.tolerance,
                 s.method,
+                s.guide,
                 s.depth_bits,
                 s.size,
                 p.ms_per_frame,
@@ -588,6 +630,7 @@ impl Choice {
             step: Some(self.step),
             tolerance: None,
             method: Method::Default,
+            guide: None,
         }
     }
 }
@@ -622,6 +665,7 @@ impl Calibration {
             steps: CALIBRATION_STEPS.to_vec(),
             tolerance_factors: vec![0.5],
             methods: vec![Method::Default],
+            guides: vec![0],
             depth_bits: vec![stored_depth_bits(asset)],
             sizes: vec![CALIBRATION_SIZE],
         };

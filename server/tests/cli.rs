@@ -407,6 +407,8 @@ fn bench_tradeoff_writes_csv_json_and_pareto_plot() {
         "0.5",
         "--methods",
         "default,fixed",
+        "--guides",
+        "0,4",
         "--depth-bits",
         "16,8",
         "--sizes",
@@ -419,18 +421,21 @@ fn bench_tradeoff_writes_csv_json_and_pareto_plot() {
         String::from_utf8_lossy(&o.stderr)
     );
     assert!(stdout.contains("Pareto front"), "{stdout}");
-    // 2 steps × 2 methods × 2 depth precisions = 8 settings, one CSV row each.
+    // 2 steps × (default × 2 guides + fixed) × 2 depth precisions = 12 settings, one CSV row
+    // each.
     let csv = std::fs::read_to_string(out.join("tradeoff.csv")).expect("csv");
     let rows: Vec<Vec<&str>> = csv.lines().map(|l| l.split(',').collect()).collect();
     assert_eq!(rows[0][0], "cameras");
-    assert_eq!(rows.len(), 1 + 8, "{csv}");
+    assert_eq!(rows.len(), 1 + 12, "{csv}");
     let col = |name: &str| rows[0].iter().position(|c| *c == name).expect(name);
-    let (ms, psnr, pareto, bits, step) = (
+    let (ms, psnr, pareto, bits, step, guide, method) = (
         col("ms_per_frame"),
         col("masked_psnr"),
         col("pareto"),
         col("depth_bits"),
         col("step"),
+        col("guide"),
+        col("method"),
     );
     let mut front = 0;
     for row in &rows[1..] {
@@ -442,6 +447,10 @@ fn bench_tradeoff_writes_csv_json_and_pareto_plot() {
         assert!(q.is_finite() && q > 8.0, "{row:?}");
         assert!(["8", "16"].contains(&row[bits]));
         assert!(["0.125", "0.0625"].contains(&row[step]), "{row:?}");
+        match row[method] {
+            "fixed" => assert_eq!(row[guide], "0", "{row:?}"),
+            _ => assert!(["0", "4"].contains(&row[guide]), "{row:?}"),
+        }
         if row[pareto] == "true" {
             front += 1;
         }
@@ -458,7 +467,7 @@ fn bench_tradeoff_writes_csv_json_and_pareto_plot() {
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("tradeoff.json")).expect("json"))
             .expect("valid json");
-    assert_eq!(json["points"].as_array().map(Vec::len), Some(8));
+    assert_eq!(json["points"].as_array().map(Vec::len), Some(12));
     let png = std::fs::read(out.join("pareto.png")).expect("png");
     let img = image::load_from_memory(&png)
         .expect("decodable png")
@@ -492,6 +501,8 @@ fn bench_tradeoff_rejects_bad_grids() {
     assert_fails(&with(&["--depth-bits", "12"]), "depth bits 12");
     assert_fails(&with(&["--sizes", "0"]), "size 0");
     assert_fails(&with(&["--methods", "fast"]), "unknown method");
+    assert_fails(&with(&["--guides", "1"]), "guide 1");
+    assert_fails(&with(&["--guides", "99"]), "guide 99");
     assert_fails(
         &["bench", "tradeoff", s(asset), "--demo", "--views", "0"],
         "--views 0",
@@ -780,6 +791,21 @@ fn auto_lod_chooses_per_view_and_reports_predicted_beside_measured() {
     );
     assert_fails(&with(&["--auto-lod", "--budget-ms", "9"]), "cannot be used");
     assert_fails(&with(&["--lod-blend", "0.1"]), "--auto-lod");
+    // The coarse-to-fine guide: a knob of its own, and it combines with automatic LOD.
+    assert_fails(&with(&["--guide", "1"]), "guide 1");
+    assert_fails(&with(&["--guide", "4", "--method", "fixed"]), "default method");
+    let o = lumigraph(&[
+        "render",
+        s(asset),
+        "--views",
+        s(&views),
+        "-o",
+        s(&out),
+        "--guide",
+        "4",
+        "--auto-lod",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let plain = path("plain_lod.lfa");
     let o = lumigraph(&[
         "bake",

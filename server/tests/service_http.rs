@@ -745,6 +745,13 @@ async fn bake_jobs() {
         String::from_utf8_lossy(&auto.body)
     );
     assert_eq!(auto.header("x-chosen-cameras"), "12");
+    let guided = post_json(
+        &state,
+        "/v1/assets/baked/render",
+        serde_json::json!({"view": view_json(64, 64), "guide": 4}).to_string(),
+    )
+    .await;
+    assert_eq!(guided.status, StatusCode::OK);
     for name in ["x-projected-px", "x-predicted-error-px", "x-chosen-step"] {
         assert!(
             auto.header(name).parse::<f64>().is_ok_and(|v| v > 0.0),
@@ -768,6 +775,10 @@ async fn bake_jobs() {
         (
             serde_json::json!({"view": view_json(8, 8), "auto_lod": 1.0, "method": "fixed"}),
             "default-method",
+        ),
+        (
+            serde_json::json!({"view": view_json(8, 8), "guide": 1}),
+            "guide 1",
         ),
     ] {
         let reply = post_json(&state, "/v1/assets/baked/render", body.to_string()).await;

@@ -141,6 +141,7 @@ class LightField:
         lod_min_psnr: float | None = None,
         lod_max_psnr_drop: float | None = None,
         lod_blend: float | None = None,
+        guide: int | None = None,
     ) -> Frame: ...
     def render_many(
         self,
@@ -157,6 +158,7 @@ class LightField:
         lod_min_psnr: float | None = None,
         lod_max_psnr_drop: float | None = None,
         lod_blend: float | None = None,
+        guide: int | None = None,
     ) -> list[Frame]: ...
     def choose(
         self,
@@ -176,6 +178,7 @@ class LightField:
         lod: int | None = None,
         step: float | None = None,
         tolerance: float | None = None,
+        guide: int | None = None,
     ) -> dict[str, Any]: ...
 
 def orbit_views(

@@ -161,6 +161,11 @@ pub struct QualityArgs {
     /// Marching method: default or fixed.
     #[arg(long, default_value = "default")]
     pub method: Method,
+    /// Coarse-to-fine factor of the default method (2–16; 0 = off): a coarse pass renders every
+    /// F-th pixel per axis and bounds each pixel's march; faster, but a feature narrower than
+    /// about F pixels can vanish.
+    #[arg(long, value_name = "F", allow_hyphen_values = true)]
+    pub guide: Option<u32>,
     /// Pick the cheapest setting the asset's calibration predicts to reach this masked PSNR (dB).
     #[arg(long, allow_hyphen_values = true, conflicts_with_all = ["lod", "step", "tolerance", "method", "budget_ms"])]
     pub target_psnr: Option<f64>,
@@ -257,6 +262,7 @@ impl QualityArgs {
             step: self.step,
             tolerance: self.tolerance,
             method: self.method,
+            guide: self.guide,
         }
     }
 }
@@ -394,6 +400,9 @@ pub struct TradeoffArgs {
     /// Methods (default default,fixed).
     #[arg(long, value_delimiter = ',')]
     pub methods: Option<Vec<Method>>,
+    /// Coarse-to-fine factors of the default method (default 0 = off; e.g. 0,4).
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    pub guides: Option<Vec<u32>>,
     /// Depth bits (default 16,8 for a 16-bit asset).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     pub depth_bits: Option<Vec<u8>>,
@@ -1074,6 +1083,7 @@ fn bench_tradeoff(args: &TradeoffArgs) -> Result<()> {
             .clone()
             .unwrap_or(defaults.tolerance_factors),
         methods: args.methods.clone().unwrap_or(defaults.methods),
+        guides: args.guides.clone().unwrap_or(defaults.guides),
         depth_bits: args.depth_bits.clone().unwrap_or(defaults.depth_bits),
         sizes: args.sizes.clone().unwrap_or(defaults.sizes),
     };

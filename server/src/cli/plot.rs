@@ -30,12 +30,18 @@ fn register_font() -> Result<()> {
     result
 }
 
-/// Short label of a setting on the front: `162c 1/32 t.5 16b 512`.
+/// Short label of a setting on the front: `162c 1/32 t.5 16b 512`, with `g4` for a
+/// coarse-to-fine guide.
 fn label(p: &Point) -> String {
     let s = &p.setting;
     let method = if s.method == Method::Fixed { "F " } else { "" };
+    let guide = if s.guide > 0 {
+        format!(" g{}", s.guide)
+    } else {
+        String::new()
+    };
     format!(
-        "{method}{}c 1/{:.0} t{:.2} {}b {}",
+        "{method}{}c 1/{:.0} t{:.2} {}b {}{guide}",
         s.cameras,
         1.0 / s.step,
         s.tolerance / s.step,

@@ -91,6 +91,9 @@ pub struct Knobs {
     /// `default` (the accelerated marcher) or `fixed` (the seed's fixed-step baseline).
     #[schema(value_type = Option<String>)]
     pub method: Option<Method>,
+    /// Coarse-to-fine factor of the default method (2–16; 0 or absent: off): faster, but a
+    /// feature narrower than about that many pixels can vanish.
+    pub guide: Option<u32>,
 }
 
 impl Knobs {
@@ -101,6 +104,7 @@ impl Knobs {
             step: self.step,
             tolerance: self.tolerance,
             method: self.method.unwrap_or_default(),
+            guide: self.guide,
         };
         options
             .resolve(asset.field.max_level)

@@ -295,6 +295,10 @@ pub struct RenderRequest {
     /// `default` or `fixed`.
     #[schema(value_type = Option<String>)]
     pub method: Option<lumigraph_core::render::Method>,
+    /// Coarse-to-fine factor of the default method (2–16; absent or 0: off): a coarse pass
+    /// bounds each pixel's march — faster, but a feature narrower than about that many pixels
+    /// can vanish.
+    pub guide: Option<u32>,
     /// RGBA8 background where nothing is hit; default transparent black.
     pub background: Option<[u8; 4]>,
     /// Colour codec; default `png`. `none` returns only the depth image.
@@ -375,6 +379,7 @@ pub async fn render_asset(
         step: request.step,
         tolerance: request.tolerance,
         method: request.method,
+        guide: request.guide,
     };
     let ladder = lod_ladder(
         request.auto_lod,

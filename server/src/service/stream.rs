@@ -105,6 +105,8 @@ pub struct Settings {
     pub tolerance: Option<f32>,
     /// `default` or `fixed`.
     pub method: Option<lumigraph_core::render::Method>,
+    /// Coarse-to-fine factor of the default method (2–16; absent or 0: off).
+    pub guide: Option<u32>,
     /// Codec of full-quality (resting) frames: `png`, `webp` (lossless) or `jpeg`.
     pub still_codec: ColorFormat,
     /// JPEG quality of full-quality frames.
@@ -163,6 +165,7 @@ impl Settings {
             step: None,
             tolerance: None,
             method: None,
+            guide: None,
             still_codec: ColorFormat::Jpeg,
             still_quality: 90,
             interactive: true,
@@ -282,6 +285,7 @@ fn validate_settings(settings: Settings, asset: &LoadedAsset) -> Result<Effectiv
         step: s.step,
         tolerance: s.tolerance,
         method: s.method,
+        guide: s.guide,
     };
     let ladder = lod_ladder(
         s.auto_lod,
