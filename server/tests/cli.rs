@@ -793,7 +793,10 @@ fn auto_lod_chooses_per_view_and_reports_predicted_beside_measured() {
     assert_fails(&with(&["--lod-blend", "0.1"]), "--auto-lod");
     // The coarse-to-fine guide: a knob of its own, and it combines with automatic LOD.
     assert_fails(&with(&["--guide", "1"]), "guide 1");
-    assert_fails(&with(&["--guide", "4", "--method", "fixed"]), "default method");
+    assert_fails(
+        &with(&["--guide", "4", "--method", "fixed"]),
+        "default method",
+    );
     let o = lumigraph(&[
         "render",
         s(asset),
