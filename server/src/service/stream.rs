@@ -312,9 +312,9 @@ fn validate_settings(settings: Settings, asset: &LoadedAsset) -> Result<Effectiv
     // Interactive frames trade a little for speed: the coarse-to-fine guide (about 2× faster
     // at equal masked PSNR on the fixtures, BENCHMARKS.md) unless `guide` is set or the method
     // is the fixed baseline.
-    let interactive_guide = s.guide.or(
-        (s.method != Some(lumigraph_core::render::Method::Fixed)).then_some(INTERACTIVE_GUIDE),
-    );
+    let interactive_guide = s
+        .guide
+        .or((s.method != Some(lumigraph_core::render::Method::Fixed)).then_some(INTERACTIVE_GUIDE));
     let interactive_options = Knobs {
         lod: s.interactive_lod.or(s.lod),
         guide: interactive_guide,
