@@ -24,7 +24,9 @@ struct RenderParams {
     // Coarse-to-fine guidance (0 = off): this pass is `coarse_factor` times finer than the
     // coarse pass whose z-depths `coarse` holds (coarse_width × coarse_height, −1 = miss).
     coarse_factor: u32,
-    pad2: f32,
+    // Non-zero in a coarse pass: its pixel's half-width as an angle, times the guide's reach
+    // (see `near`), so a miss that passed close to a surface is marked −2 instead of −1.
+    near_scale: f32,
     // Box around every surface point the maps hold (see `visible_box` in render.rs).
     box_min: vec3<f32>,
     pad3: f32,
@@ -156,12 +158,15 @@ struct March {
     hit: bool,
     fetches: u32,
     steps: u32,
+    // Smallest |f| / t over the samples: how close (as an angle seen from the eye) the ray
+    // came to a surface some camera sees.
+    near: f32,
 }
 
 // Seed 000 §2: fixed steps; stop at the first sample where any camera's estimate agrees within
 // the tolerance (bilinear depth).
 fn march_fixed(o: vec3<f32>, d: vec3<f32>, t_in: f32, t_out: f32, cams: vec3<u32>, c0: Camera, c1: Camera, c2: Camera) -> March {
-    var m = March(t_in, false, 0u, 0u);
+    var m = March(t_in, false, 0u, 0u, 1e30);
     var t = t_in;
     for (var s = 0u; s < g_max_steps; s++) {
         if t > t_out {
@@ -196,11 +201,13 @@ fn probe_camera(cams: vec3<u32>, c0: Camera, c1: Camera, c2: Camera, i: u32, x: 
 // accepted only where that camera's f is continuous across the final bracket (its jump is below
 // the tolerance) — a silhouette jump is a phantom, not a surface.
 fn march_refined(o: vec3<f32>, d: vec3<f32>, t_in: f32, t_out: f32, cams: vec3<u32>, weights: vec3<f32>, c0: Camera, c1: Camera, c2: Camera) -> March {
-    var m = March(t_in, false, 0u, 0u);
+    var m = March(t_in, false, 0u, 0u, 1e30);
     var t_prev = t_in;
     let x0 = o + t_in * d;
     var f_prev = vec3<f32>(probe_camera(cams, c0, c1, c2, 0u, x0), probe_camera(cams, c0, c1, c2, 1u, x0), probe_camera(cams, c0, c1, c2, 2u, x0));
     m.fetches += 3u;
+    let a0 = abs(f_prev);
+    m.near = min(m.near, min(min(a0.x, a0.y), a0.z) / max(t_in, 1e-6));
     for (var s = 0u; s < g_max_steps; s++) {
         if t_prev >= t_out {
             break;
@@ -210,6 +217,8 @@ fn march_refined(o: vec3<f32>, d: vec3<f32>, t_in: f32, t_out: f32, cams: vec3<u
         m.steps += 1u;
         let f = vec3<f32>(probe_camera(cams, c0, c1, c2, 0u, x), probe_camera(cams, c0, c1, c2, 1u, x), probe_camera(cams, c0, c1, c2, 2u, x));
         m.fetches += 3u;
+        let af = abs(f);
+        m.near = min(m.near, min(min(af.x, af.y), af.z) / max(t, 1e-6));
         var best_t = 1e30;
         for (var i = 0u; i < 3u; i++) {
             if f_prev[i] < 0.0 && f[i] >= 0.0 {
@@ -264,8 +273,15 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let py = -(f32(gid.y) + 0.5 - 0.5 * f32(params.height)) / params.focal_px;
     let d = normalize(px * params.right + py * params.up + params.forward);
     let o = params.eye;
+    // A coarse pass grows the sphere and box by its reach at their far side, so a ray that
+    // passes just outside them is marked near (−2): a fine pixel beside it may hit.
+    let grow = params.near_scale * (length(o) + BOUNDING_RADIUS);
     let bounds = sphere_roots(o, d, BOUNDING_RADIUS);
     if bounds.y < 0.0 || bounds.x > bounds.y {
+        let grown = sphere_roots(o, d, BOUNDING_RADIUS + grow);
+        if grow > 0.0 && grown.y >= 0.0 && grown.x <= grown.y {
+            out_depth[index] = -2.0;
+        }
         return;
     }
     var t_in = max(bounds.x, 0.0);
@@ -281,13 +297,21 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         t_in = max(t_in, max(max(near.x, near.y), near.z));
         t_out = min(t_out, min(min(far.x, far.y), far.z));
         if t_in > t_out {
+            if grow > 0.0 {
+                let g0 = (params.box_min - vec3<f32>(grow) - o) / dd;
+                let g1 = (params.box_max + vec3<f32>(grow) - o) / dd;
+                let g_in = max(max(max(min(g0, g1).x, min(g0, g1).y), min(g0, g1).z), 0.0);
+                let g_out = min(min(max(g0, g1).x, max(g0, g1).y), max(g0, g1).z);
+                if g_in <= g_out {
+                    out_depth[index] = -2.0;
+                }
+            }
             return;
         }
         if params.coarse_factor > 0u {
             // Coarse-to-fine (the `guide` knob): the 3×3 coarse pixels around this one bound
-            // where its surface can be. All nine missed: so does this pixel — a feature
-            // narrower than the coarse spacing can vanish, the knob's price. Else march from
-            // before the nearest of their hits to past the farthest.
+            // where its surface can be. All nine missed far from any surface: so does this
+            // pixel. Else march from before the nearest of their hits to past the farthest.
             let f = f32(params.coarse_factor);
             let cw = i32(params.coarse_width);
             let ch = i32(params.coarse_height);
@@ -298,11 +322,14 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             var z_min = 1e30;
             var z_max = -1e30;
             var misses = 0u;
+            var near_misses = 0u;
             for (var dy = -1; dy <= 1; dy++) {
                 for (var dx = -1; dx <= 1; dx++) {
                     let p = clamp(nearest + vec2<i32>(dx, dy), vec2<i32>(0), vec2<i32>(cw - 1, ch - 1));
                     let z = coarse[p.y * cw + p.x];
-                    if z < 0.0 {
+                    if z < -1.5 {
+                        near_misses += 1u;
+                    } else if z < 0.0 {
                         misses += 1u;
                     } else {
                         z_min = min(z_min, z);
@@ -313,6 +340,9 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             if misses == 9u {
                 return;
             }
+            // A neighbour passed close to a surface without finding it (a thin feature between
+            // the coarse samples, or an object's edge): march this pixel unbounded.
+            if near_misses == 0u {
             // A step of margin plus the neighbourhood's own depth spread: on a steep or curved
             // surface this pixel's depth can lie beyond its neighbours' range. Where some
             // neighbours missed (a silhouette), three more steps past the farthest hit.
@@ -326,6 +356,7 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
             if t_in > t_out {
                 return;
+            }
             }
         }
     }
@@ -346,6 +377,9 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         m = march_refined(o, d, t_in, t_out, loc.cameras, loc.weights, c0, c1, c2);
     }
     var fetches = m.fetches;
+    if !m.hit && params.near_scale > 0.0 && m.near < params.near_scale {
+        out_depth[index] = -2.0;
+    }
     if m.hit {
         let x = o + m.t * d;
         var color = vec4<f32>(0.0);

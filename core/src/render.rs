@@ -101,9 +101,10 @@ pub struct RenderOptions {
     /// Marching method.
     pub method: Method,
     /// Coarse-to-fine guidance, default method only: first render every `guide`-th pixel per
-    /// axis (2–16), and let their hits bound each pixel's march; a pixel whose 3×3 coarse
-    /// neighbours all miss is skipped, so a feature narrower than about `guide` pixels can
-    /// vanish. `None` or 0: off.
+    /// axis (2–16), and let their hits bound each pixel's march. A pixel whose 3×3 coarse
+    /// neighbours all missed far from any surface is skipped; where one passed close to a
+    /// surface (a thin feature between the samples), the pixel marches in full. `None` or 0:
+    /// off.
     pub guide: Option<u32>,
 }
 
@@ -237,7 +238,7 @@ struct RenderParams {
     front_mass: f32,
     blend: f32,
     coarse_factor: u32,
-    pad: f32,
+    near_scale: f32,
     box_min: [f32; 3],
     pad_min: f32,
     box_max: [f32; 3],
@@ -291,6 +292,11 @@ struct Targets {
     coarse_uniform: wgpu::Buffer,
     coarse_group: wgpu::BindGroup,
 }
+
+/// How close (in coarse pixels, as seen from the eye) a coarse ray must pass to a surface some
+/// camera sees for its miss to count as near: the fine pixels around it then march in full.
+/// Two coarse pixels cover the 3×3 neighbourhood each fine pixel reads.
+const GUIDE_REACH: f32 = 2.0;
 
 /// Coarse-pass size for a frame guided with `factor`, or `None` when guidance is off or the
 /// frame is too small (under 4 coarse pixels a side).
@@ -745,7 +751,7 @@ impl Renderer {
             front_mass: FRONT_MASS,
             blend: weight,
             coarse_factor: 0,
-            pad: 0.0,
+            near_scale: 0.0,
             box_min: field.visible_box[0],
             pad_min: 0.0,
             box_max: field.visible_box[1],
@@ -781,10 +787,12 @@ impl Renderer {
         let gpu = &self.gpu;
         let mut fine = params;
         if let Some((cw, ch)) = coarse {
+            let focal = params.focal_px / factor as f32;
             let coarse_params = RenderParams {
                 width: cw,
                 height: ch,
-                focal_px: params.focal_px / factor as f32,
+                focal_px: focal,
+                near_scale: GUIDE_REACH / focal,
                 ..params
             };
             gpu.queue.write_buffer(
