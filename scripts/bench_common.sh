@@ -8,3 +8,12 @@ if [ ! -f "$FIX/mesh/bunny00.off" ]; then
   bash "${LUMIGRAPH_FETCH_FIXTURES:-../shared/data/fetch-dev-fixtures.sh}" "$FIX"
 fi
 declare -A MESH=([bunny]="$FIX/mesh/bunny00.off" [cow]="$FIX/mesh/cow.off" [spot]="$FIX/mesh/spot.ply" [demo]="")
+# scene_asset SCENE [BAKE_FLAGS...]: bakes SCENE (162 cameras × 256 px, plus BAKE_FLAGS) into
+# $OUT/SCENE.lfa unless it is there, and sets ASSET to it and REF to `eval`'s source flags.
+scene_asset() {
+  local scene=$1 src
+  shift
+  ASSET="$OUT/$scene.lfa"
+  if [ "$scene" = demo ]; then src=(--demo); REF=(--demo); else src=("${MESH[$scene]}"); REF=(--mesh "${MESH[$scene]}"); fi
+  [ -f "$ASSET" ] || $LG bake "${src[@]}" -o "$ASSET" --cameras 162 --resolution 256 "$@" > /dev/null
+}

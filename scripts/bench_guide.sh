@@ -12,9 +12,7 @@ OUT=${1:-out/guide}
 mkdir -p "$OUT"
 source scripts/bench_common.sh
 for scene in ${SCENES:-bunny cow spot demo}; do
-  asset="$OUT/$scene.lfa"
-  if [ "$scene" = demo ]; then src=(--demo); ref=(--demo); else src=("${MESH[$scene]}"); ref=(--mesh "${MESH[$scene]}"); fi
-  [ -f "$asset" ] || $LG bake "${src[@]}" -o "$asset" --cameras 162 --resolution 256 --no-calibrate > /dev/null
+  scene_asset "$scene" --no-calibrate
   for config in fixed default guide2 guide4 guide8; do
     case $config in
       fixed) flags=(--method fixed) ;;
@@ -22,7 +20,7 @@ for scene in ${SCENES:-bunny cow spot demo}; do
       guide*) flags=(--guide "${config#guide}") ;;
     esac
     for run in 1 2; do
-      $LG eval "$asset" "${ref[@]}" --views 6 --size 512 "${flags[@]}" --json > "$OUT/$scene-$config.json"
+      $LG eval "$ASSET" "${REF[@]}" --views 6 --size 512 "${flags[@]}" --json > "$OUT/$scene-$config.json"
     done
   done
 done

@@ -14,13 +14,11 @@ mkdir -p "$OUT"
 source scripts/bench_common.sh
 SIZES=${LOD_SIZES:-60,120,200,300,400,500,600,800}
 for scene in ${SCENES:-bunny cow spot demo}; do
-  asset="$OUT/$scene.lfa"
-  if [ "$scene" = demo ]; then src=(--demo); ref=(--demo); else src=("${MESH[$scene]}"); ref=(--mesh "${MESH[$scene]}"); fi
-  [ -f "$asset" ] || $LG bake "${src[@]}" -o "$asset" --cameras 162 --resolution 256 > /dev/null
-  python3 scripts/lod_views.py "$LG" "$asset" 512 "$SIZES" > "$OUT/$scene.views.json"
+  scene_asset "$scene"
+  python3 scripts/lod_views.py "$LG" "$ASSET" 512 "$SIZES" > "$OUT/$scene.views.json"
   # Warm-up pass (shader compilation, first allocations), then the two measured passes.
-  $LG eval "$asset" "${ref[@]}" --views "$OUT/$scene.views.json" --json > /dev/null
-  $LG eval "$asset" "${ref[@]}" --views "$OUT/$scene.views.json" --auto-lod ${LOD_FLAGS:-} --json > "$OUT/$scene.auto.json"
-  $LG eval "$asset" "${ref[@]}" --views "$OUT/$scene.views.json" --json > "$OUT/$scene.default.json"
+  $LG eval "$ASSET" "${REF[@]}" --views "$OUT/$scene.views.json" --json > /dev/null
+  $LG eval "$ASSET" "${REF[@]}" --views "$OUT/$scene.views.json" --auto-lod ${LOD_FLAGS:-} --json > "$OUT/$scene.auto.json"
+  $LG eval "$ASSET" "${REF[@]}" --views "$OUT/$scene.views.json" --json > "$OUT/$scene.default.json"
 done
 python3 scripts/lod_tables.py "$OUT" ${SCENES:-bunny cow spot demo} | tee "$OUT/tables.md"

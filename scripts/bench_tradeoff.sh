@@ -12,10 +12,8 @@ OUT=${1:-out/tradeoff}
 mkdir -p "$OUT"
 source scripts/bench_common.sh
 for scene in ${SCENES:-bunny cow spot demo}; do
-  asset="$OUT/$scene.lfa"
-  if [ "$scene" = demo ]; then src=(--demo); ref=(--demo); else src=("${MESH[$scene]}"); ref=(--mesh "${MESH[$scene]}"); fi
-  [ -f "$asset" ] || $LG bake "${src[@]}" -o "$asset" --cameras 162 --resolution 256 --no-calibrate > /dev/null
-  $LG bench tradeoff "$asset" "${ref[@]}" --out "$OUT/$scene" ${TRADEOFF_FLAGS:-} | tee "$OUT/$scene.txt"
+  scene_asset "$scene" --no-calibrate
+  $LG bench tradeoff "$ASSET" "${REF[@]}" --out "$OUT/$scene" ${TRADEOFF_FLAGS:-} | tee "$OUT/$scene.txt"
 done
 python3 scripts/tradeoff_tables.py "$OUT" > "$OUT/tables.md"
 cat "$OUT/tables.md"

@@ -91,6 +91,43 @@ impl Default for LodPolicy {
 }
 
 impl LodPolicy {
+    /// The policy of the optional request fields every front takes (`auto_lod` = the bound in
+    /// pixels, then the PSNR floor, PSNR drop and blend band, defaults where absent), or
+    /// `None` without `auto_lod`. `has_goal`: a `target_psnr` / `budget_ms` came too.
+    ///
+    /// # Errors
+    /// [`LodError::Policy`] for a floor or band without `auto_lod`, `auto_lod` with a goal, or
+    /// a value out of range ([`LodPolicy::validate`]).
+    pub fn from_parts(
+        auto_lod: Option<f64>,
+        min_psnr: Option<f64>,
+        max_psnr_drop: Option<f64>,
+        blend_band: Option<f64>,
+        has_goal: bool,
+    ) -> Result<Option<LodPolicy>, LodError> {
+        let Some(max_error_px) = auto_lod else {
+            if min_psnr.is_some() || max_psnr_drop.is_some() || blend_band.is_some() {
+                return Err(LodError::Policy(
+                    "lod_min_psnr / lod_max_psnr_drop / lod_blend need auto_lod".to_owned(),
+                ));
+            }
+            return Ok(None);
+        };
+        if has_goal {
+            return Err(LodError::Policy(
+                "give auto_lod or target_psnr / budget_ms, not both".to_owned(),
+            ));
+        }
+        let policy = LodPolicy {
+            max_error_px,
+            min_psnr,
+            max_psnr_drop: Some(max_psnr_drop.unwrap_or(DEFAULT_MAX_PSNR_DROP)),
+            blend_band: blend_band.unwrap_or(DEFAULT_BLEND_BAND),
+        };
+        policy.validate()?;
+        Ok(Some(policy))
+    }
+
     /// Checks the ranges.
     ///
     /// # Errors
@@ -728,6 +765,30 @@ mod tests {
             ..LodPolicy::default()
         };
         assert!(Ladder::new(&c, &unlimited, 162, &RenderOptions::default()).is_ok());
+    }
+
+    #[test]
+    fn policies_from_request_fields() {
+        assert_eq!(
+            LodPolicy::from_parts(None, None, None, None, true).ok(),
+            Some(None)
+        );
+        assert_eq!(
+            LodPolicy::from_parts(Some(0.5), None, None, None, false).ok(),
+            Some(Some(LodPolicy {
+                max_error_px: 0.5,
+                ..LodPolicy::default()
+            }))
+        );
+        for (auto, blend, goal, needle) in [
+            (None, Some(0.1), false, "need auto_lod"),
+            (Some(1.0), None, true, "not both"),
+            (Some(f64::NAN), None, false, "max_error_px"),
+            (Some(1.0), Some(3.0), false, "blend_band"),
+        ] {
+            let err = LodPolicy::from_parts(auto, None, None, blend, goal).expect_err(needle);
+            assert!(err.to_string().contains(needle), "{err}");
+        }
     }
 
     #[test]

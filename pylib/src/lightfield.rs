@@ -119,27 +119,13 @@ impl PyLightField {
     /// The automatic-LOD ladder of this light field's calibration for `policy`, with the
     /// explicit knobs pinned.
     fn ladder(&self, policy: &LodPolicy, explicit: &RenderOptions) -> PyResult<Ladder> {
-        policy
-            .validate()
-            .map_err(|e| PyValueError::new_err(e.to_string()))?;
-        let calibration = Calibration::from_quality(self.asset.header().quality.as_ref())
-            .map_err(|e| PyValueError::new_err(e.to_string()))?
-            .ok_or_else(|| {
-                PyValueError::new_err(
-                    "this light field has no calibration: bake it with calibrate=True (or \
-                     `lumigraph bake`) to use auto_lod",
-                )
-            })?;
         Ladder::new(
-            &calibration,
+            &self.calibration("auto_lod")?,
             policy,
             self.asset.header().geometry.camera_count,
             explicit,
         )
-        .map_err(|e| match e {
-            LodError::Render(r) => errors::render(&r),
-            other => PyValueError::new_err(other.to_string()),
-        })
+        .map_err(|e| lod_err(&e))
     }
 
     /// Renders every view with automatic LOD (GIL released); frames with their decisions.
@@ -159,10 +145,7 @@ impl PyLightField {
                     ladder
                         .render_auto(renderer, &field, v)
                         .map(|(frame, _)| frame)
-                        .map_err(|e| match e {
-                            LodError::Render(r) => errors::render(&r),
-                            other => PyValueError::new_err(other.to_string()),
-                        })
+                        .map_err(|e| lod_err(&e))
                 })
                 .collect::<PyResult<Vec<Frame>>>()
         })?;
@@ -181,27 +164,23 @@ fn lod_policy(
     lod_blend: Option<f64>,
     goal: Option<&Goal>,
 ) -> PyResult<Option<LodPolicy>> {
-    let Some(max_error_px) = auto_lod else {
-        if lod_min_psnr.is_some() || lod_max_psnr_drop.is_some() || lod_blend.is_some() {
-            return Err(PyValueError::new_err(
-                "lod_min_psnr / lod_max_psnr_drop / lod_blend need auto_lod",
-            ));
-        }
-        return Ok(None);
-    };
-    if goal.is_some() {
-        return Err(PyValueError::new_err(
-            "give auto_lod or target_psnr / budget_ms, not both",
-        ));
+    LodPolicy::from_parts(
+        auto_lod,
+        lod_min_psnr,
+        lod_max_psnr_drop,
+        lod_blend,
+        goal.is_some(),
+    )
+    .map_err(|e| lod_err(&e))
+}
+
+/// Python exception of an automatic-LOD error: device failures as render errors, the rest
+/// as ValueError.
+fn lod_err(err: &LodError) -> PyErr {
+    match err {
+        LodError::Render(r) => errors::render(r),
+        other => PyValueError::new_err(other.to_string()),
     }
-    Ok(Some(LodPolicy {
-        max_error_px,
-        min_psnr: lod_min_psnr,
-        max_psnr_drop: Some(
-            lod_max_psnr_drop.unwrap_or(lumigraph_core::lod::DEFAULT_MAX_PSNR_DROP),
-        ),
-        blend_band: lod_blend.unwrap_or(lumigraph_core::lod::DEFAULT_BLEND_BAND),
-    }))
 }
 
 /// The goal of `target_psnr` / `budget_ms`, checked against explicit knobs.
@@ -222,14 +201,14 @@ fn goal_of(
 
 impl PyLightField {
     /// The asset's calibration, or an error saying how to get one.
-    fn calibration(&self) -> PyResult<Calibration> {
+    fn calibration(&self, to_use: &str) -> PyResult<Calibration> {
         Calibration::from_quality(self.asset.header().quality.as_ref())
             .map_err(|e| PyValueError::new_err(e.to_string()))?
             .ok_or_else(|| {
-                PyValueError::new_err(
+                PyValueError::new_err(format!(
                     "this light field has no calibration: bake it with calibrate=True (or \
-                     `lumigraph bake`) to use target_psnr / budget_ms",
-                )
+                     `lumigraph bake`) to use {to_use}"
+                ))
             })
     }
 
@@ -256,7 +235,7 @@ impl PyLightField {
         let Some(goal) = goal else {
             return Ok(views.into_iter().map(|v| (v, explicit)).collect());
         };
-        let calibration = self.calibration()?;
+        let calibration = self.calibration("target_psnr / budget_ms")?;
         views
             .into_iter()
             .map(|v| {
@@ -561,7 +540,7 @@ impl PyLightField {
         let view = view::parse_view(view)?;
         let goal = goal_of(target_psnr, budget_ms, &RenderOptions::default())?
             .ok_or_else(|| PyValueError::new_err("give target_psnr or budget_ms"))?;
-        let c = self.choice(&self.calibration()?, goal, &view)?;
+        let c = self.choice(&self.calibration("target_psnr / budget_ms")?, goal, &view)?;
         let out = PyDict::new(py);
         out.set_item("cameras", c.cameras)?;
         out.set_item("step", c.step)?;

@@ -195,7 +195,7 @@ pub struct QualityArgs {
     )]
     pub lod_max_psnr_drop: Option<f64>,
     /// With --auto-lod: cross-fade band below each switch, as a fraction of the projected size
-    /// (default 0.25; 0 = hard switches).
+    /// (default 0.15; 0 = hard switches).
     #[arg(
         long,
         value_name = "FRACTION",
@@ -212,44 +212,25 @@ impl QualityArgs {
         let Some(goal) = Goal::from_pair(self.target_psnr, self.budget_ms)? else {
             return Ok(None);
         };
-        let calibration =
-            Calibration::from_quality(asset.header().quality.as_ref())?.ok_or_else(|| {
-                anyhow::anyhow!(
-                    "--target-psnr / --budget-ms need the asset's calibration, which this asset \
-                     lacks (baked with --no-calibrate, by the Python API or the service): \
-                     re-bake it with `lumigraph bake`"
-                )
-            })?;
+        let calibration = calibration_for(asset, "--target-psnr / --budget-ms need")?;
         Ok(Some((goal, calibration)))
     }
 
     /// The automatic-LOD ladder (`--auto-lod`) of the asset's calibration, if asked for.
     fn ladder(&self, asset: &AssetFile) -> Result<Option<Ladder>> {
-        let Some(max_error_px) = self.auto_lod else {
+        // clap already refuses the floors without --auto-lod and --auto-lod with a goal.
+        let Some(policy) = LodPolicy::from_parts(
+            self.auto_lod,
+            self.lod_min_psnr,
+            self.lod_max_psnr_drop,
+            self.lod_blend,
+            false,
+        )?
+        else {
             return Ok(None);
         };
-        let policy = LodPolicy {
-            max_error_px,
-            min_psnr: self.lod_min_psnr,
-            max_psnr_drop: Some(
-                self.lod_max_psnr_drop
-                    .unwrap_or(lumigraph_core::lod::DEFAULT_MAX_PSNR_DROP),
-            ),
-            blend_band: self
-                .lod_blend
-                .unwrap_or(lumigraph_core::lod::DEFAULT_BLEND_BAND),
-        };
-        policy.validate()?;
-        let calibration =
-            Calibration::from_quality(asset.header().quality.as_ref())?.ok_or_else(|| {
-                anyhow::anyhow!(
-                    "--auto-lod needs the asset's calibration, which this asset lacks (baked \
-                     with --no-calibrate, by the Python API or the service): re-bake it with \
-                     `lumigraph bake`"
-                )
-            })?;
         Ok(Some(Ladder::new(
-            &calibration,
+            &calibration_for(asset, "--auto-lod needs")?,
             &policy,
             asset.header().geometry.camera_count,
             &self.options(),
@@ -615,6 +596,16 @@ fn bake_calibrated(
         baked.bytes.len() as f64 / (1024.0 * 1024.0)
     );
     Ok(())
+}
+
+/// The asset's calibration, or an error that starts with `flags_need` and says how to get one.
+fn calibration_for(asset: &AssetFile, flags_need: &str) -> Result<Calibration> {
+    Calibration::from_quality(asset.header().quality.as_ref())?.ok_or_else(|| {
+        anyhow::anyhow!(
+            "{flags_need} the asset's calibration, which this asset lacks (baked with \
+             --no-calibrate, by the Python API or the service): re-bake it with `lumigraph bake`"
+        )
+    })
 }
 
 /// The calibrated choice for `goal` at the view's size.

@@ -133,16 +133,21 @@ pub fn goal_calibration(
                 .to_owned(),
         ));
     }
-    let calibration = Calibration::from_quality(asset.header.quality.as_ref())
-        .map_err(invalid)?
+    let calibration = asset_calibration(asset, "by target_psnr or budget_ms")?;
+    Ok(Some((goal, Arc::new(calibration))))
+}
+
+/// The asset's calibration, or an error saying how to get one to render `how`.
+fn asset_calibration(asset: &LoadedAsset, how: &str) -> Result<Calibration, AppError> {
+    Calibration::from_quality(asset.header.quality.as_ref())
+        .map_err(|e| AppError::Invalid(e.to_string()))?
         .ok_or_else(|| {
             AppError::Invalid(format!(
                 "asset {} has no calibration: bake it with calibrate=true (the default of POST \
-                 /v1/bake and `lumigraph bake`) to render by target_psnr or budget_ms",
+                 /v1/bake and `lumigraph bake`) to render {how}",
                 asset.id
             ))
-        })?;
-    Ok(Some((goal, Arc::new(calibration))))
+        })
 }
 
 /// The automatic-LOD ladder of a render request or stream session (`auto_lod` = the bound on
@@ -157,39 +162,20 @@ pub fn lod_ladder(
     has_goal: bool,
     asset: &LoadedAsset,
 ) -> Result<Option<Arc<Ladder>>, AppError> {
-    let Some(max_error_px) = auto_lod else {
-        if lod_min_psnr.is_some() || lod_max_psnr_drop.is_some() || lod_blend.is_some() {
-            return Err(AppError::Invalid(
-                "lod_min_psnr / lod_max_psnr_drop / lod_blend need auto_lod".to_owned(),
-            ));
-        }
+    let Some(policy) = LodPolicy::from_parts(
+        auto_lod,
+        lod_min_psnr,
+        lod_max_psnr_drop,
+        lod_blend,
+        has_goal,
+    )
+    .map_err(lod_error)?
+    else {
         return Ok(None);
     };
-    if has_goal {
-        return Err(AppError::Invalid(
-            "give auto_lod or target_psnr / budget_ms, not both".to_owned(),
-        ));
-    }
-    let policy = LodPolicy {
-        max_error_px,
-        min_psnr: lod_min_psnr,
-        max_psnr_drop: Some(
-            lod_max_psnr_drop.unwrap_or(lumigraph_core::lod::DEFAULT_MAX_PSNR_DROP),
-        ),
-        blend_band: lod_blend.unwrap_or(lumigraph_core::lod::DEFAULT_BLEND_BAND),
-    };
     let options = knobs.to_options(asset)?;
-    let calibration = Calibration::from_quality(asset.header.quality.as_ref())
-        .map_err(|e| AppError::Invalid(e.to_string()))?
-        .ok_or_else(|| {
-            AppError::Invalid(format!(
-                "asset {} has no calibration: bake it with calibrate=true (the default of POST \
-                 /v1/bake and `lumigraph bake`) to render with auto_lod",
-                asset.id
-            ))
-        })?;
     Ladder::new(
-        &calibration,
+        &asset_calibration(asset, "with auto_lod")?,
         &policy,
         asset.header.geometry.camera_count,
         &options,
