@@ -39,23 +39,41 @@ struct RenderParams {
     method_b: u32,
     coarse_width: u32,
     coarse_height: u32,
-    pad7: u32,
+    // Pixels per row of the output buffers (a coarse pass pads rows for a texture copy).
+    row_stride: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
 @group(0) @binding(1) var<storage, read_write> out_color: array<u32>;
 @group(0) @binding(2) var<storage, read_write> out_depth: array<f32>;
 @group(0) @binding(3) var<storage, read_write> counters: array<atomic<u32>, 4>;
-@group(0) @binding(4) var<storage, read> coarse: array<f32>;
+// The coarse pass's z-depths (guided passes): a texture, because lavapipe reads a storage
+// buffer one lane at a time.
+@group(0) @binding(4) var coarse: texture_2d<f32>;
 
-@group(1) @binding(0) var<storage, read> cameras: array<Camera>;
-@group(1) @binding(1) var<storage, read> hierarchy: array<HierTriangle>;
-@group(1) @binding(5) var<storage, read> split_normals: array<vec4<f32>>;
+// Uniform, not storage, buffers: lavapipe reads a storage buffer one lane at a time, a uniform
+// one as a vector gather (the frame time halved). The sizes come from the camera set
+// (shaders.rs `render_source`).
+@group(1) @binding(0) var<uniform> cameras: array<Camera, CAMERA_COUNT>;
+@group(1) @binding(1) var<uniform> hierarchy: array<HierTriangle, TRIANGLE_COUNT>;
+@group(1) @binding(5) var<uniform> split_normals: array<vec4<f32>, SPLIT_COUNT>;
 @group(1) @binding(2) var color_maps: texture_2d_array<f32>;
 @group(1) @binding(3) var footprints: texture_2d_array<u32>;
 @group(1) @binding(4) var linear_sampler: sampler;
 
 const METHOD_FIXED: u32 = 0u;
+
+// Pipeline specialisation. Lavapipe runs 8 pixels in SIMD lockstep and executes every branch of
+// an `if` for them, taken or not, so code a pass cannot use is compiled out instead of skipped:
+// METHODS is the marching methods this pipeline serves (1 = fixed, 2 = default, 3 = both, per
+// pixel); ROLE is 0 for a plain pass, 1 for a coarse pass, 2 for a guided fine pass.
+override METHODS: u32 = 3u;
+override ROLE: u32 = 0u;
+
+// Whether this pixel marches with the fixed-step baseline.
+fn is_fixed() -> bool {
+    return METHODS == 1u || (METHODS == 3u && g_method == METHOD_FIXED);
+}
 
 // This pixel's setting: the first one of `params`, or the `*_b` one (see `blend`).
 var<private> g_level: u32;
@@ -111,20 +129,7 @@ fn probe(cam: Camera, k: u32, x: vec3<f32>, edge_aware: bool) -> Probe {
         let lo = min(min(d.x, d.y), min(d.z, d.w));
         let hi = max(max(d.x, d.y), max(d.z, d.w));
         if hi - lo > params.edge_gap {
-            // Sort the four depths (5 compare-exchanges) to find the largest gap.
-            var s = d;
-            if s.x > s.y { s = vec4<f32>(s.y, s.x, s.z, s.w); }
-            if s.z > s.w { s = vec4<f32>(s.x, s.y, s.w, s.z); }
-            if s.x > s.z { s = vec4<f32>(s.z, s.y, s.x, s.w); }
-            if s.y > s.w { s = vec4<f32>(s.x, s.w, s.z, s.y); }
-            if s.y > s.z { s = vec4<f32>(s.x, s.z, s.y, s.w); }
-            let gaps = vec3<f32>(s.y - s.x, s.z - s.y, s.w - s.z);
-            var split = 0.5 * (s.x + s.y);
-            if gaps.y >= gaps.x && gaps.y >= gaps.z {
-                split = 0.5 * (s.y + s.z);
-            } else if gaps.z >= gaps.x && gaps.z >= gaps.y {
-                split = 0.5 * (s.z + s.w);
-            }
+            let split = 0.5 * (lo + hi);
             let front = vec4<f32>(d <= vec4<f32>(split));
             let front_mass = dot(bw, front);
             let layer = select(vec4<f32>(1.0) - front, front, front_mass >= params.front_mass);
@@ -200,57 +205,75 @@ fn probe_camera(cams: vec3<u32>, c0: Camera, c1: Camera, c2: Camera, i: u32, x: 
 // front (f < 0) to behind (f ≥ 0) brackets a crossing, refined by bisection; the crossing is
 // accepted only where that camera's f is continuous across the final bracket (its jump is below
 // the tolerance) — a silhouette jump is a phantom, not a surface.
+//
+// Shaped for lavapipe, which runs 8 pixels in SIMD lockstep: an `if` costs its body whether or
+// not any lane takes it, and a loop runs as often as its slowest lane (at least once). So the
+// step loop holds only the three probes and stops at the first bracket; bisection runs after it,
+// on one camera (the bracketing one whose secant estimate is earliest), and a rejected bracket
+// excludes that camera and retries the same step before marching on.
 fn march_refined(o: vec3<f32>, d: vec3<f32>, t_in: f32, t_out: f32, cams: vec3<u32>, weights: vec3<f32>, c0: Camera, c1: Camera, c2: Camera) -> March {
     var m = March(t_in, false, 0u, 0u, 1e30);
-    var t_prev = t_in;
-    let x0 = o + t_in * d;
-    var f_prev = vec3<f32>(probe_camera(cams, c0, c1, c2, 0u, x0), probe_camera(cams, c0, c1, c2, 1u, x0), probe_camera(cams, c0, c1, c2, 2u, x0));
-    m.fetches += 3u;
-    let a0 = abs(f_prev);
-    m.near = min(m.near, min(min(a0.x, a0.y), a0.z) / max(t_in, 1e-6));
-    for (var s = 0u; s < g_max_steps; s++) {
-        if t_prev >= t_out {
+    // The current step is [t_prev, t]. The march starts one step before t_in, "behind" every
+    // surface (f > 0: no bracket), so its first step samples t_in itself.
+    var t_prev = t_in - g_step;
+    var t = t_prev;
+    var f = vec3<f32>(1.0);
+    var f_prev = f;
+    var excluded = vec3<bool>(false);
+    for (var attempt = 0u; attempt < g_max_steps + 3u; attempt++) {
+        // March to the first step some non-excluded camera brackets.
+        var cam = 3u;
+        for (var s = 0u; s <= g_max_steps; s++) {
+            // Secant estimate of each bracketing camera's crossing; the earliest wins.
+            let bracket = (f_prev < vec3<f32>(0.0)) & (f >= vec3<f32>(0.0)) & !excluded;
+            let frac = -f_prev / max(f - f_prev, vec3<f32>(1e-12));
+            let est = select(vec3<f32>(2.0), frac, bracket);
+            if bracket.x || bracket.y || bracket.z {
+                cam = select(select(2u, 1u, est.y <= est.z), 0u, est.x <= est.y && est.x <= est.z);
+                break;
+            }
+            if t >= t_out || m.steps > g_max_steps {
+                break;
+            }
+            t_prev = t;
+            f_prev = f;
+            excluded = vec3<bool>(false);
+            t = min(max(t_prev + g_step, t_in), t_out);
+            let x = o + t * d;
+            m.steps += 1u;
+            f = vec3<f32>(probe_camera(cams, c0, c1, c2, 0u, x), probe_camera(cams, c0, c1, c2, 1u, x), probe_camera(cams, c0, c1, c2, 2u, x));
+            m.fetches += 3u;
+            let af = abs(f);
+            m.near = min(m.near, min(min(af.x, af.y), af.z) / max(t, 1e-6));
+        }
+        if cam == 3u {
             break;
         }
-        let t = min(t_prev + g_step, t_out);
-        let x = o + t * d;
-        m.steps += 1u;
-        let f = vec3<f32>(probe_camera(cams, c0, c1, c2, 0u, x), probe_camera(cams, c0, c1, c2, 1u, x), probe_camera(cams, c0, c1, c2, 2u, x));
-        m.fetches += 3u;
-        let af = abs(f);
-        m.near = min(m.near, min(min(af.x, af.y), af.z) / max(t, 1e-6));
-        var best_t = 1e30;
-        for (var i = 0u; i < 3u; i++) {
-            if f_prev[i] < 0.0 && f[i] >= 0.0 {
-                var lo = t_prev;
-                var hi = t;
-                var f_lo = f_prev[i];
-                var f_hi = f[i];
-                for (var it = 0u; it < params.refine_iterations; it++) {
-                    let mid = 0.5 * (lo + hi);
-                    let f_mid = probe_camera(cams, c0, c1, c2, i, o + mid * d);
-                    m.fetches += 1u;
-                    if f_mid < 0.0 {
-                        lo = mid;
-                        f_lo = f_mid;
-                    } else {
-                        hi = mid;
-                        f_hi = f_mid;
-                    }
-                }
-                if f_hi - f_lo < g_tolerance {
-                    let t_cross = lo + (hi - lo) * (-f_lo) / max(f_hi - f_lo, 1e-12);
-                    best_t = min(best_t, t_cross);
-                }
+        var lo = t_prev;
+        var hi = t;
+        var f_lo = f_prev[cam];
+        var f_hi = f[cam];
+        // A per-lane trip count: a batch of pixels with no bracket runs this loop once, not
+        // refine_iterations times.
+        let iterations = select(0u, params.refine_iterations, cam < 3u);
+        for (var it = 0u; it < iterations; it++) {
+            let mid = 0.5 * (lo + hi);
+            let f_mid = probe_camera(cams, c0, c1, c2, cam, o + mid * d);
+            m.fetches += 1u;
+            if f_mid < 0.0 {
+                lo = mid;
+                f_lo = f_mid;
+            } else {
+                hi = mid;
+                f_hi = f_mid;
             }
         }
-        if best_t < 1e29 {
-            m.t = best_t;
+        if f_hi - f_lo < g_tolerance {
+            m.t = lo + (hi - lo) * (-f_lo) / max(f_hi - f_lo, 1e-12);
             m.hit = true;
-            return m;
+            break;
         }
-        f_prev = f;
-        t_prev = t;
+        excluded[cam] = true;
     }
     return m;
 }
@@ -260,7 +283,7 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if gid.x >= params.width || gid.y >= params.height {
         return;
     }
-    let index = gid.y * params.width + gid.x;
+    let index = gid.y * params.row_stride + gid.x;
     let use_b = (f32(bayer4(gid.xy)) + 0.5) / 16.0 < params.blend;
     g_level = select(params.level, params.level_b, use_b);
     g_step = select(params.step, params.step_b, use_b);
@@ -275,18 +298,20 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let o = params.eye;
     // A coarse pass grows the sphere and box by its reach at their far side, so a ray that
     // passes just outside them is marked near (−2): a fine pixel beside it may hit.
-    let grow = params.near_scale * (length(o) + BOUNDING_RADIUS);
+    let grow = select(0.0, params.near_scale * (length(o) + BOUNDING_RADIUS), ROLE == 1u);
     let bounds = sphere_roots(o, d, BOUNDING_RADIUS);
     if bounds.y < 0.0 || bounds.x > bounds.y {
-        let grown = sphere_roots(o, d, BOUNDING_RADIUS + grow);
-        if grow > 0.0 && grown.y >= 0.0 && grown.x <= grown.y {
-            out_depth[index] = -2.0;
+        if ROLE == 1u {
+            let grown = sphere_roots(o, d, BOUNDING_RADIUS + grow);
+            if grown.y >= 0.0 && grown.x <= grown.y {
+                out_depth[index] = -2.0;
+            }
         }
         return;
     }
     var t_in = max(bounds.x, 0.0);
     var t_out = bounds.y;
-    if g_method != METHOD_FIXED {
+    if !is_fixed() {
         // Clip to the visible box (slab test; near-zero direction components are replaced by
         // ±1e-20 so every product stays finite). The fixed baseline keeps the seed's sphere.
         let dd = select(d, select(vec3<f32>(1e-20), vec3<f32>(-1e-20), d < vec3<f32>(0.0)), abs(d) < vec3<f32>(1e-20));
@@ -297,7 +322,7 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         t_in = max(t_in, max(max(near.x, near.y), near.z));
         t_out = min(t_out, min(min(far.x, far.y), far.z));
         if t_in > t_out {
-            if grow > 0.0 {
+            if ROLE == 1u {
                 let g0 = (params.box_min - vec3<f32>(grow) - o) / dd;
                 let g1 = (params.box_max + vec3<f32>(grow) - o) / dd;
                 let g_in = max(max(max(min(g0, g1).x, min(g0, g1).y), min(g0, g1).z), 0.0);
@@ -308,7 +333,7 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
             return;
         }
-        if params.coarse_factor > 0u {
+        if ROLE == 2u {
             // Coarse-to-fine (the `guide` knob): the 3×3 coarse pixels around this one bound
             // where its surface can be. All nine missed far from any surface: so does this
             // pixel. Else march from before the nearest of their hits to past the farthest.
@@ -326,7 +351,7 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             for (var dy = -1; dy <= 1; dy++) {
                 for (var dx = -1; dx <= 1; dx++) {
                     let p = clamp(nearest + vec2<i32>(dx, dy), vec2<i32>(0), vec2<i32>(cw - 1, ch - 1));
-                    let z = coarse[p.y * cw + p.x];
+                    let z = textureLoad(coarse, p, 0).x;
                     if z < -1.5 {
                         near_misses += 1u;
                     } else if z < 0.0 {
@@ -366,18 +391,18 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let cs = sphere_roots(o, d, 1.0);
     let entry = normalize(o + cs.x * d);
     let loc = locate(entry, g_level);
-    // Each camera's frame is read from the storage buffer once per pixel, not once per probe.
+    // Each camera's frame is read once per pixel, not once per probe.
     let c0 = cameras[loc.cameras.x];
     let c1 = cameras[loc.cameras.y];
     let c2 = cameras[loc.cameras.z];
     var m: March;
-    if g_method == METHOD_FIXED {
+    if is_fixed() {
         m = march_fixed(o, d, t_in, t_out, loc.cameras, c0, c1, c2);
     } else {
         m = march_refined(o, d, t_in, t_out, loc.cameras, loc.weights, c0, c1, c2);
     }
     var fetches = m.fetches;
-    if !m.hit && params.near_scale > 0.0 && m.near < params.near_scale {
+    if ROLE == 1u && !m.hit && m.near < params.near_scale {
         out_depth[index] = -2.0;
     }
     if m.hit {
@@ -388,8 +413,14 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         var fallback_f = 1e30;
         for (var i = 0u; i < 3u; i++) {
             let k = loc.cameras[i];
-            let edge_aware = g_method != METHOD_FIXED;
-            let pb = probe(cameras[k], k, x, edge_aware);
+            let edge_aware = !is_fixed();
+            var cam = c0;
+            if i == 1u {
+                cam = c1;
+            } else if i == 2u {
+                cam = c2;
+            }
+            let pb = probe(cam, k, x, edge_aware);
             var c: vec4<f32>;
             if edge_aware {
                 c = layer_color(k, pb.tc, pb.layer_weights);

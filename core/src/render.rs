@@ -18,7 +18,7 @@ use crate::asset::{AssetError, AssetFile, Channel, Encoding, ImageKey};
 use crate::bake::gpu_cameras;
 use crate::frame::{Frame, FrameStats};
 use crate::geometry::{self, CAMERA_COUNTS};
-use crate::gpu::{Gpu, GpuError, array_view, storage_buffer, texture_array};
+use crate::gpu::{Gpu, GpuError, array_view, texture_array};
 use crate::view::{DEFAULT_MAX_VIEW_PX, View, ViewError};
 
 /// Default step of the fixed method, in units of the bounding-sphere diameter (64 steps across).
@@ -27,8 +27,10 @@ pub const DEFAULT_FIXED_STEP: f32 = 1.0 / 64.0;
 pub const DEFAULT_REFINED_STEP: f32 = 1.0 / 32.0;
 /// Smallest step accepted (bounds the work per pixel: at most 1/step samples).
 pub const MIN_STEP: f32 = 1.0 / 4096.0;
-/// Bisection iterations of the default method.
-const REFINE_ITERATIONS: u32 = 8;
+/// Bisection iterations of the default method (then a secant step in the last bracket). Five
+/// match eight in masked PSNR and median depth error on the fixtures (bunny, 6 views at 512²,
+/// guide 4: 26.12 dB, 1.94e-4 r both) at 10 % less time.
+const REFINE_ITERATIONS: u32 = 5;
 /// Depth gap (in normalized map depth) above which a 2×2 footprint is split into layers.
 const EDGE_GAP: f32 = 0.05;
 /// Bilinear weight the front layer of a split footprint needs to be chosen. Above 0.5 because a
@@ -103,13 +105,16 @@ pub struct RenderOptions {
     /// Coarse-to-fine guidance, default method only: first render every `guide`-th pixel per
     /// axis (2–16), and let their hits bound each pixel's march. A pixel whose 3×3 coarse
     /// neighbours all missed far from any surface is skipped; where one passed close to a
-    /// surface (a thin feature between the samples), the pixel marches in full. `None` or 0:
-    /// off.
+    /// surface (a thin feature between the samples), the pixel marches in full. 0: off;
+    /// `None`: [`DEFAULT_GUIDE`] for the default method, off for the fixed baseline.
     pub guide: Option<u32>,
 }
 
 /// Largest coarse-to-fine factor ([`RenderOptions::guide`]).
 pub const MAX_GUIDE: u32 = 16;
+/// Coarse-to-fine factor of the default method when none is given: at 512² on the fixtures it
+/// takes about 0.7× of the unguided time at equal masked PSNR (BENCHMARKS.md).
+pub const DEFAULT_GUIDE: u32 = 4;
 
 /// Options of [`Renderer::upload_with`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -173,7 +178,10 @@ impl RenderOptions {
                 "tolerance {tolerance} must be finite and in (0, 1] bounding diameters"
             )));
         }
-        let guide = self.guide.unwrap_or(0);
+        let guide = self.guide.unwrap_or(match self.method {
+            Method::Fixed => 0,
+            Method::Default => DEFAULT_GUIDE,
+        });
         if guide != 0 && !(2..=MAX_GUIDE).contains(&guide) {
             return Err(RenderError::Option(format!(
                 "guide {guide}: use 0 (off) or a coarse factor 2 to {MAX_GUIDE}"
@@ -250,7 +258,7 @@ struct RenderParams {
     method_b: u32,
     coarse_width: u32,
     coarse_height: u32,
-    pad_b: u32,
+    row_stride: u32,
 }
 const _: () = assert!(std::mem::size_of::<RenderParams>() == 176);
 
@@ -291,12 +299,24 @@ struct Targets {
     group: wgpu::BindGroup,
     coarse_uniform: wgpu::Buffer,
     coarse_group: wgpu::BindGroup,
+    /// The coarse pass's depths (rows of [`coarse_stride`] pixels) and their copy as a texture.
+    coarse_depth: wgpu::Buffer,
+    coarse_texture: wgpu::Texture,
 }
 
 /// How close (in coarse pixels, as seen from the eye) a coarse ray must pass to a surface some
 /// camera sees for its miss to count as near: the fine pixels around it then march in full.
 /// Two coarse pixels cover the 3×3 neighbourhood each fine pixel reads.
 const GUIDE_REACH: f32 = 2.0;
+
+/// [`Renderer::pipeline`] methods: the fixed baseline, the default marcher, both (per pixel).
+const PIPELINE_FIXED: u32 = 1;
+const PIPELINE_DEFAULT: u32 = 2;
+const PIPELINE_BOTH: u32 = 3;
+/// [`Renderer::pipeline`] roles.
+const ROLE_PLAIN: u32 = 0;
+const ROLE_COARSE: u32 = 1;
+const ROLE_GUIDED: u32 = 2;
 
 /// Coarse-pass size for a frame guided with `factor`, or `None` when guidance is off or the
 /// frame is too small (under 4 coarse pixels a side).
@@ -305,10 +325,20 @@ fn coarse_size(width: u32, height: u32, factor: u32) -> Option<(u32, u32)> {
         .then(|| (width.div_ceil(factor), height.div_ceil(factor)))
 }
 
+/// Pixels per row of a coarse pass's output: a multiple of 64, so that its depth rows (4 bytes
+/// a pixel) meet the 256-byte row alignment of a buffer-to-texture copy.
+fn coarse_stride(width: u32) -> u32 {
+    width.div_ceil(64) * 64
+}
+
 /// The light-field render pipeline; one per process, shared by threads.
 pub struct Renderer {
     gpu: Arc<Gpu>,
-    pipeline: wgpu::ComputePipeline,
+    module: wgpu::ShaderModule,
+    layout: wgpu::PipelineLayout,
+    /// Specialised pipelines, built on first use: index `3 · (methods − 1) + role` (see
+    /// [`Renderer::pipeline`]).
+    pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 9],
     frame_layout: wgpu::BindGroupLayout,
     field_layout: wgpu::BindGroupLayout,
     linear: wgpu::Sampler,
@@ -355,7 +385,6 @@ impl Renderer {
             source: wgpu::ShaderSource::Wgsl(crate::shaders::render_source().into()),
         });
         let storage = wgpu::BufferBindingType::Storage { read_only: false };
-        let read_only = wgpu::BufferBindingType::Storage { read_only: true };
         let frame_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("render frame"),
             entries: &[
@@ -363,14 +392,23 @@ impl Renderer {
                 buffer_entry(1, storage),
                 buffer_entry(2, storage),
                 buffer_entry(3, storage),
-                buffer_entry(4, read_only),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 4,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
             ],
         });
         let field_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("light field"),
             entries: &[
-                buffer_entry(0, read_only),
-                buffer_entry(1, read_only),
+                buffer_entry(0, wgpu::BufferBindingType::Uniform),
+                buffer_entry(1, wgpu::BufferBindingType::Uniform),
                 texture_entry(2, true),
                 wgpu::BindGroupLayoutEntry {
                     binding: 3,
@@ -388,21 +426,13 @@ impl Renderer {
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
                     count: None,
                 },
-                buffer_entry(5, read_only),
+                buffer_entry(5, wgpu::BufferBindingType::Uniform),
             ],
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("render"),
             bind_group_layouts: &[Some(&frame_layout), Some(&field_layout)],
             immediate_size: 0,
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("render"),
-            layout: Some(&layout),
-            module: &module,
-            entry_point: Some("cs_main"),
-            compilation_options: wgpu::PipelineCompilationOptions::default(),
-            cache: None,
         });
         let sampler = |label, filter| {
             device.create_sampler(&wgpu::SamplerDescriptor {
@@ -417,34 +447,40 @@ impl Renderer {
         let linear = sampler("light-field linear", wgpu::FilterMode::Linear);
         let set = geometry::camera_set();
         let cameras = gpu_cameras(set.positions.len());
-        let none = wgpu::BufferUsages::empty();
-        let camera_buffer = storage_buffer(
-            &gpu,
-            "icosphere cameras",
-            bytemuck::cast_slice(&cameras),
-            none,
-        );
         let hierarchy: Vec<[u32; 4]> = set
             .triangles
             .iter()
             .map(|t| [t.v[0], t.v[1], t.v[2], t.first_child])
             .collect();
-        let hierarchy_buffer = storage_buffer(
-            &gpu,
-            "icosphere hierarchy",
-            bytemuck::cast_slice(&hierarchy),
-            none,
-        );
-        let split_buffer = storage_buffer(
-            &gpu,
-            "icosphere split normals",
-            bytemuck::cast_slice(&split_normals()),
-            none,
-        );
+        let splits = split_normals();
+        // Uniform buffers (render.wgsl says why). The largest, the cameras, is 41 KiB: within
+        // every Vulkan, Metal and DX12 device's 64 KiB; a smaller limit fails pipeline creation
+        // with a GPU error at the first frame, so say which limit it is here.
+        let largest = std::mem::size_of_val(cameras.as_slice()) as u64;
+        let limit = gpu.device.limits().max_uniform_buffer_binding_size;
+        if largest > limit {
+            tracing::error!(
+                "the marcher needs {largest}-byte uniform buffers; this device allows {limit}"
+            );
+        }
+        let uniform = |label, contents: &[u8]| {
+            use wgpu::util::DeviceExt;
+            gpu.device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some(label),
+                    contents,
+                    usage: wgpu::BufferUsages::UNIFORM,
+                })
+        };
+        let camera_buffer = uniform("icosphere cameras", bytemuck::cast_slice(&cameras));
+        let hierarchy_buffer = uniform("icosphere hierarchy", bytemuck::cast_slice(&hierarchy));
+        let split_buffer = uniform("icosphere split normals", bytemuck::cast_slice(&splits));
         let max_px = DEFAULT_MAX_VIEW_PX.min(gpu.device.limits().max_texture_dimension_2d);
-        Renderer {
+        let renderer = Renderer {
             gpu,
-            pipeline,
+            module,
+            layout,
+            pipelines: Default::default(),
             frame_layout,
             field_layout,
             linear,
@@ -453,7 +489,34 @@ impl Renderer {
             split_buffer,
             targets: Mutex::new(None),
             max_px,
-        }
+        };
+        // The plain default-method pipeline serves most frames: build it now, not in the
+        // first frame.
+        renderer.pipeline(PIPELINE_DEFAULT, ROLE_PLAIN);
+        renderer
+    }
+
+    /// The marcher specialised for `methods` (1 = fixed, 2 = default, 3 = both, per pixel) and
+    /// `role` (0 = plain pass, 1 = coarse pass, 2 = guided fine pass), built on first use.
+    /// Lavapipe executes both sides of every branch for its 8-pixel batches, so each pass runs
+    /// a pipeline holding only the code it can take (render.wgsl's `METHODS` and `ROLE`).
+    fn pipeline(&self, methods: u32, role: u32) -> &wgpu::ComputePipeline {
+        let index = (3 * (methods.clamp(1, 3) - 1) + role.min(2)) as usize;
+        self.pipelines[index].get_or_init(|| {
+            self.gpu
+                .device
+                .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some("render"),
+                    layout: Some(&self.layout),
+                    module: &self.module,
+                    entry_point: Some("cs_main"),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants: &[("METHODS", f64::from(methods)), ("ROLE", f64::from(role))],
+                        ..Default::default()
+                    },
+                    cache: None,
+                })
+        })
     }
 
     /// The device.
@@ -621,7 +684,23 @@ impl Renderer {
         let device = &self.gpu.device;
         let pixels = u64::from(width) * u64::from(height);
         // Sized for the finest coarse pass (factor 2), so any factor fits.
-        let coarse_pixels = coarse_size(width, height, 2).map_or(1, |(w, h)| u64::from(w * h));
+        let (coarse_w, coarse_h) = coarse_size(width, height, 2).unwrap_or((1, 1));
+        let coarse_pixels = u64::from(coarse_stride(coarse_w)) * u64::from(coarse_h);
+        let coarse_texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("coarse depth"),
+            size: wgpu::Extent3d {
+                width: coarse_w,
+                height: coarse_h,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::R32Float,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let coarse_view = coarse_texture.create_view(&wgpu::TextureViewDescriptor::default());
         let make = |label, size, usage| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -645,9 +724,9 @@ impl Renderer {
         let coarse_uniform = make("coarse params", params_size, uniform_usage);
         let coarse_color = make("coarse colour", coarse_pixels * 4, out);
         let coarse_depth = make("coarse depth", coarse_pixels * 4, out);
-        let unused = make("no guide", 16, wgpu::BufferUsages::STORAGE);
-        let group = |label, entries: [&wgpu::Buffer; 5]| {
-            let entries: Vec<wgpu::BindGroupEntry> = entries
+        // Both passes bind the coarse depth texture; only a guided pass reads it.
+        let group = |label, entries: [&wgpu::Buffer; 4]| {
+            let mut entries: Vec<wgpu::BindGroupEntry> = entries
                 .iter()
                 .enumerate()
                 .map(|(binding, buffer)| wgpu::BindGroupEntry {
@@ -655,25 +734,20 @@ impl Renderer {
                     resource: buffer.as_entire_binding(),
                 })
                 .collect();
+            entries.push(wgpu::BindGroupEntry {
+                binding: 4,
+                resource: wgpu::BindingResource::TextureView(&coarse_view),
+            });
             device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some(label),
                 layout: &self.frame_layout,
                 entries: &entries,
             })
         };
-        let frame_group = group(
-            "render frame",
-            [&uniform, &color, &depth, &counters, &coarse_depth],
-        );
+        let frame_group = group("render frame", [&uniform, &color, &depth, &counters]);
         let coarse_group = group(
             "render coarse pass",
-            [
-                &coarse_uniform,
-                &coarse_color,
-                &coarse_depth,
-                &counters,
-                &unused,
-            ],
+            [&coarse_uniform, &coarse_color, &coarse_depth, &counters],
         );
         Targets {
             width,
@@ -686,6 +760,8 @@ impl Renderer {
             group: frame_group,
             coarse_uniform,
             coarse_group,
+            coarse_depth,
+            coarse_texture,
         }
     }
 
@@ -763,7 +839,7 @@ impl Renderer {
             method_b: second.method,
             coarse_width: 0,
             coarse_height: 0,
-            pad_b: 0,
+            row_stride: view.width,
         };
         // Coarse-to-fine (`guide`, the first setting's): a coarse pass renders every
         // guide-th pixel per axis, and its depths bound each pixel's march (render.wgsl).
@@ -785,6 +861,11 @@ impl Renderer {
             return Err(GpuError::Operation("render targets missing".to_owned()).into());
         };
         let gpu = &self.gpu;
+        let methods = match (first.method, second.method) {
+            (0, 0) => PIPELINE_FIXED,
+            (a, b) if a != 0 && b != 0 => PIPELINE_DEFAULT,
+            _ => PIPELINE_BOTH,
+        };
         let mut fine = params;
         if let Some((cw, ch)) = coarse {
             let focal = params.focal_px / factor as f32;
@@ -793,6 +874,7 @@ impl Renderer {
                 height: ch,
                 focal_px: focal,
                 near_scale: GUIDE_REACH / focal,
+                row_stride: coarse_stride(cw),
                 ..params
             };
             gpu.queue.write_buffer(
@@ -817,17 +899,44 @@ impl Renderer {
                 label: Some("render coarse"),
                 timestamp_writes: None,
             });
-            pass.set_pipeline(&self.pipeline);
+            pass.set_pipeline(self.pipeline(methods, ROLE_COARSE));
             pass.set_bind_group(0, &targets.coarse_group, &[]);
             pass.set_bind_group(1, &field.group, &[]);
             pass.dispatch_workgroups(cw.div_ceil(8), ch.div_ceil(8), 1);
+            drop(pass);
+            encoder.copy_buffer_to_texture(
+                wgpu::TexelCopyBufferInfo {
+                    buffer: &targets.coarse_depth,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(4 * coarse_stride(cw)),
+                        rows_per_image: Some(ch),
+                    },
+                },
+                wgpu::TexelCopyTextureInfo {
+                    texture: &targets.coarse_texture,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::All,
+                },
+                wgpu::Extent3d {
+                    width: cw,
+                    height: ch,
+                    depth_or_array_layers: 1,
+                },
+            );
         }
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("render"),
                 timestamp_writes: None,
             });
-            pass.set_pipeline(&self.pipeline);
+            let role = if coarse.is_some() {
+                ROLE_GUIDED
+            } else {
+                ROLE_PLAIN
+            };
+            pass.set_pipeline(self.pipeline(methods, role));
             pass.set_bind_group(0, &targets.group, &[]);
             pass.set_bind_group(1, &field.group, &[]);
             pass.dispatch_workgroups(view.width.div_ceil(8), view.height.div_ceil(8), 1);

@@ -29,7 +29,14 @@ pub const RENDER: &str = concat!(
 pub fn render_source() -> String {
     use std::fmt::Write;
     let set = crate::geometry::camera_set();
-    let mut out = String::from(
+    // Uniform arrays need constant sizes: the camera set's.
+    let split_count = set.level_range(2).end * 3;
+    let mut out = format!(
+        "const CAMERA_COUNT: u32 = {}u;\nconst TRIANGLE_COUNT: u32 = {}u;\nconst SPLIT_COUNT: u32 = {split_count}u;\n",
+        set.positions.len(),
+        set.triangles.len()
+    );
+    out.push_str(
         "fn locate_level0(p: vec3<f32>) -> u32 {\n    var best = 0u;\n    var best_score = -1e30;\n    var s: f32;\n",
     );
     for (index, t) in set.level_triangles(0).iter().enumerate() {

@@ -18,7 +18,7 @@ use crate::geometry::{self, CAMERA_COUNTS};
 use crate::gpu::mesh::GpuMesh;
 use crate::metrics::{self, Comparison, MetricsError};
 use crate::reference::{ReferenceError, ReferenceRenderer};
-use crate::render::{Method, RenderError, RenderOptions, Renderer, UploadOptions};
+use crate::render::{DEFAULT_GUIDE, Method, RenderError, RenderOptions, Renderer, UploadOptions};
 use crate::shading::Shading;
 use crate::view::View;
 
@@ -91,7 +91,7 @@ pub struct Grid {
 
 impl Grid {
     /// The default sweep for an asset: every camera count it holds from 12 up, steps 1/16–1/64,
-    /// tolerance ½ and 1 step, both methods (unguided), its depth precision and 8 bits, 256²
+    /// tolerance ½ and 1 step, both methods (the default one with its default guide), its depth precision and 8 bits, 256²
     /// and 512². 96–192 settings.
     pub fn default_for(asset: &AssetFile) -> Grid {
         let max_level = usize::from(asset.header().geometry.camera_level).min(3);
@@ -100,7 +100,7 @@ impl Grid {
             steps: vec![1.0 / 16.0, 1.0 / 32.0, 1.0 / 64.0],
             tolerance_factors: vec![0.5, 1.0],
             methods: vec![Method::Default, Method::Fixed],
-            guides: vec![0],
+            guides: vec![DEFAULT_GUIDE],
             depth_bits: if stored_depth_bits(asset) == 16 {
                 vec![16, 8]
             } else {
@@ -665,7 +665,7 @@ impl Calibration {
             steps: CALIBRATION_STEPS.to_vec(),
             tolerance_factors: vec![0.5],
             methods: vec![Method::Default],
-            guides: vec![0],
+            guides: vec![DEFAULT_GUIDE],
             depth_bits: vec![stored_depth_bits(asset)],
             sizes: vec![CALIBRATION_SIZE],
         };

@@ -417,9 +417,10 @@ impl PyLightField {
     ///         accurate level's calibrated masked PSNR (default 2; ``math.inf``: no limit).
     ///     lod_blend: with auto_lod, the dissolve band below each switch as a fraction of the
     ///         projected size (default 0.15; 0 = hard switches).
-    ///     guide: coarse-to-fine factor of the default method, 2-16 (None or 0: off): a coarse
-    ///         pass renders every guide-th pixel per axis and bounds each pixel's march
-    ///         (4: 0.63-0.76x the time at 512², same masked PSNR on the fixtures).
+    ///     guide: coarse-to-fine factor of the default method, 2-16, or 0 = off (None: 4 for
+    ///         the default method, off for the fixed one): a coarse pass renders every
+    ///         guide-th pixel per axis and bounds each pixel's march (4: about 0.7x the
+    ///         unguided time at 512², same masked PSNR on the fixtures).
     ///
     /// Raises:
     ///     ValueError: a bad view or option. TypeError: an argument of the wrong type.

@@ -22,7 +22,7 @@ struct Located {
 // generated from the same camera set the CPU uses, see shaders.rs). Each finer
 // level: the parent's middle child unless p lies outside one of its edges, then the corner child
 // across that edge (`split_normals`, 3 per parent). No camera data is read until the end —
-// storage loads are what a lookup costs on lavapipe.
+// buffer loads are what a lookup costs on lavapipe.
 fn locate(p: vec3<f32>, level: u32) -> Located {
     let best = locate_level0(p);
     var level_start = 0u;

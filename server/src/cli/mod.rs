@@ -161,9 +161,9 @@ pub struct QualityArgs {
     /// Marching method: default or fixed.
     #[arg(long, default_value = "default")]
     pub method: Method,
-    /// Coarse-to-fine factor of the default method (2–16; 0 = off): a coarse pass renders every
-    /// F-th pixel per axis and bounds each pixel's march (4: 0.63–0.76× the time at 512², same
-    /// masked PSNR on the fixtures).
+    /// Coarse-to-fine factor of the default method (2–16; 0 = off; default 4): a coarse pass
+    /// renders every F-th pixel per axis and bounds each pixel's march (4: about 0.7× the
+    /// unguided time at 512², same masked PSNR on the fixtures).
     #[arg(long, value_name = "F", allow_hyphen_values = true)]
     pub guide: Option<u32>,
     /// Pick the cheapest setting the asset's calibration predicts to reach this masked PSNR (dB).
@@ -381,7 +381,7 @@ pub struct TradeoffArgs {
     /// Methods (default default,fixed).
     #[arg(long, value_delimiter = ',')]
     pub methods: Option<Vec<Method>>,
-    /// Coarse-to-fine factors of the default method (default 0 = off; e.g. 0,4).
+    /// Coarse-to-fine factors of the default method (default 4; 0 = off; e.g. 0,4).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     pub guides: Option<Vec<u32>>,
     /// Depth bits (default 16,8 for a 16-bit asset).

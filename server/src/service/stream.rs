@@ -31,9 +31,6 @@ use super::frames::{
 use lumigraph_core::lod::Ladder;
 use lumigraph_core::tradeoff::{Calibration, Goal};
 
-/// Coarse-to-fine factor of interactive frames when the session sets no `guide`.
-const INTERACTIVE_GUIDE: u32 = 4;
-
 /// Version of the stream protocol, sent in `hello`.
 pub const PROTOCOL_VERSION: u32 = 1;
 /// Bytes of the binary frame header.
@@ -309,15 +306,8 @@ fn validate_settings(settings: Settings, asset: &LoadedAsset) -> Result<Effectiv
             .map_err(|e| e.to_string())?;
     }
     let still_options = knobs.to_options(asset).map_err(|e| e.to_string())?;
-    // Interactive frames trade a little for speed: the coarse-to-fine guide (about 2× faster
-    // at equal masked PSNR on the fixtures, BENCHMARKS.md) unless `guide` is set or the method
-    // is the fixed baseline.
-    let interactive_guide = s
-        .guide
-        .or((s.method != Some(lumigraph_core::render::Method::Fixed)).then_some(INTERACTIVE_GUIDE));
     let interactive_options = Knobs {
         lod: s.interactive_lod.or(s.lod),
-        guide: interactive_guide,
         ..knobs
     }
     .to_options(asset)
