@@ -97,6 +97,8 @@ struct Probe {
     f: f32,
     // Continuous texel coordinates of the projection.
     tc: vec2<f32>,
+    // Bilinear weights of the 2×2 footprint restricted to the chosen depth layer (sum 1).
+    layer_weights: vec4<f32>,
 }
 
 fn project(cam: Camera, x: vec3<f32>) -> vec4<f32> {
@@ -136,11 +138,25 @@ fn probe(cam: Camera, k: u32, x: vec3<f32>, edge_aware: bool) -> Probe {
         }
     }
     let depth = dot(bw, d);
-    return Probe(pr.z - depth * pr.w, tc);
+    return Probe(pr.z - depth * pr.w, tc, bw);
 }
 
-// Colour of camera k at texel coordinates tc: one bilinear sample. (Four loads weighted like the
-// depth layer were tried: 0.2–0.5 dB lower masked PSNR on bunny, cow and the demo at 512².)
+// Colour of camera k at texel coordinates tc from the footprint texels with the given weights
+// (four loads: a bilinear sample could mix colours across a silhouette). Measured (bunny, 162
+// cameras, 12 views at 256²): one bilinear sample instead scores +0.5 dB masked PSNR, but only
+// by darkening silhouette pixels towards the background; inside both masks it loses 3.3 dB
+// (36.9 → 33.6) and MAE rises 17 %.
+fn layer_color(k: u32, tc: vec2<f32>, bw: vec4<f32>) -> vec4<f32> {
+    let n = i32(params.resolution);
+    let base = vec2<i32>(floor(tc - 0.5));
+    let i0 = clamp(base, vec2<i32>(0), vec2<i32>(n - 1));
+    let i1 = clamp(base + 1, vec2<i32>(0), vec2<i32>(n - 1));
+    return bw.x * textureLoad(color_maps, vec2<i32>(i0.x, i0.y), k, 0)
+        + bw.y * textureLoad(color_maps, vec2<i32>(i1.x, i0.y), k, 0)
+        + bw.z * textureLoad(color_maps, vec2<i32>(i0.x, i1.y), k, 0)
+        + bw.w * textureLoad(color_maps, vec2<i32>(i1.x, i1.y), k, 0);
+}
+
 fn bilinear_color(k: u32, tc: vec2<f32>) -> vec4<f32> {
     return textureSampleLevel(color_maps, linear_sampler, tc / params.resolution, k, 0.0);
 }
@@ -408,8 +424,14 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 cam = c2;
             }
             let pb = probe(cam, k, x, edge_aware);
-            let c = bilinear_color(k, pb.tc);
-            fetches += 2u;
+            var c: vec4<f32>;
+            if edge_aware {
+                c = layer_color(k, pb.tc, pb.layer_weights);
+                fetches += 5u;
+            } else {
+                c = bilinear_color(k, pb.tc);
+                fetches += 2u;
+            }
             // Agreement: full weight within half the tolerance, fading to zero at the tolerance.
             let agree = clamp(2.0 - 2.0 * abs(pb.f) / g_tolerance, 0.0, 1.0);
             let w = loc.weights[i] * agree;

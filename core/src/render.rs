@@ -490,9 +490,10 @@ impl Renderer {
             targets: Mutex::new(None),
             max_px,
         };
-        // The plain default-method pipeline serves most frames: build it now, not in the
-        // first frame.
-        renderer.pipeline(PIPELINE_DEFAULT, ROLE_PLAIN);
+        // The default method's guided pair serves most frames: build it now, not in the first
+        // frame.
+        renderer.pipeline(PIPELINE_DEFAULT, ROLE_COARSE);
+        renderer.pipeline(PIPELINE_DEFAULT, ROLE_GUIDED);
         renderer
     }
 

@@ -91,8 +91,8 @@ pub struct Knobs {
     /// `default` (the accelerated marcher) or `fixed` (the seed's fixed-step baseline).
     #[schema(value_type = Option<String>)]
     pub method: Option<Method>,
-    /// Coarse-to-fine factor of the default method (2–16; 0 or absent: off): a coarse pass
-    /// bounds each pixel's march (4: 0.63–0.76× the time at 512², same masked PSNR).
+    /// Coarse-to-fine factor of the default method (2–16, 0 = off; absent: 4): a coarse pass
+    /// bounds each pixel's march (same masked PSNR in less time, BENCHMARKS.md).
     pub guide: Option<u32>,
 }
 

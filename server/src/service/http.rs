@@ -295,9 +295,9 @@ pub struct RenderRequest {
     /// `default` or `fixed`.
     #[schema(value_type = Option<String>)]
     pub method: Option<lumigraph_core::render::Method>,
-    /// Coarse-to-fine factor of the default method (2–16; absent or 0: off): a coarse pass
-    /// bounds each pixel's march (4: 0.63–0.76× the time at 512², same masked PSNR on the
-    /// fixtures).
+    /// Coarse-to-fine factor of the default method (2–16, 0 = off; absent: 4): a coarse pass
+    /// bounds each pixel's march (same masked PSNR in less time on the fixtures,
+    /// BENCHMARKS.md).
     pub guide: Option<u32>,
     /// RGBA8 background where nothing is hit; default transparent black.
     pub background: Option<[u8; 4]>,

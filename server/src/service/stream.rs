@@ -105,7 +105,7 @@ pub struct Settings {
     pub tolerance: Option<f32>,
     /// `default` or `fixed`.
     pub method: Option<lumigraph_core::render::Method>,
-    /// Coarse-to-fine factor of the default method (2–16; absent or 0: off).
+    /// Coarse-to-fine factor of the default method (2–16, 0 = off; absent: 4).
     pub guide: Option<u32>,
     /// Codec of full-quality (resting) frames: `png`, `webp` (lossless) or `jpeg`.
     pub still_codec: ColorFormat,
