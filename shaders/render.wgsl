@@ -29,7 +29,9 @@ struct RenderParams {
     near_scale: f32,
     // Box around every surface point the maps hold (see `visible_box` in render.rs).
     box_min: vec3<f32>,
-    pad3: f32,
+    // Non-zero in a compacted guided pass: workgroup w renders the 8×8 tile `tiles[w]` (see
+    // `cs_tiles`) instead of the w-th tile of the frame.
+    tiled: u32,
     box_max: vec3<f32>,
     pad4: f32,
     level_b: u32,
@@ -50,6 +52,10 @@ struct RenderParams {
 // The coarse pass's z-depths (guided passes): a texture, because lavapipe reads a storage
 // buffer one lane at a time.
 @group(0) @binding(4) var coarse: texture_2d<f32>;
+// The tiles a guided pass renders (x | y << 16, in 8×8 tiles) and the indirect dispatch size
+// whose x counts them, both written by `cs_tiles`.
+@group(0) @binding(5) var<storage, read_write> tiles: array<u32>;
+@group(0) @binding(6) var<storage, read_write> tile_dispatch: array<atomic<u32>, 3>;
 
 // Uniform, not storage, buffers: lavapipe reads a storage buffer one lane at a time, a uniform
 // one as a vector gather (the frame time halved). The sizes come from the camera set
@@ -66,7 +72,8 @@ const METHOD_FIXED: u32 = 0u;
 // Pipeline specialisation. Lavapipe runs 8 pixels in SIMD lockstep and executes every branch of
 // an `if` for them, taken or not, so code a pass cannot use is compiled out instead of skipped:
 // METHODS is the marching methods this pipeline serves (1 = fixed, 2 = default, 3 = both, per
-// pixel); ROLE is 0 for a plain pass, 1 for a coarse pass, 2 for a guided fine pass.
+// pixel); ROLE holds bits: 1 for a coarse pass (it marks near misses for the pass it guides),
+// 2 for a guided pass (a coarse pass's depths bound its marches); 3 for a guided coarse pass.
 override METHODS: u32 = 3u;
 override ROLE: u32 = 0u;
 
@@ -281,8 +288,52 @@ fn march_refined(o: vec3<f32>, d: vec3<f32>, t_in: f32, t_out: f32, cams: vec3<u
     return m;
 }
 
+// The coarse pixel nearest to fine pixel p's centre (guided passes).
+fn coarse_nearest(p: vec2<u32>) -> vec2<i32> {
+    let f = f32(params.coarse_factor);
+    let half_fine = 0.5 * vec2<f32>(f32(params.width), f32(params.height));
+    let half_coarse = 0.5 * vec2<f32>(f32(params.coarse_width), f32(params.coarse_height));
+    return vec2<i32>(round((vec2<f32>(p) + 0.5 - half_fine) / f + half_coarse - 0.5));
+}
+
+// Tile compaction for a guided pass, one invocation per 8×8 tile of the frame: a tile is kept
+// when some pixel of it has a coarse neighbour that hit or passed near a surface, i.e. when the
+// guided pass would march some pixel of it (see ROLE in `cs_main`). Lavapipe runs every
+// instruction of a shader for every pixel, early `return` or not, so skipping a pixel saves
+// nothing; only a workgroup never dispatched costs nothing.
 @compute @workgroup_size(8, 8, 1)
-fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+fn cs_tiles(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let columns = (params.width + 7u) / 8u;
+    let rows = (params.height + 7u) / 8u;
+    if gid.x >= columns || gid.y >= rows {
+        return;
+    }
+    let last = vec2<i32>(i32(params.coarse_width) - 1, i32(params.coarse_height) - 1);
+    let first_px = gid.xy * 8u;
+    let last_px = min(first_px + 7u, vec2<u32>(params.width - 1u, params.height - 1u));
+    let lo = clamp(coarse_nearest(first_px) - 1, vec2<i32>(0), last);
+    let hi = clamp(coarse_nearest(last_px) + 1, vec2<i32>(0), last);
+    var keep = false;
+    for (var y = lo.y; y <= hi.y; y++) {
+        for (var x = lo.x; x <= hi.x; x++) {
+            let z = textureLoad(coarse, vec2<i32>(x, y), 0).x;
+            // Not a far miss (−1): a hit (≥ 0) or a near miss (−2).
+            keep = keep || !(z < 0.0 && z > -1.5);
+        }
+    }
+    if keep {
+        let slot = atomicAdd(&tile_dispatch[0], 1u);
+        tiles[slot] = gid.x | (gid.y << 16u);
+    }
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgroup_id) group_id: vec3<u32>, @builtin(local_invocation_id) local_id: vec3<u32>) {
+    var gid = global_id;
+    if (ROLE & 2u) != 0u && params.tiled != 0u {
+        let tile = tiles[group_id.x];
+        gid = vec3<u32>(vec2<u32>(tile & 0xffffu, tile >> 16u) * 8u + local_id.xy, 0u);
+    }
     if gid.x >= params.width || gid.y >= params.height {
         return;
     }
@@ -301,10 +352,10 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let o = params.eye;
     // A coarse pass grows the sphere and box by its reach at their far side, so a ray that
     // passes just outside them is marked near (−2): a fine pixel beside it may hit.
-    let grow = select(0.0, params.near_scale * (length(o) + BOUNDING_RADIUS), ROLE == 1u);
+    let grow = select(0.0, params.near_scale * (length(o) + BOUNDING_RADIUS), (ROLE & 1u) != 0u);
     let bounds = sphere_roots(o, d, BOUNDING_RADIUS);
     if bounds.y < 0.0 || bounds.x > bounds.y {
-        if ROLE == 1u {
+        if (ROLE & 1u) != 0u {
             let grown = sphere_roots(o, d, BOUNDING_RADIUS + grow);
             if grown.y >= 0.0 && grown.x <= grown.y {
                 out_depth[index] = -2.0;
@@ -325,7 +376,7 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         t_in = max(t_in, max(max(near.x, near.y), near.z));
         t_out = min(t_out, min(min(far.x, far.y), far.z));
         if t_in > t_out {
-            if ROLE == 1u {
+            if (ROLE & 1u) != 0u {
                 let g0 = (params.box_min - vec3<f32>(grow) - o) / dd;
                 let g1 = (params.box_max + vec3<f32>(grow) - o) / dd;
                 let g_in = max(max(max(min(g0, g1).x, min(g0, g1).y), min(g0, g1).z), 0.0);
@@ -336,17 +387,13 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
             return;
         }
-        if ROLE == 2u {
+        if (ROLE & 2u) != 0u {
             // Coarse-to-fine (the `guide` knob): the 3×3 coarse pixels around this one bound
             // where its surface can be. All nine missed far from any surface: so does this
             // pixel. Else march from before the nearest of their hits to past the farthest.
-            let f = f32(params.coarse_factor);
             let cw = i32(params.coarse_width);
             let ch = i32(params.coarse_height);
-            let half_fine = 0.5 * vec2<f32>(f32(params.width), f32(params.height));
-            let half_coarse = 0.5 * vec2<f32>(f32(cw), f32(ch));
-            let c = (vec2<f32>(gid.xy) + 0.5 - half_fine) / f + half_coarse - 0.5;
-            let nearest = vec2<i32>(round(c));
+            let nearest = coarse_nearest(gid.xy);
             var z_min = 1e30;
             var z_max = -1e30;
             var misses = 0u;
@@ -371,20 +418,20 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             // A neighbour passed close to a surface without finding it (a thin feature between
             // the coarse samples, or an object's edge): march this pixel unbounded.
             if near_misses == 0u {
-            // A step of margin plus the neighbourhood's own depth spread: on a steep or curved
-            // surface this pixel's depth can lie beyond its neighbours' range. Where some
-            // neighbours missed (a silhouette), three more steps past the farthest hit.
-            let dz = dot(d, params.forward) * params.depth_scale;
-            let margin = g_step + (z_max - z_min) / dz;
-            t_in = max(t_in, z_min / dz - margin);
-            if misses == 0u {
-                t_out = min(t_out, z_max / dz + margin);
-            } else {
-                t_out = min(t_out, z_max / dz + margin + 3.0 * g_step);
-            }
-            if t_in > t_out {
-                return;
-            }
+                // A step of margin plus the neighbourhood's own depth spread: on a steep or
+                // curved surface this pixel's depth can lie beyond its neighbours' range. Where
+                // some neighbours missed (a silhouette), three more steps past the farthest hit.
+                let dz = dot(d, params.forward) * params.depth_scale;
+                let margin = g_step + (z_max - z_min) / dz;
+                t_in = max(t_in, z_min / dz - margin);
+                if misses == 0u {
+                    t_out = min(t_out, z_max / dz + margin);
+                } else {
+                    t_out = min(t_out, z_max / dz + margin + 3.0 * g_step);
+                }
+                if t_in > t_out {
+                    return;
+                }
             }
         }
     }
@@ -405,7 +452,7 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         m = march_refined(o, d, t_in, t_out, loc.cameras, loc.weights, c0, c1, c2);
     }
     var fetches = m.fetches;
-    if ROLE == 1u && !m.hit && m.near < params.near_scale {
+    if (ROLE & 1u) != 0u && !m.hit && m.near < params.near_scale {
         out_depth[index] = -2.0;
     }
     if m.hit {

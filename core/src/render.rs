@@ -104,9 +104,11 @@ pub struct RenderOptions {
     pub method: Method,
     /// Coarse-to-fine guidance, default method only: first render every `guide`-th pixel per
     /// axis (2–16), and let their hits bound each pixel's march. A pixel whose 3×3 coarse
-    /// neighbours all missed far from any surface is skipped; where one passed close to a
-    /// surface (a thin feature between the samples), the pixel marches in full. 0: off;
-    /// `None`: [`DEFAULT_GUIDE`] for the default method, off for the fixed baseline.
+    /// neighbours all missed far from any surface is skipped (and an 8×8 tile of such pixels
+    /// is never dispatched); where one passed close to a surface (a thin feature between the
+    /// samples), the pixel marches in full. The coarse pass is guided the same way by one 4×
+    /// coarser, when that has at least 4 pixels a side. 0: off; `None`: [`DEFAULT_GUIDE`] for
+    /// the default method, off for the fixed baseline.
     pub guide: Option<u32>,
 }
 
@@ -248,7 +250,7 @@ struct RenderParams {
     coarse_factor: u32,
     near_scale: f32,
     box_min: [f32; 3],
-    pad_min: f32,
+    tiled: u32,
     box_max: [f32; 3],
     pad_max: f32,
     level_b: u32,
@@ -297,12 +299,30 @@ struct Targets {
     counters: wgpu::Buffer,
     readback: wgpu::Buffer,
     group: wgpu::BindGroup,
-    coarse_uniform: wgpu::Buffer,
-    coarse_group: wgpu::BindGroup,
-    /// The coarse pass's depths (rows of [`coarse_stride`] pixels) and their copy as a texture.
-    coarse_depth: wgpu::Buffer,
-    coarse_texture: wgpu::Texture,
+    /// The coarse pass that guides the frame, and the coarser one that guides it.
+    coarse: CoarseLevel,
+    pre: CoarseLevel,
+    /// The indirect dispatch size of a compacted guided pass (counted in `tile_dispatch` as
+    /// `cs_tiles` lists the tiles in a buffer only the bind groups hold, copied to `tile_args`:
+    /// one buffer cannot be bound as storage and read as dispatch arguments by the same pass).
+    tile_dispatch: wgpu::Buffer,
+    tile_args: wgpu::Buffer,
 }
+
+/// One coarse pass's buffers: its parameters, its depths (rows of [`coarse_stride`] pixels;
+/// its colour is scratch) and their copy as a texture, which the next finer pass reads, and its
+/// bind group (which binds the texture of the pass guiding it).
+struct CoarseLevel {
+    uniform: wgpu::Buffer,
+    depth: wgpu::Buffer,
+    texture: wgpu::Texture,
+    group: wgpu::BindGroup,
+}
+
+/// Ratio of a guided frame's coarse pass to the pre-coarse pass that guides it in turn: an
+/// unguided coarse pass marches every ray over the whole box and cost a quarter of a 512²
+/// frame; guided, its rays march a few steps like the frame's.
+const PRE_FACTOR: u32 = 4;
 
 /// How close (in coarse pixels, as seen from the eye) a coarse ray must pass to a surface some
 /// camera sees for its miss to count as near: the fine pixels around it then march in full.
@@ -313,7 +333,7 @@ const GUIDE_REACH: f32 = 2.0;
 const PIPELINE_FIXED: u32 = 1;
 const PIPELINE_DEFAULT: u32 = 2;
 const PIPELINE_BOTH: u32 = 3;
-/// [`Renderer::pipeline`] roles.
+/// [`Renderer::pipeline`] roles (bits; render.wgsl `ROLE`).
 const ROLE_PLAIN: u32 = 0;
 const ROLE_COARSE: u32 = 1;
 const ROLE_GUIDED: u32 = 2;
@@ -324,6 +344,16 @@ fn coarse_size(width: u32, height: u32, factor: u32) -> Option<(u32, u32)> {
     (factor >= 2 && width >= 4 * factor && height >= 4 * factor)
         .then(|| (width.div_ceil(factor), height.div_ceil(factor)))
 }
+
+/// The 8×8 tiles (workgroups) of a frame, per row and per column.
+fn tile_grid(width: u32, height: u32) -> (u32, u32) {
+    (width.div_ceil(8), height.div_ceil(8))
+}
+
+/// Most tiles a compacted guided pass may list: its indirect dispatch counts them along one
+/// axis, whose size every device allows up to 65 535 (frames up to about 2048²; a larger frame
+/// is guided without compaction).
+const MAX_TILES: u32 = 65_535;
 
 /// Pixels per row of a coarse pass's output: a multiple of 64, so that its depth rows (4 bytes
 /// a pixel) meet the 256-byte row alignment of a buffer-to-texture copy.
@@ -336,9 +366,13 @@ pub struct Renderer {
     gpu: Arc<Gpu>,
     module: wgpu::ShaderModule,
     layout: wgpu::PipelineLayout,
-    /// Specialised pipelines, built on first use: index `3 · (methods − 1) + role` (see
+    /// Specialised pipelines, built on first use: index `4 · (methods − 1) + role` (see
     /// [`Renderer::pipeline`]).
-    pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 9],
+    pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 12],
+    /// Tile compaction of guided passes (render.wgsl `cs_tiles`), on unless a test turns it
+    /// off ([`Renderer::set_tile_compaction`]).
+    tiles_pipeline: wgpu::ComputePipeline,
+    compaction: std::sync::atomic::AtomicBool,
     frame_layout: wgpu::BindGroupLayout,
     field_layout: wgpu::BindGroupLayout,
     linear: wgpu::Sampler,
@@ -402,6 +436,8 @@ impl Renderer {
                     },
                     count: None,
                 },
+                buffer_entry(5, storage),
+                buffer_entry(6, storage),
             ],
         });
         let field_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -476,11 +512,21 @@ impl Renderer {
         let hierarchy_buffer = uniform("icosphere hierarchy", bytemuck::cast_slice(&hierarchy));
         let split_buffer = uniform("icosphere split normals", bytemuck::cast_slice(&splits));
         let max_px = DEFAULT_MAX_VIEW_PX.min(gpu.device.limits().max_texture_dimension_2d);
+        let tiles_pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("render tiles"),
+            layout: Some(&layout),
+            module: &module,
+            entry_point: Some("cs_tiles"),
+            compilation_options: wgpu::PipelineCompilationOptions::default(),
+            cache: None,
+        });
         let renderer = Renderer {
             gpu,
             module,
             layout,
             pipelines: Default::default(),
+            tiles_pipeline,
+            compaction: std::sync::atomic::AtomicBool::new(true),
             frame_layout,
             field_layout,
             linear,
@@ -493,16 +539,17 @@ impl Renderer {
         // The default method's guided pair serves most frames: build it now, not in the first
         // frame.
         renderer.pipeline(PIPELINE_DEFAULT, ROLE_COARSE);
+        renderer.pipeline(PIPELINE_DEFAULT, ROLE_COARSE | ROLE_GUIDED);
         renderer.pipeline(PIPELINE_DEFAULT, ROLE_GUIDED);
         renderer
     }
 
     /// The marcher specialised for `methods` (1 = fixed, 2 = default, 3 = both, per pixel) and
-    /// `role` (0 = plain pass, 1 = coarse pass, 2 = guided fine pass), built on first use.
+    /// `role` (bits: [`ROLE_COARSE`], [`ROLE_GUIDED`]; 0 = plain pass), built on first use.
     /// Lavapipe executes both sides of every branch for its 8-pixel batches, so each pass runs
     /// a pipeline holding only the code it can take (render.wgsl's `METHODS` and `ROLE`).
     fn pipeline(&self, methods: u32, role: u32) -> &wgpu::ComputePipeline {
-        let index = (3 * (methods.clamp(1, 3) - 1) + role.min(2)) as usize;
+        let index = (4 * (methods.clamp(1, 3) - 1) + role.min(3)) as usize;
         self.pipelines[index].get_or_init(|| {
             self.gpu
                 .device
@@ -518,6 +565,14 @@ impl Renderer {
                     cache: None,
                 })
         })
+    }
+
+    /// Turns the tile compaction of guided passes on (the default) or off: for tests, which
+    /// check that it changes no pixel.
+    #[doc(hidden)]
+    pub fn set_tile_compaction(&self, enabled: bool) {
+        self.compaction
+            .store(enabled, std::sync::atomic::Ordering::Relaxed);
     }
 
     /// The device.
@@ -686,22 +741,27 @@ impl Renderer {
         let pixels = u64::from(width) * u64::from(height);
         // Sized for the finest coarse pass (factor 2), so any factor fits.
         let (coarse_w, coarse_h) = coarse_size(width, height, 2).unwrap_or((1, 1));
-        let coarse_pixels = u64::from(coarse_stride(coarse_w)) * u64::from(coarse_h);
-        let coarse_texture = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("coarse depth"),
-            size: wgpu::Extent3d {
-                width: coarse_w,
-                height: coarse_h,
-                depth_or_array_layers: 1,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::R32Float,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
+        let (pre_w, pre_h) = coarse_size(coarse_w, coarse_h, PRE_FACTOR).unwrap_or((1, 1));
+        let depth_texture = |label, width, height| {
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d {
+                    width,
+                    height,
+                    depth_or_array_layers: 1,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: wgpu::TextureFormat::R32Float,
+                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+                view_formats: &[],
+            })
+        };
+        let coarse_texture = depth_texture("coarse depth", coarse_w, coarse_h);
+        let pre_texture = depth_texture("pre-coarse depth", pre_w, pre_h);
         let coarse_view = coarse_texture.create_view(&wgpu::TextureViewDescriptor::default());
+        let pre_view = pre_texture.create_view(&wgpu::TextureViewDescriptor::default());
         let make = |label, size, usage| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -714,19 +774,37 @@ impl Renderer {
         let uniform_usage = wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST;
         let params_size = std::mem::size_of::<RenderParams>() as u64;
         let uniform = make("render params", params_size, uniform_usage);
-        let color = make("render colour", pixels * 4, out);
-        let depth = make("render depth", pixels * 4, out);
+        // Cleared before a compacted pass.
+        let cleared = out | wgpu::BufferUsages::COPY_DST;
+        let color = make("render colour", pixels * 4, cleared);
+        let depth = make("render depth", pixels * 4, cleared);
         let counters = make("render counters", 16, out | wgpu::BufferUsages::COPY_DST);
         let readback = make(
             "render readback",
             pixels * 8 + 16,
             wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
         );
-        let coarse_uniform = make("coarse params", params_size, uniform_usage);
-        let coarse_color = make("coarse colour", coarse_pixels * 4, out);
-        let coarse_depth = make("coarse depth", coarse_pixels * 4, out);
-        // Both passes bind the coarse depth texture; only a guided pass reads it.
-        let group = |label, entries: [&wgpu::Buffer; 4]| {
+        let (columns, rows) = tile_grid(width, height);
+        let tiles = make(
+            "render tiles",
+            u64::from(columns) * u64::from(rows) * 4,
+            wgpu::BufferUsages::STORAGE,
+        );
+        let tile_dispatch = make(
+            "render tile dispatch",
+            16,
+            wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+        );
+        let tile_args = make(
+            "render tile dispatch arguments",
+            16,
+            wgpu::BufferUsages::INDIRECT | wgpu::BufferUsages::COPY_DST,
+        );
+        // Every pass binds the depth texture of the pass guiding it (any, if none) and the tile
+        // list; only a guided pass reads them.
+        let group = |label, entries: [&wgpu::Buffer; 4], guide: &wgpu::TextureView| {
             let mut entries: Vec<wgpu::BindGroupEntry> = entries
                 .iter()
                 .enumerate()
@@ -737,7 +815,15 @@ impl Renderer {
                 .collect();
             entries.push(wgpu::BindGroupEntry {
                 binding: 4,
-                resource: wgpu::BindingResource::TextureView(&coarse_view),
+                resource: wgpu::BindingResource::TextureView(guide),
+            });
+            entries.push(wgpu::BindGroupEntry {
+                binding: 5,
+                resource: tiles.as_entire_binding(),
+            });
+            entries.push(wgpu::BindGroupEntry {
+                binding: 6,
+                resource: tile_dispatch.as_entire_binding(),
             });
             device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some(label),
@@ -745,11 +831,26 @@ impl Renderer {
                 entries: &entries,
             })
         };
-        let frame_group = group("render frame", [&uniform, &color, &depth, &counters]);
-        let coarse_group = group(
-            "render coarse pass",
-            [&coarse_uniform, &coarse_color, &coarse_depth, &counters],
+        let frame_group = group(
+            "render frame",
+            [&uniform, &color, &depth, &counters],
+            &coarse_view,
         );
+        let level = |name: &'static str, w: u32, h: u32, texture: wgpu::Texture, guide| {
+            let pixels = u64::from(coarse_stride(w)) * u64::from(h);
+            let uniform = make(name, params_size, uniform_usage);
+            let color = make(name, pixels * 4, out);
+            let depth = make(name, pixels * 4, out);
+            let group = group(name, [&uniform, &color, &depth, &counters], guide);
+            CoarseLevel {
+                uniform,
+                depth,
+                texture,
+                group,
+            }
+        };
+        let coarse = level("coarse pass", coarse_w, coarse_h, coarse_texture, &pre_view);
+        let pre = level("pre-coarse pass", pre_w, pre_h, pre_texture, &pre_view);
         Targets {
             width,
             height,
@@ -759,10 +860,10 @@ impl Renderer {
             counters,
             readback,
             group: frame_group,
-            coarse_uniform,
-            coarse_group,
-            coarse_depth,
-            coarse_texture,
+            coarse,
+            pre,
+            tile_dispatch,
+            tile_args,
         }
     }
 
@@ -830,7 +931,7 @@ impl Renderer {
             coarse_factor: 0,
             near_scale: 0.0,
             box_min: field.visible_box[0],
-            pad_min: 0.0,
+            tiled: 0,
             box_max: field.visible_box[1],
             pad_max: 0.0,
             level_b: second.level,
@@ -868,24 +969,50 @@ impl Renderer {
             _ => PIPELINE_BOTH,
         };
         let mut fine = params;
+        // The coarse passes, coarsest first, with their sizes and focal lengths: the frame's
+        // coarse pass is guided in turn by a pre-coarse pass PRE_FACTOR times coarser.
+        let mut levels: Vec<(&CoarseLevel, (u32, u32), f32)> = Vec::new();
         if let Some((cw, ch)) = coarse {
             let focal = params.focal_px / factor as f32;
-            let coarse_params = RenderParams {
-                width: cw,
-                height: ch,
-                focal_px: focal,
-                near_scale: GUIDE_REACH / focal,
-                row_stride: coarse_stride(cw),
-                ..params
-            };
-            gpu.queue.write_buffer(
-                &targets.coarse_uniform,
-                0,
-                bytemuck::bytes_of(&coarse_params),
-            );
+            if let Some(pre) = coarse_size(cw, ch, PRE_FACTOR) {
+                levels.push((&targets.pre, pre, focal / PRE_FACTOR as f32));
+            }
+            levels.push((&targets.coarse, (cw, ch), focal));
             fine.coarse_factor = factor;
             fine.coarse_width = cw;
             fine.coarse_height = ch;
+        }
+        for (i, &(level, (w, h), focal)) in levels.iter().enumerate() {
+            let mut level_params = RenderParams {
+                width: w,
+                height: h,
+                focal_px: focal,
+                near_scale: GUIDE_REACH / focal,
+                row_stride: coarse_stride(w),
+                ..params
+            };
+            if let Some(&(_, (gw, gh), _)) = i.checked_sub(1).and_then(|g| levels.get(g)) {
+                level_params.coarse_factor = PRE_FACTOR;
+                level_params.coarse_width = gw;
+                level_params.coarse_height = gh;
+            }
+            gpu.queue
+                .write_buffer(&level.uniform, 0, bytemuck::bytes_of(&level_params));
+        }
+        // A guided pass is compacted: `cs_tiles` lists the 8×8 tiles with some pixel to march
+        // and the pass runs one workgroup per listed tile; the rest of the frame stays cleared
+        // (a miss). Lavapipe would run every instruction for a skipped pixel anyway.
+        let (columns, rows) = tile_grid(view.width, view.height);
+        let tiled = coarse.is_some()
+            && u64::from(columns) * u64::from(rows) <= u64::from(MAX_TILES)
+            && self.compaction.load(std::sync::atomic::Ordering::Relaxed);
+        fine.tiled = u32::from(tiled);
+        if tiled {
+            gpu.queue.write_buffer(
+                &targets.tile_dispatch,
+                0,
+                bytemuck::cast_slice(&[0u32, 1, 1, 0]),
+            );
         }
         gpu.queue
             .write_buffer(&targets.uniform, 0, bytemuck::bytes_of(&fine));
@@ -895,19 +1022,25 @@ impl Renderer {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("render"),
             });
-        if let Some((cw, ch)) = coarse {
+        for (i, &(level, (cw, ch), _)) in levels.iter().enumerate() {
+            // Every coarse pass marks near misses; all but the coarsest are guided.
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("render coarse"),
                 timestamp_writes: None,
             });
-            pass.set_pipeline(self.pipeline(methods, ROLE_COARSE));
-            pass.set_bind_group(0, &targets.coarse_group, &[]);
+            let role = if i > 0 {
+                ROLE_COARSE | ROLE_GUIDED
+            } else {
+                ROLE_COARSE
+            };
+            pass.set_pipeline(self.pipeline(methods, role));
+            pass.set_bind_group(0, &level.group, &[]);
             pass.set_bind_group(1, &field.group, &[]);
             pass.dispatch_workgroups(cw.div_ceil(8), ch.div_ceil(8), 1);
             drop(pass);
             encoder.copy_buffer_to_texture(
                 wgpu::TexelCopyBufferInfo {
-                    buffer: &targets.coarse_depth,
+                    buffer: &level.depth,
                     layout: wgpu::TexelCopyBufferLayout {
                         offset: 0,
                         bytes_per_row: Some(4 * coarse_stride(cw)),
@@ -915,7 +1048,7 @@ impl Renderer {
                     },
                 },
                 wgpu::TexelCopyTextureInfo {
-                    texture: &targets.coarse_texture,
+                    texture: &level.texture,
                     mip_level: 0,
                     origin: wgpu::Origin3d::ZERO,
                     aspect: wgpu::TextureAspect::All,
@@ -926,6 +1059,20 @@ impl Renderer {
                     depth_or_array_layers: 1,
                 },
             );
+        }
+        if tiled {
+            encoder.clear_buffer(&targets.color, 0, Some(pixels * 4));
+            encoder.clear_buffer(&targets.depth, 0, Some(pixels * 4));
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("render tiles"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.tiles_pipeline);
+            pass.set_bind_group(0, &targets.group, &[]);
+            pass.set_bind_group(1, &field.group, &[]);
+            pass.dispatch_workgroups(columns.div_ceil(8), rows.div_ceil(8), 1);
+            drop(pass);
+            encoder.copy_buffer_to_buffer(&targets.tile_dispatch, 0, &targets.tile_args, 0, 16);
         }
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
@@ -940,27 +1087,35 @@ impl Renderer {
             pass.set_pipeline(self.pipeline(methods, role));
             pass.set_bind_group(0, &targets.group, &[]);
             pass.set_bind_group(1, &field.group, &[]);
-            pass.dispatch_workgroups(view.width.div_ceil(8), view.height.div_ceil(8), 1);
+            if tiled {
+                pass.dispatch_workgroups_indirect(&targets.tile_args, 0);
+            } else {
+                pass.dispatch_workgroups(columns, rows, 1);
+            }
         }
         encoder.copy_buffer_to_buffer(&targets.color, 0, &targets.readback, 0, pixels * 4);
         encoder.copy_buffer_to_buffer(&targets.depth, 0, &targets.readback, pixels * 4, pixels * 4);
         encoder.copy_buffer_to_buffer(&targets.counters, 0, &targets.readback, pixels * 8, 16);
         gpu.queue.submit([encoder.finish()]);
-        let bytes = gpu.map_read(&targets.readback)?;
-        drop(guard);
         let split = (pixels * 4) as usize;
-        let color = bytes[..split].to_vec();
-        let depth: Vec<f32> = bytes[split..2 * split]
-            .chunks_exact(4)
-            .map(|c| {
-                let z = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
-                if z < 0.0 { f32::INFINITY } else { z }
-            })
-            .collect();
-        let counters: Vec<u32> = bytes[2 * split..2 * split + 16]
-            .chunks_exact(4)
-            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
+        let (color, depth, counters) = gpu.map_read_with(&targets.readback, |bytes| {
+            let color = bytes[..split].to_vec();
+            let depth: Vec<f32> = bytes[split..2 * split]
+                .chunks_exact(4)
+                .map(|c| {
+                    let z = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+                    // Misses: −1 where marched, 0 where a compacted pass cleared (a hit has
+                    // z > 0).
+                    if z <= 0.0 { f32::INFINITY } else { z }
+                })
+                .collect();
+            let counters: Vec<u32> = bytes[2 * split..2 * split + 16]
+                .chunks_exact(4)
+                .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect();
+            (color, depth, counters)
+        })?;
+        drop(guard);
         let render_ms = start.elapsed().as_secs_f64() * 1e3;
         Ok(Frame {
             width: view.width,

@@ -1329,3 +1329,72 @@ fn coarse_to_fine_guide_keeps_quality_and_skips_work() {
         assert!(err.to_string().contains("guide"), "{err}");
     }
 }
+
+#[test]
+fn tile_compaction_changes_no_pixel() {
+    // A guided pass runs only the 8×8 tiles `cs_tiles` lists (some pixel with a coarse
+    // neighbour that hit or passed near a surface); every other pixel must be a miss anyway.
+    // Exact equality: compaction changes which workgroups run, never what a pixel computes.
+    let mesh = demo_mesh().expect("demo");
+    let asset = bake(
+        &mesh,
+        &BakeOptions {
+            cameras: 42,
+            resolution: 96,
+            ..Default::default()
+        },
+    );
+    let field = ctx().renderer.upload(&asset).expect("upload");
+    let r = asset.header().frame.radius;
+    let center = asset.header().frame.center;
+    // Random orbits, a far view (a few tiles), a near one filling the frame, a non-multiple
+    // of 8 size, and guides 2, 4 and 8.
+    let mut views = lumigraph_core::view::random_orbit_views(center, 2.5 * r, 3, 5, 40.0, 200);
+    let at = |offset: [f64; 3]| {
+        [
+            center[0] + offset[0],
+            center[1] + offset[1],
+            center[2] + offset[2],
+        ]
+    };
+    views.push(View::look_at(
+        at([0.0, 0.3 * r, 12.0 * r]),
+        center,
+        30.0,
+        203,
+        151,
+    ));
+    views.push(View::look_at(
+        at([0.2 * r, 0.1 * r, 1.3 * r]),
+        center,
+        60.0,
+        160,
+        160,
+    ));
+    for view in &views {
+        for guide in [2, 4, 8] {
+            let options = RenderOptions {
+                guide: Some(guide),
+                ..Default::default()
+            };
+            ctx().renderer.set_tile_compaction(false);
+            let full = ctx().renderer.render(&field, view, &options);
+            ctx().renderer.set_tile_compaction(true);
+            let (full, compact) = (
+                full.expect("render"),
+                ctx()
+                    .renderer
+                    .render(&field, view, &options)
+                    .expect("render"),
+            );
+            let hits = compact.depth.iter().filter(|z| z.is_finite()).count();
+            assert!(hits > 0, "guide {guide}: nothing hit");
+            assert!(
+                full.color == compact.color && full.depth == compact.depth,
+                "guide {guide}, view {view:?}: compaction changed pixels"
+            );
+            // The skipped tiles are not marched: fewer rays.
+            assert!(compact.stats.rays <= full.stats.rays);
+        }
+    }
+}

@@ -238,6 +238,18 @@ impl Gpu {
     /// # Errors
     /// [`GpuError::Operation`] when mapping fails.
     pub fn map_read(&self, staging: &wgpu::Buffer) -> Result<Vec<u8>, GpuError> {
+        self.map_read_with(staging, <[u8]>::to_vec)
+    }
+
+    /// Maps a `MAP_READ` buffer and hands its bytes to `read` (no intermediate copy).
+    ///
+    /// # Errors
+    /// [`GpuError::Operation`] when mapping fails.
+    pub fn map_read_with<T>(
+        &self,
+        staging: &wgpu::Buffer,
+        read: impl FnOnce(&[u8]) -> T,
+    ) -> Result<T, GpuError> {
         let slice = staging.slice(..);
         let (sender, receiver) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |result| {
@@ -248,12 +260,13 @@ impl Gpu {
             .recv()
             .map_err(|e| GpuError::Operation(e.to_string()))?
             .map_err(|e| GpuError::Operation(e.to_string()))?;
-        let bytes = slice
-            .get_mapped_range()
-            .map_err(|e| GpuError::Operation(e.to_string()))?
-            .to_vec();
+        let value = read(
+            &slice
+                .get_mapped_range()
+                .map_err(|e| GpuError::Operation(e.to_string()))?,
+        );
         staging.unmap();
-        Ok(bytes)
+        Ok(value)
     }
 
     /// Layer count to allocate for `layers` images of a square texture array: one extra layer
