@@ -418,11 +418,14 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
             // A neighbour passed close to a surface without finding it (a thin feature between
             // the coarse samples, or an object's edge): march this pixel unbounded.
             if near_misses == 0u {
-                // A step of margin plus the neighbourhood's own depth spread: on a steep or
-                // curved surface this pixel's depth can lie beyond its neighbours' range. Where
-                // some neighbours missed (a silhouette), three more steps past the farthest hit.
+                // A quarter step of margin (the coarse depths are accurate to far less) plus
+                // the neighbourhood's own depth spread: on a steep or curved surface this
+                // pixel's depth can lie beyond its neighbours' range. Where some neighbours
+                // missed (a silhouette), three more steps past the farthest hit. (A full step
+                // of margin marches one more step per pixel for nothing: bunny 26.30 dB with
+                // it, 26.32 without.)
                 let dz = dot(d, params.forward) * params.depth_scale;
-                let margin = g_step + (z_max - z_min) / dz;
+                let margin = 0.25 * g_step + (z_max - z_min) / dz;
                 t_in = max(t_in, z_min / dz - margin);
                 if misses == 0u {
                     t_out = min(t_out, z_max / dz + margin);
