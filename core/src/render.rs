@@ -118,7 +118,7 @@ pub struct RenderOptions {
 /// Largest coarse-to-fine factor ([`RenderOptions::guide`]).
 pub const MAX_GUIDE: u32 = 16;
 /// Coarse-to-fine factor of the default method when none is given: at 512² on the fixtures it
-/// takes about 0.7× of the unguided time at equal masked PSNR (BENCHMARKS.md).
+/// takes 0.53–0.73× of the unguided time at equal masked PSNR (BENCHMARKS.md).
 pub const DEFAULT_GUIDE: u32 = 4;
 
 /// Options of [`Renderer::upload_with`].
@@ -348,6 +348,65 @@ fn coarse_size(width: u32, height: u32, factor: u32) -> Option<(u32, u32)> {
         .then(|| (width.div_ceil(factor), height.div_ceil(factor)))
 }
 
+/// Environment variable that makes a renderer created while it is set time every frame's passes
+/// (logged at `info` level on the `lumigraph_core::render` target): each pass is then submitted
+/// and waited for on its own, which costs a little time, so leave it off for benchmarks of
+/// whole frames.
+pub const PASS_TIMING_VARIABLE: &str = "LUMIGRAPH_PASS_TIMING";
+
+/// Per-pass timing of one frame ([`PASS_TIMING_VARIABLE`]): when on, [`PassTimer::split`]
+/// submits what the encoder holds, waits, and logs the time since the previous split.
+struct PassTimer {
+    on: bool,
+    last: Instant,
+    passes: Vec<(&'static str, f64)>,
+}
+
+impl PassTimer {
+    fn new(on: bool) -> PassTimer {
+        PassTimer {
+            on,
+            last: Instant::now(),
+            passes: Vec::new(),
+        }
+    }
+
+    fn split(
+        &mut self,
+        gpu: &Gpu,
+        encoder: wgpu::CommandEncoder,
+        pass: &'static str,
+    ) -> Result<wgpu::CommandEncoder, GpuError> {
+        if !self.on {
+            return Ok(encoder);
+        }
+        gpu.queue.submit([encoder.finish()]);
+        gpu.wait()?;
+        self.passes
+            .push((pass, self.last.elapsed().as_secs_f64() * 1e3));
+        self.last = Instant::now();
+        Ok(gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("render"),
+            }))
+    }
+
+    /// Logs the passes, the last one being the readback.
+    fn finish(&mut self, width: u32, height: u32) {
+        if self.on {
+            self.passes
+                .push(("readback", self.last.elapsed().as_secs_f64() * 1e3));
+            let passes: Vec<String> = self
+                .passes
+                .iter()
+                .map(|(pass, ms)| format!("{pass} {ms:.2} ms"))
+                .collect();
+            tracing::info!("{width}×{height} frame passes: {}", passes.join(", "));
+        }
+    }
+}
+
 /// The 8×8 tiles (workgroups) of a frame, per row and per column.
 fn tile_grid(width: u32, height: u32) -> (u32, u32) {
     (width.div_ceil(8), height.div_ceil(8))
@@ -376,6 +435,9 @@ pub struct Renderer {
     /// off ([`Renderer::set_tile_compaction`]).
     tiles_pipeline: wgpu::ComputePipeline,
     compaction: std::sync::atomic::AtomicBool,
+    /// Per-pass timing ([`PASS_TIMING_VARIABLE`] at creation, or
+    /// [`Renderer::set_pass_timing`]).
+    pass_timing: std::sync::atomic::AtomicBool,
     frame_layout: wgpu::BindGroupLayout,
     field_layout: wgpu::BindGroupLayout,
     linear: wgpu::Sampler,
@@ -530,6 +592,9 @@ impl Renderer {
             pipelines: Default::default(),
             tiles_pipeline,
             compaction: std::sync::atomic::AtomicBool::new(true),
+            pass_timing: std::sync::atomic::AtomicBool::new(
+                std::env::var_os(PASS_TIMING_VARIABLE).is_some(),
+            ),
             frame_layout,
             field_layout,
             linear,
@@ -575,6 +640,13 @@ impl Renderer {
     #[doc(hidden)]
     pub fn set_tile_compaction(&self, enabled: bool) {
         self.compaction
+            .store(enabled, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// Turns per-pass timing on or off (see [`PASS_TIMING_VARIABLE`], which sets it when the
+    /// renderer is created).
+    pub fn set_pass_timing(&self, enabled: bool) {
+        self.pass_timing
             .store(enabled, std::sync::atomic::Ordering::Relaxed);
     }
 
@@ -1025,6 +1097,8 @@ impl Renderer {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("render"),
             });
+        let mut timer = PassTimer::new(self.pass_timing.load(std::sync::atomic::Ordering::Relaxed));
+        encoder = timer.split(gpu, encoder, "uploads")?;
         for (i, &(level, (cw, ch), _)) in levels.iter().enumerate() {
             // Every coarse pass marks near misses; all but the coarsest are guided.
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
@@ -1062,6 +1136,12 @@ impl Renderer {
                     depth_or_array_layers: 1,
                 },
             );
+            let name = if i + 1 < levels.len() {
+                "pre-coarse"
+            } else {
+                "coarse"
+            };
+            encoder = timer.split(gpu, encoder, name)?;
         }
         if tiled {
             encoder.clear_buffer(&targets.color, 0, Some(pixels * 4));
@@ -1076,6 +1156,7 @@ impl Renderer {
             pass.dispatch_workgroups(columns.div_ceil(8), rows.div_ceil(8), 1);
             drop(pass);
             encoder.copy_buffer_to_buffer(&targets.tile_dispatch, 0, &targets.tile_args, 0, 16);
+            encoder = timer.split(gpu, encoder, "tiles")?;
         }
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
@@ -1096,6 +1177,7 @@ impl Renderer {
                 pass.dispatch_workgroups(columns, rows, 1);
             }
         }
+        encoder = timer.split(gpu, encoder, "frame")?;
         encoder.copy_buffer_to_buffer(&targets.color, 0, &targets.readback, 0, pixels * 4);
         encoder.copy_buffer_to_buffer(&targets.depth, 0, &targets.readback, pixels * 4, pixels * 4);
         encoder.copy_buffer_to_buffer(&targets.counters, 0, &targets.readback, pixels * 8, 16);
@@ -1120,6 +1202,7 @@ impl Renderer {
         })?;
         drop(guard);
         let render_ms = start.elapsed().as_secs_f64() * 1e3;
+        timer.finish(view.width, view.height);
         Ok(Frame {
             width: view.width,
             height: view.height,

@@ -1331,7 +1331,7 @@ fn coarse_to_fine_guide_keeps_quality_and_skips_work() {
 }
 
 #[test]
-fn tile_compaction_changes_no_pixel() {
+fn tile_compaction_and_pass_timing_change_no_pixel() {
     // A guided pass runs only the 8×8 tiles `cs_tiles` lists (some pixel with a coarse
     // neighbour that hit or passed near a surface); every other pixel must be a miss anyway.
     // Exact equality: compaction changes which workgroups run, never what a pixel computes.
@@ -1397,4 +1397,21 @@ fn tile_compaction_changes_no_pixel() {
             assert!(compact.stats.rays <= full.stats.rays);
         }
     }
+    // Per-pass timing submits and waits after every pass: same pixels and counters.
+    let options = RenderOptions::default();
+    ctx().renderer.set_pass_timing(true);
+    let timed = ctx().renderer.render(&field, &views[0], &options);
+    ctx().renderer.set_pass_timing(false);
+    let (timed, plain) = (
+        timed.expect("render"),
+        ctx()
+            .renderer
+            .render(&field, &views[0], &options)
+            .expect("render"),
+    );
+    assert!(timed.color == plain.color && timed.depth == plain.depth);
+    assert_eq!(
+        (timed.stats.rays, timed.stats.steps, timed.stats.fetches),
+        (plain.stats.rays, plain.stats.steps, plain.stats.fetches)
+    );
 }
