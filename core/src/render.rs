@@ -407,7 +407,7 @@ impl PassTimer {
     }
 }
 
-/// The 8×8 tiles (workgroups) of a frame, per row and per column.
+/// The 8×8 tiles (workgroups) of a pass over `width` × `height` pixels, per row and per column.
 fn tile_grid(width: u32, height: u32) -> (u32, u32) {
     (width.div_ceil(8), height.div_ceil(8))
 }
@@ -421,6 +421,26 @@ const MAX_TILES: u32 = 65_535;
 /// a pixel) meet the 256-byte row alignment of a buffer-to-texture copy.
 fn coarse_stride(width: u32) -> u32 {
     width.div_ceil(64) * 64
+}
+
+/// One entry point of the marcher's module as a compute pipeline, with its override constants.
+fn compute_pipeline(
+    device: &wgpu::Device,
+    (layout, module): (&wgpu::PipelineLayout, &wgpu::ShaderModule),
+    (label, entry_point): (&str, &str),
+    constants: &[(&str, f64)],
+) -> wgpu::ComputePipeline {
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(label),
+        layout: Some(layout),
+        module,
+        entry_point: Some(entry_point),
+        compilation_options: wgpu::PipelineCompilationOptions {
+            constants,
+            ..Default::default()
+        },
+        cache: None,
+    })
 }
 
 /// The light-field render pipeline; one per process, shared by threads.
@@ -577,14 +597,12 @@ impl Renderer {
         let hierarchy_buffer = uniform("icosphere hierarchy", bytemuck::cast_slice(&hierarchy));
         let split_buffer = uniform("icosphere split normals", bytemuck::cast_slice(&splits));
         let max_px = DEFAULT_MAX_VIEW_PX.min(gpu.device.limits().max_texture_dimension_2d);
-        let tiles_pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("render tiles"),
-            layout: Some(&layout),
-            module: &module,
-            entry_point: Some("cs_tiles"),
-            compilation_options: wgpu::PipelineCompilationOptions::default(),
-            cache: None,
-        });
+        let tiles_pipeline = compute_pipeline(
+            device,
+            (&layout, &module),
+            ("render tiles", "cs_tiles"),
+            &[],
+        );
         let renderer = Renderer {
             gpu,
             module,
@@ -619,19 +637,12 @@ impl Renderer {
     fn pipeline(&self, methods: u32, role: u32) -> &wgpu::ComputePipeline {
         let index = (4 * (methods.clamp(1, 3) - 1) + role.min(3)) as usize;
         self.pipelines[index].get_or_init(|| {
-            self.gpu
-                .device
-                .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some("render"),
-                    layout: Some(&self.layout),
-                    module: &self.module,
-                    entry_point: Some("cs_main"),
-                    compilation_options: wgpu::PipelineCompilationOptions {
-                        constants: &[("METHODS", f64::from(methods)), ("ROLE", f64::from(role))],
-                        ..Default::default()
-                    },
-                    cache: None,
-                })
+            compute_pipeline(
+                &self.gpu.device,
+                (&self.layout, &self.module),
+                ("render", "cs_main"),
+                &[("METHODS", f64::from(methods)), ("ROLE", f64::from(role))],
+            )
         })
     }
 
@@ -1113,7 +1124,8 @@ impl Renderer {
             pass.set_pipeline(self.pipeline(methods, role));
             pass.set_bind_group(0, &level.group, &[]);
             pass.set_bind_group(1, &field.group, &[]);
-            pass.dispatch_workgroups(cw.div_ceil(8), ch.div_ceil(8), 1);
+            let (level_columns, level_rows) = tile_grid(cw, ch);
+            pass.dispatch_workgroups(level_columns, level_rows, 1);
             drop(pass);
             encoder.copy_buffer_to_texture(
                 wgpu::TexelCopyBufferInfo {

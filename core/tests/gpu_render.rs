@@ -85,6 +85,21 @@ fn bake(mesh: &Mesh, options: &BakeOptions) -> AssetFile {
     AssetFile::from_bytes(bytes).expect("baked asset opens")
 }
 
+/// The built-in demo mesh and its light field baked with `cameras` and `resolution` (the other
+/// options default).
+fn baked_demo(cameras: u32, resolution: u32) -> (Mesh, AssetFile) {
+    let mesh = demo_mesh().expect("demo");
+    let asset = bake(
+        &mesh,
+        &BakeOptions {
+            cameras,
+            resolution,
+            ..Default::default()
+        },
+    );
+    (mesh, asset)
+}
+
 #[test]
 fn baked_depth_is_exact_per_texel() {
     // Tolerance: 16-bit quantization (0.5/65535 ≈ 7.6e-6 in d) plus f32 ray tracing (~1e-6).
@@ -219,15 +234,7 @@ fn reference_depth_and_coverage_match_analytic_cube() {
 
 #[test]
 fn light_field_render_matches_reference_on_the_demo() {
-    let mesh = demo_mesh().expect("demo");
-    let asset = bake(
-        &mesh,
-        &BakeOptions {
-            cameras: 162,
-            resolution: 128,
-            ..Default::default()
-        },
-    );
+    let (mesh, asset) = baked_demo(162, 128);
     let field = ctx().renderer.upload(&asset).expect("upload");
     let gpu_mesh = ctx().reference.upload(&mesh).expect("upload mesh");
     let r = asset.header().frame.radius;
@@ -1241,15 +1248,7 @@ fn scene_mesh_in_front_of_and_behind_a_light_field() {
 
 #[test]
 fn coarse_to_fine_guide_keeps_quality_and_skips_work() {
-    let mesh = demo_mesh().expect("demo");
-    let asset = bake(
-        &mesh,
-        &BakeOptions {
-            cameras: 42,
-            resolution: 96,
-            ..Default::default()
-        },
-    );
+    let (mesh, asset) = baked_demo(42, 96);
     let field = ctx().renderer.upload(&asset).expect("upload");
     let gpu_mesh = ctx().reference.upload(&mesh).expect("upload mesh");
     let r = asset.header().frame.radius;
@@ -1335,15 +1334,7 @@ fn tile_compaction_and_pass_timing_change_no_pixel() {
     // A guided pass runs only the 8×8 tiles `cs_tiles` lists (some pixel with a coarse
     // neighbour that hit or passed near a surface); every other pixel must be a miss anyway.
     // Exact equality: compaction changes which workgroups run, never what a pixel computes.
-    let mesh = demo_mesh().expect("demo");
-    let asset = bake(
-        &mesh,
-        &BakeOptions {
-            cameras: 42,
-            resolution: 96,
-            ..Default::default()
-        },
-    );
+    let (_, asset) = baked_demo(42, 96);
     let field = ctx().renderer.upload(&asset).expect("upload");
     let r = asset.header().frame.radius;
     let center = asset.header().frame.center;
