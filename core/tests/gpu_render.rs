@@ -85,18 +85,22 @@ fn bake(mesh: &Mesh, options: &BakeOptions) -> AssetFile {
     AssetFile::from_bytes(bytes).expect("baked asset opens")
 }
 
-/// The built-in demo mesh and its light field baked with `cameras` and `resolution` (the other
-/// options default).
-fn baked_demo(cameras: u32, resolution: u32) -> (Mesh, AssetFile) {
-    let mesh = demo_mesh().expect("demo");
-    let asset = bake(
-        &mesh,
+/// `mesh` baked with `cameras` and `resolution`, the other options at their defaults.
+fn bake_sized(mesh: &Mesh, cameras: u32, resolution: u32) -> AssetFile {
+    bake(
+        mesh,
         &BakeOptions {
             cameras,
             resolution,
             ..Default::default()
         },
-    );
+    )
+}
+
+/// The built-in demo mesh and its light field ([`bake_sized`]).
+fn baked_demo(cameras: u32, resolution: u32) -> (Mesh, AssetFile) {
+    let mesh = demo_mesh().expect("demo");
+    let asset = bake_sized(&mesh, cameras, resolution);
     (mesh, asset)
 }
 
@@ -178,14 +182,7 @@ fn unit_cube(
     resolution: u32,
 ) -> (Mesh, AssetFile, lumigraph_core::render::GpuLightField) {
     let mesh = cube([0.0, 0.0, 0.0], 0.5);
-    let asset = bake(
-        &mesh,
-        &BakeOptions {
-            cameras,
-            resolution,
-            ..Default::default()
-        },
-    );
+    let asset = bake_sized(&mesh, cameras, resolution);
     let field = ctx().renderer.upload(&asset).expect("upload");
     (mesh, asset, field)
 }
