@@ -255,7 +255,7 @@ struct RenderParams {
     box_min: [f32; 3],
     tiled: u32,
     box_max: [f32; 3],
-    pad_max: f32,
+    interior_curvature: f32,
     level_b: u32,
     step_b: f32,
     tolerance_b: f32,
@@ -302,6 +302,10 @@ struct Targets {
     counters: wgpu::Buffer,
     readback: wgpu::Buffer,
     group: wgpu::BindGroup,
+    /// Parameters and bind group of the pass that marches the flat tiles the interior pass
+    /// gave back.
+    given_back_uniform: wgpu::Buffer,
+    given_back_group: wgpu::BindGroup,
     /// The coarse pass that guides the frame, and the coarser one that guides it.
     coarse: CoarseLevel,
     pre: CoarseLevel,
@@ -336,10 +340,20 @@ const GUIDE_REACH: f32 = 2.0;
 const PIPELINE_FIXED: u32 = 1;
 const PIPELINE_DEFAULT: u32 = 2;
 const PIPELINE_BOTH: u32 = 3;
-/// [`Renderer::pipeline`] roles (bits; render.wgsl `ROLE`).
+/// [`Renderer::pipeline`] roles (render.wgsl `ROLE`): a plain pass (not guided, guiding
+/// nothing); any marching pass of a guided frame (its coarse passes, its guided pass, the pass
+/// over the tiles the interior pass gave back), which their parameters tell apart; the interior
+/// pass over the flat tiles `cs_tiles` lists.
 const ROLE_PLAIN: u32 = 0;
-const ROLE_COARSE: u32 = 1;
-const ROLE_GUIDED: u32 = 2;
+const ROLE_GUIDED: u32 = 1;
+const ROLE_INTERIOR: u32 = 2;
+
+/// Largest second difference of a flat tile's coarse z-depths (render.wgsl `cs_tiles`), in
+/// tolerances: bilinear interpolation between them is then within a quarter of the tolerance
+/// of a smooth surface through them (an eighth per axis), inside the band where the cameras'
+/// colours get full weight, and the interior pass's Newton step brings the depth it reports
+/// closer still.
+const INTERIOR_CURVATURE: f32 = 1.0;
 
 /// Coarse-pass size for a frame guided with `factor`, or `None` when guidance is off or the
 /// frame is too small (under 4 coarse pixels a side).
@@ -412,6 +426,14 @@ fn tile_grid(width: u32, height: u32) -> (u32, u32) {
     (width.div_ceil(8), height.div_ceil(8))
 }
 
+/// Bytes of a compacted guided frame's indirect dispatch sizes: three (x, y, z) triples (the
+/// tiles to march, the flat tiles, the flat tiles given back to be marched; render.wgsl
+/// `tile_dispatch`), padded to 16-byte rows.
+const TILE_ARGS_SIZE: u64 = 48;
+/// Byte offsets of the second and third triple.
+const INTERIOR_ARGS: u64 = 12;
+const GIVEN_BACK_ARGS: u64 = 24;
+
 /// Most tiles a compacted guided pass may list: its indirect dispatch counts them along one
 /// axis, whose size every device allows up to 65 535 (frames up to about 2048²; a larger frame
 /// is guided without compaction).
@@ -448,13 +470,16 @@ pub struct Renderer {
     gpu: Arc<Gpu>,
     module: wgpu::ShaderModule,
     layout: wgpu::PipelineLayout,
-    /// Specialised pipelines, built on first use: index `4 · (methods − 1) + role` (see
+    /// Specialised pipelines, built on first use: index `3 · (methods − 1) + role` (see
     /// [`Renderer::pipeline`]).
-    pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 12],
+    pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 9],
     /// Tile compaction of guided passes (render.wgsl `cs_tiles`), on unless a test turns it
     /// off ([`Renderer::set_tile_compaction`]).
     tiles_pipeline: wgpu::ComputePipeline,
     compaction: std::sync::atomic::AtomicBool,
+    /// Whether compacted guided passes send flat tiles to the interior pass (on unless a test
+    /// turns it off, [`Renderer::set_interior`]).
+    interior: std::sync::atomic::AtomicBool,
     /// Per-pass timing ([`PASS_TIMING_VARIABLE`] at creation, or
     /// [`Renderer::set_pass_timing`]).
     pass_timing: std::sync::atomic::AtomicBool,
@@ -610,6 +635,7 @@ impl Renderer {
             pipelines: Default::default(),
             tiles_pipeline,
             compaction: std::sync::atomic::AtomicBool::new(true),
+            interior: std::sync::atomic::AtomicBool::new(true),
             pass_timing: std::sync::atomic::AtomicBool::new(
                 std::env::var_os(PASS_TIMING_VARIABLE).is_some(),
             ),
@@ -624,18 +650,17 @@ impl Renderer {
         };
         // The default method's guided pair serves most frames: build it now, not in the first
         // frame.
-        renderer.pipeline(PIPELINE_DEFAULT, ROLE_COARSE);
-        renderer.pipeline(PIPELINE_DEFAULT, ROLE_COARSE | ROLE_GUIDED);
         renderer.pipeline(PIPELINE_DEFAULT, ROLE_GUIDED);
+        renderer.pipeline(PIPELINE_DEFAULT, ROLE_INTERIOR);
         renderer
     }
 
     /// The marcher specialised for `methods` (1 = fixed, 2 = default, 3 = both, per pixel) and
-    /// `role` (bits: [`ROLE_COARSE`], [`ROLE_GUIDED`]; 0 = plain pass), built on first use.
+    /// `role` ([`ROLE_PLAIN`], [`ROLE_GUIDED`], [`ROLE_INTERIOR`]), built on first use.
     /// Lavapipe executes both sides of every branch for its 8-pixel batches, so each pass runs
     /// a pipeline holding only the code it can take (render.wgsl's `METHODS` and `ROLE`).
     fn pipeline(&self, methods: u32, role: u32) -> &wgpu::ComputePipeline {
-        let index = (4 * (methods.clamp(1, 3) - 1) + role.min(3)) as usize;
+        let index = (3 * (methods.clamp(1, 3) - 1) + role.min(2)) as usize;
         self.pipelines[index].get_or_init(|| {
             compute_pipeline(
                 &self.gpu.device,
@@ -651,6 +676,14 @@ impl Renderer {
     #[doc(hidden)]
     pub fn set_tile_compaction(&self, enabled: bool) {
         self.compaction
+            .store(enabled, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// Turns the interior pass of compacted guided frames on (the default) or off: for tests,
+    /// which compare it with marching every pixel.
+    #[doc(hidden)]
+    pub fn set_interior(&self, enabled: bool) {
+        self.interior
             .store(enabled, std::sync::atomic::Ordering::Relaxed);
     }
 
@@ -871,21 +904,22 @@ impl Renderer {
             wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
         );
         let (columns, rows) = tile_grid(width, height);
+        // Two lists (render.wgsl `tiles`).
         let tiles = make(
             "render tiles",
-            u64::from(columns) * u64::from(rows) * 4,
+            2 * u64::from(columns) * u64::from(rows) * 4,
             wgpu::BufferUsages::STORAGE,
         );
         let tile_dispatch = make(
             "render tile dispatch",
-            16,
+            TILE_ARGS_SIZE,
             wgpu::BufferUsages::STORAGE
                 | wgpu::BufferUsages::COPY_SRC
                 | wgpu::BufferUsages::COPY_DST,
         );
         let tile_args = make(
             "render tile dispatch arguments",
-            16,
+            TILE_ARGS_SIZE,
             wgpu::BufferUsages::INDIRECT | wgpu::BufferUsages::COPY_DST,
         );
         // Every pass binds the depth texture of the pass guiding it (any, if none) and the tile
@@ -922,6 +956,14 @@ impl Renderer {
             [&uniform, &color, &depth, &counters],
             &coarse_view,
         );
+        // The pass marching the tiles the interior pass gave back: the frame's, but for its
+        // parameters (`tiled` = 2).
+        let given_back_uniform = make("render given-back params", params_size, uniform_usage);
+        let given_back_group = group(
+            "render given back",
+            [&given_back_uniform, &color, &depth, &counters],
+            &coarse_view,
+        );
         let level = |name: &'static str, w: u32, h: u32, texture: wgpu::Texture, guide| {
             let pixels = u64::from(coarse_stride(w)) * u64::from(h);
             let uniform = make(name, params_size, uniform_usage);
@@ -946,6 +988,8 @@ impl Renderer {
             counters,
             readback,
             group: frame_group,
+            given_back_uniform,
+            given_back_group,
             coarse,
             pre,
             tile_dispatch,
@@ -1019,7 +1063,7 @@ impl Renderer {
             box_min: field.visible_box[0],
             tiled: 0,
             box_max: field.visible_box[1],
-            pad_max: 0.0,
+            interior_curvature: 0.0,
             level_b: second.level,
             step_b: second.step,
             tolerance_b: second.tolerance,
@@ -1093,11 +1137,30 @@ impl Renderer {
             && u64::from(columns) * u64::from(rows) <= u64::from(MAX_TILES)
             && self.compaction.load(std::sync::atomic::Ordering::Relaxed);
         fine.tiled = u32::from(tiled);
+        // Flat tiles skip the march (default method only: the fixed baseline marches every
+        // pixel it renders).
+        let interior = tiled
+            && methods == PIPELINE_DEFAULT
+            && self.interior.load(std::sync::atomic::Ordering::Relaxed);
+        if interior {
+            fine.interior_curvature =
+                INTERIOR_CURVATURE * first.tolerance.min(second.tolerance) * field.scale as f32;
+        }
         if tiled {
+            // Three dispatch sizes (x, 1, 1): the tiles to march, the flat tiles, the flat
+            // tiles given back.
             gpu.queue.write_buffer(
                 &targets.tile_dispatch,
                 0,
-                bytemuck::cast_slice(&[0u32, 1, 1, 0]),
+                bytemuck::cast_slice(&[0u32, 1, 1, 0, 1, 1, 0, 1, 1, 0, 0, 0]),
+            );
+        }
+        if interior {
+            let given_back = RenderParams { tiled: 2, ..fine };
+            gpu.queue.write_buffer(
+                &targets.given_back_uniform,
+                0,
+                bytemuck::bytes_of(&given_back),
             );
         }
         gpu.queue
@@ -1116,12 +1179,7 @@ impl Renderer {
                 label: Some("render coarse"),
                 timestamp_writes: None,
             });
-            let role = if i > 0 {
-                ROLE_COARSE | ROLE_GUIDED
-            } else {
-                ROLE_COARSE
-            };
-            pass.set_pipeline(self.pipeline(methods, role));
+            pass.set_pipeline(self.pipeline(methods, ROLE_GUIDED));
             pass.set_bind_group(0, &level.group, &[]);
             pass.set_bind_group(1, &field.group, &[]);
             let (level_columns, level_rows) = tile_grid(cw, ch);
@@ -1167,7 +1225,13 @@ impl Renderer {
             pass.set_bind_group(1, &field.group, &[]);
             pass.dispatch_workgroups(columns.div_ceil(8), rows.div_ceil(8), 1);
             drop(pass);
-            encoder.copy_buffer_to_buffer(&targets.tile_dispatch, 0, &targets.tile_args, 0, 16);
+            encoder.copy_buffer_to_buffer(
+                &targets.tile_dispatch,
+                0,
+                &targets.tile_args,
+                0,
+                TILE_ARGS_SIZE,
+            );
             encoder = timer.split(gpu, encoder, "tiles")?;
         }
         {
@@ -1190,6 +1254,34 @@ impl Renderer {
             }
         }
         encoder = timer.split(gpu, encoder, "frame")?;
+        if interior {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("render interior"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(self.pipeline(methods, ROLE_INTERIOR));
+            pass.set_bind_group(0, &targets.group, &[]);
+            pass.set_bind_group(1, &field.group, &[]);
+            pass.dispatch_workgroups_indirect(&targets.tile_args, INTERIOR_ARGS);
+            drop(pass);
+            encoder.copy_buffer_to_buffer(
+                &targets.tile_dispatch,
+                GIVEN_BACK_ARGS,
+                &targets.tile_args,
+                GIVEN_BACK_ARGS,
+                12,
+            );
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("render given back"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(self.pipeline(methods, ROLE_GUIDED));
+            pass.set_bind_group(0, &targets.given_back_group, &[]);
+            pass.set_bind_group(1, &field.group, &[]);
+            pass.dispatch_workgroups_indirect(&targets.tile_args, GIVEN_BACK_ARGS);
+            drop(pass);
+            encoder = timer.split(gpu, encoder, "interior")?;
+        }
         encoder.copy_buffer_to_buffer(&targets.color, 0, &targets.readback, 0, pixels * 4);
         encoder.copy_buffer_to_buffer(&targets.depth, 0, &targets.readback, pixels * 4, pixels * 4);
         encoder.copy_buffer_to_buffer(&targets.counters, 0, &targets.readback, pixels * 8, 16);
