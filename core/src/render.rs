@@ -109,7 +109,10 @@ pub struct RenderOptions {
     /// axis (2–16), and let their hits bound each pixel's march. A pixel whose 3×3 coarse
     /// neighbours all missed far from any surface is skipped (and an 8×8 tile of such pixels
     /// is never dispatched); where one passed close to a surface (a thin feature between the
-    /// samples), the pixel marches in full. The coarse pass is guided the same way by one 4×
+    /// samples), the pixel marches over the depths where it came close, a step more each side.
+    /// Flat 8×8 tiles (every coarse neighbour hit, a smooth depth between them) are shaded at
+    /// depths interpolated between the coarse hits, without marching, unless no camera agrees
+    /// there. The coarse pass is guided the same way by one 4×
     /// coarser, when that has at least 4 pixels a side. 0: off; `None`: [`DEFAULT_GUIDE`] for
     /// the default method, off for the fixed baseline.
     pub guide: Option<u32>,
@@ -439,7 +442,7 @@ const GIVEN_BACK_ARGS: u64 = 24;
 /// is guided without compaction).
 const MAX_TILES: u32 = 65_535;
 
-/// Pixels per row of a coarse pass's output: a multiple of 64, so that its depth rows (4 bytes
+/// Pixels per row of a coarse pass's output: a multiple of 64, so that its depth rows (8 bytes
 /// a pixel) meet the 256-byte row alignment of a buffer-to-texture copy.
 fn coarse_stride(width: u32) -> u32 {
     width.div_ceil(64) * 64
@@ -872,7 +875,8 @@ impl Renderer {
                 mip_level_count: 1,
                 sample_count: 1,
                 dimension: wgpu::TextureDimension::D2,
-                format: wgpu::TextureFormat::R32Float,
+                // Two floats a pixel: render.wgsl `write_depth`.
+                format: wgpu::TextureFormat::Rg32Float,
                 usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
                 view_formats: &[],
             })
@@ -968,7 +972,7 @@ impl Renderer {
             let pixels = u64::from(coarse_stride(w)) * u64::from(h);
             let uniform = make(name, params_size, uniform_usage);
             let color = make(name, pixels * 4, out);
-            let depth = make(name, pixels * 4, out);
+            let depth = make(name, pixels * 8, out);
             let group = group(name, [&uniform, &color, &depth, &counters], guide);
             CoarseLevel {
                 uniform,
@@ -1190,7 +1194,7 @@ impl Renderer {
                     buffer: &level.depth,
                     layout: wgpu::TexelCopyBufferLayout {
                         offset: 0,
-                        bytes_per_row: Some(4 * coarse_stride(cw)),
+                        bytes_per_row: Some(8 * coarse_stride(cw)),
                         rows_per_image: Some(ch),
                     },
                 },
