@@ -352,11 +352,14 @@ const ROLE_GUIDED: u32 = 1;
 const ROLE_INTERIOR: u32 = 2;
 
 /// Largest second difference of a flat tile's coarse z-depths (render.wgsl `cs_tiles`), in
-/// tolerances: bilinear interpolation between them is then within a quarter of the tolerance
-/// of a smooth surface through them (an eighth per axis), inside the band where the cameras'
-/// colours get full weight, and the interior pass's Newton step brings the depth it reports
-/// closer still.
-const INTERIOR_CURVATURE: f32 = 1.0;
+/// tolerances: bilinear interpolation between them is then within an eighth of it per axis of
+/// a smooth surface through them, at most one tolerance in all. There the cameras' colours
+/// still get some weight (full weight within half a tolerance), a depth that far off shifts
+/// where each camera is read by about a tenth of a texel, and the interior pass's Newton step
+/// corrects the depth it reports. Measured (eval, 6 views at 512², 162 cameras): 4 against 1
+/// takes about 3 % less time at the same masked PSNR (±0.01 dB on the four fixtures) and
+/// median depth error (±1 %); p95 depth error rises by up to 5 %.
+const INTERIOR_CURVATURE: f32 = 4.0;
 
 /// Coarse-pass size for a frame guided with `factor`, or `None` when guidance is off or the
 /// frame is too small (under 4 coarse pixels a side).
