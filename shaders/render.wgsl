@@ -446,8 +446,7 @@ fn shade_interior(gid: vec2<u32>, index: u32, o: vec3<f32>, d: vec3<f32>, slot: 
     let shaded = shade(o, d, t, loc, cameras[loc.cameras.x], cameras[loc.cameras.y], cameras[loc.cameras.z], true);
     out_color[index] = shaded.color;
     out_depth[index] = shaded.z;
-    atomicAdd(&counters[2], 1u);
-    atomicAdd(&counters[0], shaded.fetches);
+    count_work(shaded.fetches, 0u, 1u);
     if !shaded.agreed {
         let entry = atomicOr(&tiles[slot], 0x80000000u);
         if entry < 0x80000000u {
@@ -657,7 +656,6 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
             }
         }
     }
-    atomicAdd(&counters[2], 1u);
     // The line's first intersection with the camera sphere picks the three cameras (seed 000 §2);
     // it exists whenever the line meets the bounding sphere inside it.
     let cs = sphere_roots(o, d, 1.0);
@@ -683,6 +681,6 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
         write_depth(index, shaded.z, shaded.z);
         fetches += shaded.fetches;
     }
-    atomicAdd(&counters[0], fetches);
-    atomicAdd(&counters[1], m.steps);
+    // Work counters (`count_work`, generated: see shaders.rs).
+    count_work(fetches, m.steps, 1u);
 }

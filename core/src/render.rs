@@ -532,7 +532,10 @@ impl Renderer {
         let device = &gpu.device;
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("render.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(crate::shaders::render_source().into()),
+            source: wgpu::ShaderSource::Wgsl(
+                crate::shaders::render_source(device.features().contains(wgpu::Features::SUBGROUP))
+                    .into(),
+            ),
         });
         let storage = wgpu::BufferBindingType::Storage { read_only: false };
         let frame_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {

@@ -42,3 +42,22 @@ fn every_shader_file_is_embedded() {
         }
     }
 }
+
+#[test]
+fn marcher_without_subgroups_needs_none() {
+    // Devices without `wgpu::Features::SUBGROUP` (the GL backend, some drivers) get the plain
+    // atomic counters: that variant must validate without the subgroup capabilities, and the
+    // other must need them.
+    let without = naga::valid::Capabilities::all()
+        - naga::valid::Capabilities::SUBGROUP
+        - naga::valid::Capabilities::SUBGROUP_BARRIER
+        - naga::valid::Capabilities::SUBGROUP_VERTEX_STAGE;
+    let validates = |source: &str| {
+        let module = naga::front::wgsl::parse_str(source).expect("parses");
+        naga::valid::Validator::new(naga::valid::ValidationFlags::all(), without)
+            .validate(&module)
+            .is_ok()
+    };
+    assert!(validates(&lumigraph_core::shaders::render_source(false)));
+    assert!(!validates(&lumigraph_core::shaders::render_source(true)));
+}

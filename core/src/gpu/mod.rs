@@ -134,7 +134,9 @@ impl Gpu {
         // Ask for everything the adapter can do: camera arrays need up to 642+1 layers and large
         // storage buffers, far above wgpu's portable defaults.
         let limits = adapter.limits();
-        let wanted = wgpu::Features::FLOAT32_FILTERABLE;
+        // Subgroup operations, where there are any, cut the marcher's counter atomics 8-fold
+        // (`shaders::render_source`).
+        let wanted = wgpu::Features::FLOAT32_FILTERABLE | wgpu::Features::SUBGROUP;
         let features = adapter.features() & wanted;
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("lumigraph"),
