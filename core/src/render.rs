@@ -109,7 +109,7 @@ pub struct RenderOptions {
     /// axis (2–16), and let their hits bound each pixel's march. A pixel whose 3×3 coarse
     /// neighbours all missed far from any surface is skipped (and an 8×8 tile of such pixels
     /// is never dispatched); where one passed close to a surface (a thin feature between the
-    /// samples), the pixel marches over the depths where it came close, a step more each side.
+    /// samples), the pixel marches from a step before where that neighbour first came close.
     /// Flat 8×8 tiles (every coarse neighbour hit, a smooth depth between them) are shaded at
     /// depths interpolated between the coarse hits, without marching, unless no camera agrees
     /// there. The coarse pass is guided the same way by one 4×
@@ -335,7 +335,8 @@ struct CoarseLevel {
 const PRE_FACTOR: u32 = 4;
 
 /// How close (in coarse pixels, as seen from the eye) a coarse ray must pass to a surface some
-/// camera sees for its miss to count as near: the fine pixels around it then march in full.
+/// camera sees for its miss to count as near: the fine pixels around it then march from a step
+/// before where it first came near to the end of the box.
 /// Two coarse pixels cover the 3×3 neighbourhood each fine pixel reads.
 const GUIDE_REACH: f32 = 2.0;
 

@@ -881,7 +881,7 @@ fn stability_thin_structure_at_lod_12() {
     // wide, cameras find the crossing on the rod's side faces rather than the one facing the
     // view (measured 1.0e-2 r at LOD 12, 6.4e-3 r at 162); more cameras must not be worse.
     // The coarse-to-fine guide must not lose the rod either: coarse rays that pass close to
-    // it are marked, and the pixels around them march in full.
+    // it are marked, and the pixels around them march from where they first came near.
     for guide in [0, 4] {
         let mut medians = Vec::new();
         for (lod, recall, median) in [(12, 0.5, 0.023), (162, 0.8, 0.023)] {
