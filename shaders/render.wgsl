@@ -95,11 +95,13 @@ override ROLE: u32 = 0u;
 // or a loop bound depends on uniform values alone ("uniform inlining", with no cache of what it
 // built): a pipeline holding one was rebuilt every frame, from Mesa's shader cache (about 3 ms)
 // or, without one, by LLVM (0.7 s). So a decision on parameters alone goes through
-// `per_invocation`, which ties it to the invocation in a way no compiler can fold.
+// `per_invocation`, which ties it to the invocation in a way no compiler can fold. A naga test
+// (tests/shaders.rs) finds any branch left on uniform values alone, `&&` and `||` included.
 var<private> g_invocation: u32;
 
 fn per_invocation(decision: bool) -> bool {
-    return decision && g_invocation != 0xffffffffu;
+    // `&`, not `&&`: a short-circuit `&&` is itself a branch on `decision` alone.
+    return decision & (g_invocation != 0xffffffffu);
 }
 
 // A coarse pass marks near misses for the pass it guides.
@@ -468,7 +470,8 @@ fn cs_tiles(@builtin(global_invocation_id) gid: vec3<u32>) {
     let hi = clamp(coarse_nearest(last_px) + 1, vec2<i32>(0), last);
     let size = hi - lo + 1;
     var keep = false;
-    var flat = params.interior_curvature > 0.0 && size.x <= 8 && size.y <= 8;
+    // `&`, not `&&` (see `per_invocation`).
+    var flat = (params.interior_curvature > 0.0) & (size.x <= 8) & (size.y <= 8);
     var z: array<f32, 64>;
     for (var y = lo.y; y <= hi.y; y++) {
         for (var x = lo.x; x <= hi.x; x++) {

@@ -61,3 +61,282 @@ fn marcher_without_subgroups_needs_none() {
     assert!(validates(&lumigraph_core::shaders::render_source(false)));
     assert!(!validates(&lumigraph_core::shaders::render_source(true)));
 }
+
+/// What an expression's value depends on: constants only, uniform-buffer values (and
+/// constants), or anything else (invocation ids, textures, storage, private state).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum Dependence {
+    Constant,
+    Uniform,
+    Varying,
+}
+
+/// Finds the branches lavapipe's uniform inlining would rebuild a shader for: an `if`, `switch`
+/// or loop exit whose condition depends on uniform-buffer values and constants alone (a loop's
+/// condition is an `if` in naga's IR). Functions are analysed per call, with their arguments'
+/// dependence; locals and private globals by the join of everything stored in them.
+struct UniformBranches<'m> {
+    module: &'m naga::Module,
+    privates: std::collections::HashMap<naga::Handle<naga::GlobalVariable>, Dependence>,
+    changed: bool,
+    report: bool,
+    found: std::collections::BTreeSet<String>,
+}
+
+impl UniformBranches<'_> {
+    fn function(&mut self, function: &naga::Function, args: &[Dependence]) -> Dependence {
+        // Until what is stored in the locals stops changing, then once more to report.
+        let report = std::mem::replace(&mut self.report, false);
+        let mut locals: std::collections::HashMap<_, Dependence> =
+            std::collections::HashMap::default();
+        let mut stable = false;
+        loop {
+            if stable {
+                self.report = report;
+            }
+            let before = locals.clone();
+            let mut state = FunctionState {
+                function,
+                args,
+                locals: &mut locals,
+                calls: std::collections::HashMap::default(),
+                returned: Dependence::Constant,
+            };
+            for (handle, local) in function.local_variables.iter() {
+                let init = local
+                    .init
+                    .map_or(Dependence::Constant, |e| state.expr(self, e));
+                let entry = state.locals.entry(handle).or_insert(Dependence::Constant);
+                *entry = (*entry).max(init);
+            }
+            state.block(self, &function.body);
+            let returned = state.returned;
+            if stable {
+                return returned;
+            }
+            stable = locals == before;
+        }
+    }
+}
+
+struct FunctionState<'f, 'l> {
+    function: &'f naga::Function,
+    args: &'f [Dependence],
+    locals: &'l mut std::collections::HashMap<naga::Handle<naga::LocalVariable>, Dependence>,
+    calls: std::collections::HashMap<naga::Handle<naga::Expression>, Dependence>,
+    returned: Dependence,
+}
+
+impl FunctionState<'_, '_> {
+    fn expr(&self, a: &UniformBranches, h: naga::Handle<naga::Expression>) -> Dependence {
+        use naga::Expression as E;
+        match &self.function.expressions[h] {
+            E::Literal(_) | E::Constant(_) | E::Override(_) | E::ZeroValue(_) => {
+                Dependence::Constant
+            }
+            E::FunctionArgument(i) => self.args[*i as usize],
+            E::GlobalVariable(g) => match a.module.global_variables[*g].space {
+                naga::AddressSpace::Uniform => Dependence::Uniform,
+                naga::AddressSpace::Private => {
+                    a.privates.get(g).copied().unwrap_or(Dependence::Constant)
+                }
+                _ => Dependence::Varying,
+            },
+            E::LocalVariable(l) => self.locals.get(l).copied().unwrap_or(Dependence::Constant),
+            E::Load { pointer } => self.expr(a, *pointer),
+            E::AccessIndex { base, .. } => self.expr(a, *base),
+            E::Access { base, index } => self.expr(a, *base).max(self.expr(a, *index)),
+            E::Splat { value, .. } => self.expr(a, *value),
+            E::Swizzle { vector, .. } => self.expr(a, *vector),
+            E::Unary { expr, .. } | E::As { expr, .. } => self.expr(a, *expr),
+            E::Binary { left, right, .. } => self.expr(a, *left).max(self.expr(a, *right)),
+            E::Select {
+                condition,
+                accept,
+                reject,
+            } => self
+                .expr(a, *condition)
+                .max(self.expr(a, *accept))
+                .max(self.expr(a, *reject)),
+            E::Relational { argument, .. } => self.expr(a, *argument),
+            E::Math {
+                arg,
+                arg1,
+                arg2,
+                arg3,
+                ..
+            } => [Some(*arg), *arg1, *arg2, *arg3]
+                .into_iter()
+                .flatten()
+                .map(|e| self.expr(a, e))
+                .max()
+                .unwrap_or(Dependence::Constant),
+            E::Compose { components, .. } => components
+                .iter()
+                .map(|&e| self.expr(a, e))
+                .max()
+                .unwrap_or(Dependence::Constant),
+            E::CallResult(_) => self.calls.get(&h).copied().unwrap_or(Dependence::Varying),
+            _ => Dependence::Varying,
+        }
+    }
+
+    fn condition(&self, a: &mut UniformBranches, h: naga::Handle<naga::Expression>, what: &str) {
+        if a.report && self.expr(a, h) == Dependence::Uniform {
+            let name = self.function.name.as_deref().unwrap_or("?");
+            a.found.insert(format!("{what} in fn {name}"));
+        }
+    }
+
+    fn block(&mut self, a: &mut UniformBranches, block: &naga::Block) {
+        use naga::Statement as S;
+        for statement in block {
+            match statement {
+                S::Block(inner) => self.block(a, inner),
+                S::If {
+                    condition,
+                    accept,
+                    reject,
+                } => {
+                    self.condition(a, *condition, "if");
+                    self.block(a, accept);
+                    self.block(a, reject);
+                }
+                S::Switch { selector, cases } => {
+                    self.condition(a, *selector, "switch");
+                    for case in cases {
+                        self.block(a, &case.body);
+                    }
+                }
+                S::Loop {
+                    body,
+                    continuing,
+                    break_if,
+                } => {
+                    self.block(a, body);
+                    self.block(a, continuing);
+                    if let Some(e) = break_if {
+                        self.condition(a, *e, "loop exit");
+                    }
+                }
+                S::Return { value: Some(e) } => {
+                    self.returned = self.returned.max(self.expr(a, *e));
+                }
+                S::Store { pointer, value } => {
+                    let value = self.expr(a, *value);
+                    let mut root = *pointer;
+                    while let naga::Expression::AccessIndex { base, .. }
+                    | naga::Expression::Access { base, .. } = &self.function.expressions[root]
+                    {
+                        root = *base;
+                    }
+                    match &self.function.expressions[root] {
+                        naga::Expression::LocalVariable(l) => {
+                            let entry = self.locals.entry(*l).or_insert(Dependence::Constant);
+                            *entry = (*entry).max(value);
+                        }
+                        naga::Expression::GlobalVariable(g)
+                            if a.module.global_variables[*g].space
+                                == naga::AddressSpace::Private =>
+                        {
+                            let entry = a.privates.entry(*g).or_insert(Dependence::Constant);
+                            if value > *entry {
+                                *entry = value;
+                                a.changed = true;
+                            }
+                        }
+                        _ => {}
+                    }
+                }
+                S::Call {
+                    function,
+                    arguments,
+                    result,
+                } => {
+                    let args: Vec<_> = arguments.iter().map(|&e| self.expr(a, e)).collect();
+                    let callee = &a.module.functions[*function];
+                    let returned = a.function(callee, &args);
+                    if let Some(r) = result {
+                        self.calls.insert(*r, returned);
+                    }
+                }
+                _ => {}
+            }
+        }
+    }
+}
+
+/// The uniform-only branches of every pipeline the renderer builds from the marcher (METHODS
+/// 1–3 × ROLE 0–2, overrides fixed as constants the way the driver sees them).
+fn uniform_branches(source: &str) -> Vec<String> {
+    let mut found = Vec::new();
+    for methods in 1..=3 {
+        for role in 0..=2 {
+            let specialised = source
+                .replace(
+                    "override METHODS: u32 = 3u;",
+                    &format!("const METHODS: u32 = {methods}u;"),
+                )
+                .replace(
+                    "override ROLE: u32 = 0u;",
+                    &format!("const ROLE: u32 = {role}u;"),
+                );
+            assert_ne!(specialised, source, "override declarations not found");
+            let module = naga::front::wgsl::parse_str(&specialised).expect("parses");
+            for entry in &module.entry_points {
+                let mut analysis = UniformBranches {
+                    module: &module,
+                    privates: std::collections::HashMap::default(),
+                    changed: true,
+                    report: false,
+                    found: std::collections::BTreeSet::default(),
+                };
+                // Private globals: until what is stored in them stops changing, then report.
+                while analysis.changed {
+                    analysis.changed = false;
+                    let args = vec![Dependence::Varying; entry.function.arguments.len()];
+                    analysis.function(&entry.function, &args);
+                }
+                analysis.report = true;
+                let args = vec![Dependence::Varying; entry.function.arguments.len()];
+                analysis.function(&entry.function, &args);
+                for f in analysis.found {
+                    found.push(format!(
+                        "{} (METHODS {methods}, ROLE {role}): {f}",
+                        entry.name
+                    ));
+                }
+            }
+        }
+    }
+    found.sort();
+    found.dedup();
+    found
+}
+
+#[test]
+fn marcher_has_no_branch_on_uniform_values_alone() {
+    // Lavapipe (Mesa 22.3) inlines the uniform values such a branch reads and rebuilds the
+    // shader every time its uniform buffer is bound (no cache): it cost every guided frame a
+    // rebuild (~3 ms from Mesa's shader cache, 0.7 s without one) until `per_invocation`.
+    let source = lumigraph_core::shaders::render_source(false);
+    let found = uniform_branches(&source);
+    assert!(
+        found.is_empty(),
+        "branches on uniform values alone:\n{}",
+        found.join("\n")
+    );
+    // The check finds one when there is one (the branch the renderer used to have).
+    let planted = source.replace(
+        "    g_invocation = global_id.x;",
+        "    g_invocation = global_id.x;\n    if params.tiled != 0u {\n        out_depth[0] = 1.0;\n    }",
+    );
+    assert_ne!(planted, source);
+    let found = uniform_branches(&planted);
+    assert!(
+        found
+            .iter()
+            .any(|f| f.starts_with("cs_main") && f.ends_with("if in fn cs_main")),
+        "{found:?}"
+    );
+}
