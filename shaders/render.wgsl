@@ -340,6 +340,11 @@ fn coarse_nearest(p: vec2<u32>) -> vec2<i32> {
     return vec2<i32>(round(coarse_position(p)));
 }
 
+// The frame's 8×8 tiles (workgroups) per row and per column.
+fn frame_tiles() -> vec2<u32> {
+    return (vec2<u32>(params.width, params.height) + 7u) / 8u;
+}
+
 // A hit's colour (packed), z-depth and texture fetches, and whether some camera agreed with it.
 struct Shaded {
     color: u32,
@@ -358,8 +363,9 @@ struct Shaded {
 // first bracket, is the least biased: a depth map interpolated between texels lies behind a
 // convex surface. (Measured, eval on 6 views at 512²: median depth error 1.7e-4 r on the bunny
 // and 5.5e-4 r on the demo, against 2.5e-4 and 1.1e-3 with the weighted mean of the cameras'
-// steps, and 1.9e-4 and 6.5e-4 where every pixel is marched.)
-fn shade(o: vec3<f32>, d: vec3<f32>, t: f32, loc: Located, c0: Camera, c1: Camera, c2: Camera, newton: bool) -> Shaded {
+// steps, and 1.9e-4 and 6.5e-4 where every pixel is marched.) `z_rate`: the ray's z-depth per
+// unit of t.
+fn shade(o: vec3<f32>, d: vec3<f32>, z_rate: f32, t: f32, loc: Located, c0: Camera, c1: Camera, c2: Camera, newton: bool) -> Shaded {
     let x = o + t * d;
     var color = vec4<f32>(0.0);
     var total = 0.0;
@@ -408,7 +414,7 @@ fn shade(o: vec3<f32>, d: vec3<f32>, t: f32, loc: Located, c0: Camera, c1: Camer
     } else {
         color = fallback;
     }
-    let z = t_out * dot(d, params.forward) * params.depth_scale;
+    let z = t_out * z_rate;
     return Shaded(pack4x8unorm(vec4<f32>(color.rgb, 1.0)), z, fetches, total > 1e-6);
 }
 
@@ -417,7 +423,7 @@ fn shade(o: vec3<f32>, d: vec3<f32>, t: f32, loc: Located, c0: Camera, c1: Camer
 // shaded there; one Newton step (`shade`) corrects the depth it reports. Where no camera agrees
 // with the interpolated point (a gap or an edge narrower than the coarse pixels, which their
 // depths cannot show), the tile is given back: listed once, it is marched by the next pass.
-fn shade_interior(gid: vec2<u32>, index: u32, o: vec3<f32>, d: vec3<f32>, slot: u32) {
+fn shade_interior(gid: vec2<u32>, index: u32, o: vec3<f32>, d: vec3<f32>, z_rate: f32, slot: u32) {
     let cc = coarse_position(gid);
     let base = vec2<i32>(floor(cc));
     let fr = cc - floor(cc);
@@ -427,18 +433,18 @@ fn shade_interior(gid: vec2<u32>, index: u32, o: vec3<f32>, d: vec3<f32>, slot: 
     let z01 = textureLoad(coarse, clamp(base + vec2<i32>(0, 1), vec2<i32>(0), last), 0).x;
     let z11 = textureLoad(coarse, clamp(base + vec2<i32>(1, 1), vec2<i32>(0), last), 0).x;
     let z = mix(mix(z00, z10, fr.x), mix(z01, z11, fr.x), fr.y);
-    let t = max(z / (dot(d, params.forward) * params.depth_scale), 0.0);
+    let t = max(z / z_rate, 0.0);
     let cs = sphere_roots(o, d, 1.0);
     let loc = locate(normalize(o + cs.x * d), g_level);
-    let shaded = shade(o, d, t, loc, cameras[loc.cameras.x], cameras[loc.cameras.y], cameras[loc.cameras.z], true);
+    let shaded = shade(o, d, z_rate, t, loc, cameras[loc.cameras.x], cameras[loc.cameras.y], cameras[loc.cameras.z], true);
     out_color[index] = shaded.color;
     out_depth[index] = shaded.z;
     count_work(shaded.fetches, 0u, 1u);
     if !shaded.agreed {
         let entry = atomicOr(&tiles[slot], 0x80000000u);
         if entry < 0x80000000u {
-            let tile_count = ((params.width + 7u) / 8u) * ((params.height + 7u) / 8u);
-            atomicStore(&tiles[tile_count + atomicAdd(&tile_dispatch[6], 1u)], entry);
+            let grid = frame_tiles();
+            atomicStore(&tiles[grid.x * grid.y + atomicAdd(&tile_dispatch[6], 1u)], entry);
         }
     }
 }
@@ -456,9 +462,8 @@ fn shade_interior(gid: vec2<u32>, index: u32, o: vec3<f32>, d: vec3<f32>, slot: 
 // smooth surface through them. Flat tiles go to the interior pass, which does not march.
 @compute @workgroup_size(8, 8, 1)
 fn cs_tiles(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let columns = (params.width + 7u) / 8u;
-    let rows = (params.height + 7u) / 8u;
-    if gid.x >= columns || gid.y >= rows {
+    let grid = frame_tiles();
+    if any(gid.xy >= grid) {
         return;
     }
     let last = vec2<i32>(i32(params.coarse_width) - 1, i32(params.coarse_height) - 1);
@@ -499,7 +504,7 @@ fn cs_tiles(@builtin(global_invocation_id) gid: vec3<u32>) {
         let tile = gid.x | (gid.y << 16u);
         if flat {
             let slot = atomicAdd(&tile_dispatch[3], 1u);
-            atomicStore(&tiles[columns * rows - 1u - slot], tile);
+            atomicStore(&tiles[grid.x * grid.y - 1u - slot], tile);
         } else {
             let slot = atomicAdd(&tile_dispatch[0], 1u);
             atomicStore(&tiles[slot], tile);
@@ -515,7 +520,8 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
     if ROLE == 2u || (ROLE == 1u && per_invocation(params.tiled != 0u)) {
         // Tiles to march from the front of the list, flat ones from the back of its first half,
         // given-back ones from its second half (see `tiles`).
-        let tile_count = ((params.width + 7u) / 8u) * ((params.height + 7u) / 8u);
+        let grid = frame_tiles();
+        let tile_count = grid.x * grid.y;
         if ROLE == 2u {
             slot = tile_count - 1u - group_id.x;
         } else if per_invocation(params.tiled == 2u) {
@@ -543,7 +549,7 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
     // z-depth per unit of t along this ray.
     let z_rate = dot(d, params.forward) * params.depth_scale;
     if ROLE == 2u {
-        shade_interior(gid.xy, index, o, d, slot);
+        shade_interior(gid.xy, index, o, d, z_rate, slot);
         return;
     }
     // A coarse pass grows the sphere and box by its reach at their far side, so a ray that
@@ -665,7 +671,7 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
         out_depth[index] = -2.0 - m.near_first * z_rate;
     }
     if m.hit {
-        let shaded = shade(o, d, m.t, loc, c0, c1, c2, false);
+        let shaded = shade(o, d, z_rate, m.t, loc, c0, c1, c2, false);
         out_color[index] = shaded.color;
         out_depth[index] = shaded.z;
         fetches += shaded.fetches;

@@ -121,7 +121,7 @@ pub struct RenderOptions {
 /// Largest coarse-to-fine factor ([`RenderOptions::guide`]).
 pub const MAX_GUIDE: u32 = 16;
 /// Coarse-to-fine factor of the default method when none is given: at 512² on the fixtures it
-/// takes 0.53–0.73× of the unguided time at equal masked PSNR (BENCHMARKS.md).
+/// takes 0.36–0.48× of the unguided time at equal masked PSNR (BENCHMARKS.md).
 pub const DEFAULT_GUIDE: u32 = 4;
 
 /// Options of [`Renderer::upload_with`].
@@ -450,6 +450,37 @@ const MAX_TILES: u32 = 65_535;
 /// a pixel) meet the 256-byte row alignment of a buffer-to-texture copy.
 fn coarse_stride(width: u32) -> u32 {
     width.div_ceil(64) * 64
+}
+
+/// How a compute pass counts its workgroups.
+#[derive(Clone, Copy)]
+enum Workgroups<'a> {
+    /// A `columns` × `rows` grid.
+    Grid(u32, u32),
+    /// (x, y, z) read from a buffer at a byte offset.
+    Indirect(&'a wgpu::Buffer, u64),
+}
+
+/// Records one compute pass of the marcher: `pipeline` with `frame` as bind group 0 and the
+/// light field's `field` as group 1.
+fn record_pass(
+    encoder: &mut wgpu::CommandEncoder,
+    label: &str,
+    pipeline: &wgpu::ComputePipeline,
+    (frame, field): (&wgpu::BindGroup, &wgpu::BindGroup),
+    workgroups: Workgroups,
+) {
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: Some(label),
+        timestamp_writes: None,
+    });
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, frame, &[]);
+    pass.set_bind_group(1, field, &[]);
+    match workgroups {
+        Workgroups::Grid(columns, rows) => pass.dispatch_workgroups(columns, rows, 1),
+        Workgroups::Indirect(buffer, offset) => pass.dispatch_workgroups_indirect(buffer, offset),
+    }
 }
 
 /// One entry point of the marcher's module as a compute pipeline, with its override constants.
@@ -1185,16 +1216,14 @@ impl Renderer {
         encoder = timer.split(gpu, encoder, "uploads")?;
         for (i, &(level, (cw, ch), _)) in levels.iter().enumerate() {
             // Every coarse pass marks near misses; all but the coarsest are guided.
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("render coarse"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(self.pipeline(methods, ROLE_GUIDED));
-            pass.set_bind_group(0, &level.group, &[]);
-            pass.set_bind_group(1, &field.group, &[]);
             let (level_columns, level_rows) = tile_grid(cw, ch);
-            pass.dispatch_workgroups(level_columns, level_rows, 1);
-            drop(pass);
+            record_pass(
+                &mut encoder,
+                "render coarse",
+                self.pipeline(methods, ROLE_GUIDED),
+                (&level.group, &field.group),
+                Workgroups::Grid(level_columns, level_rows),
+            );
             encoder.copy_buffer_to_texture(
                 wgpu::TexelCopyBufferInfo {
                     buffer: &level.depth,
@@ -1226,15 +1255,14 @@ impl Renderer {
         if tiled {
             encoder.clear_buffer(&targets.color, 0, Some(pixels * 4));
             encoder.clear_buffer(&targets.depth, 0, Some(pixels * 4));
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("render tiles"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&self.tiles_pipeline);
-            pass.set_bind_group(0, &targets.group, &[]);
-            pass.set_bind_group(1, &field.group, &[]);
-            pass.dispatch_workgroups(columns.div_ceil(8), rows.div_ceil(8), 1);
-            drop(pass);
+            // One invocation per tile, in 8×8 workgroups.
+            record_pass(
+                &mut encoder,
+                "render tiles",
+                &self.tiles_pipeline,
+                (&targets.group, &field.group),
+                Workgroups::Grid(columns.div_ceil(8), rows.div_ceil(8)),
+            );
             encoder.copy_buffer_to_buffer(
                 &targets.tile_dispatch,
                 0,
@@ -1244,36 +1272,31 @@ impl Renderer {
             );
             encoder = timer.split(gpu, encoder, "tiles")?;
         }
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("render"),
-                timestamp_writes: None,
-            });
-            let role = if coarse.is_some() {
-                ROLE_GUIDED
-            } else {
-                ROLE_PLAIN
-            };
-            pass.set_pipeline(self.pipeline(methods, role));
-            pass.set_bind_group(0, &targets.group, &[]);
-            pass.set_bind_group(1, &field.group, &[]);
+        let role = if coarse.is_some() {
+            ROLE_GUIDED
+        } else {
+            ROLE_PLAIN
+        };
+        record_pass(
+            &mut encoder,
+            "render",
+            self.pipeline(methods, role),
+            (&targets.group, &field.group),
             if tiled {
-                pass.dispatch_workgroups_indirect(&targets.tile_args, 0);
+                Workgroups::Indirect(&targets.tile_args, 0)
             } else {
-                pass.dispatch_workgroups(columns, rows, 1);
-            }
-        }
+                Workgroups::Grid(columns, rows)
+            },
+        );
         encoder = timer.split(gpu, encoder, "frame")?;
         if interior {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("render interior"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(self.pipeline(methods, ROLE_INTERIOR));
-            pass.set_bind_group(0, &targets.group, &[]);
-            pass.set_bind_group(1, &field.group, &[]);
-            pass.dispatch_workgroups_indirect(&targets.tile_args, INTERIOR_ARGS);
-            drop(pass);
+            record_pass(
+                &mut encoder,
+                "render interior",
+                self.pipeline(methods, ROLE_INTERIOR),
+                (&targets.group, &field.group),
+                Workgroups::Indirect(&targets.tile_args, INTERIOR_ARGS),
+            );
             encoder.copy_buffer_to_buffer(
                 &targets.tile_dispatch,
                 GIVEN_BACK_ARGS,
@@ -1281,15 +1304,13 @@ impl Renderer {
                 GIVEN_BACK_ARGS,
                 12,
             );
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("render given back"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(self.pipeline(methods, ROLE_GUIDED));
-            pass.set_bind_group(0, &targets.given_back_group, &[]);
-            pass.set_bind_group(1, &field.group, &[]);
-            pass.dispatch_workgroups_indirect(&targets.tile_args, GIVEN_BACK_ARGS);
-            drop(pass);
+            record_pass(
+                &mut encoder,
+                "render given back",
+                self.pipeline(methods, ROLE_GUIDED),
+                (&targets.given_back_group, &field.group),
+                Workgroups::Indirect(&targets.tile_args, GIVEN_BACK_ARGS),
+            );
             encoder = timer.split(gpu, encoder, "interior")?;
         }
         encoder.copy_buffer_to_buffer(&targets.color, 0, &targets.readback, 0, pixels * 4);
