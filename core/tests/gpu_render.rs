@@ -36,26 +36,59 @@ fn ctx() -> &'static Ctx {
     })
 }
 
-/// Axis-aligned cube [-h, h]³ around `center`, outward winding.
-fn cube(center: [f32; 3], h: f32) -> Mesh {
-    let mut positions = Vec::new();
+/// Appends the axis-aligned box [lo, hi] (8 corners, 12 outward triangles) to a mesh's arrays.
+fn push_box(
+    (positions, triangles): (&mut Vec<[f32; 3]>, &mut Vec<[u32; 3]>),
+    lo: [f32; 3],
+    hi: [f32; 3],
+) {
+    let base = u32::try_from(positions.len()).expect("few corners");
     for i in 0..8u32 {
-        let s = |bit: u32| if i & bit == 0 { -h } else { h };
-        positions.push([center[0] + s(1), center[1] + s(2), center[2] + s(4)]);
+        let pick = |axis: usize| {
+            if i & (1 << axis) == 0 {
+                lo[axis]
+            } else {
+                hi[axis]
+            }
+        };
+        positions.push([pick(0), pick(1), pick(2)]);
     }
-    let faces = [
+    for f in [
         [0, 2, 3, 1],
         [4, 5, 7, 6],
         [0, 1, 5, 4],
         [2, 6, 7, 3],
         [0, 4, 6, 2],
         [1, 3, 7, 5],
-    ];
-    let triangles = faces
-        .iter()
-        .flat_map(|f| [[f[0], f[1], f[2]], [f[0], f[2], f[3]]])
-        .collect();
+    ] {
+        triangles.push([base + f[0], base + f[1], base + f[2]]);
+        triangles.push([base + f[0], base + f[2], base + f[3]]);
+    }
+}
+
+/// Axis-aligned cube [-h, h]³ around `center`, outward winding.
+fn cube(center: [f32; 3], h: f32) -> Mesh {
+    let (mut positions, mut triangles) = (Vec::new(), Vec::new());
+    push_box(
+        (&mut positions, &mut triangles),
+        center.map(|c| c - h),
+        center.map(|c| c + h),
+    );
     Mesh::from_arrays(positions, triangles, None).expect("cube")
+}
+
+/// `count` random views of `asset` the way `eval` chooses them (seed `seed`): eye on a sphere
+/// of 2.5 bounding radii around its centre, looking at it, yfov 40°, `size`².
+fn eval_views(asset: &AssetFile, count: usize, seed: u64, size: u32) -> Vec<View> {
+    let frame = &asset.header().frame;
+    lumigraph_core::view::random_orbit_views(
+        frame.center,
+        2.5 * frame.radius,
+        count,
+        seed,
+        40.0,
+        size,
+    )
 }
 
 /// Slab test in f64: first t ≥ 0 where o + t·d meets the box, if any.
@@ -241,14 +274,7 @@ fn light_field_render_matches_reference_on_the_demo() {
     let field = ctx().renderer.upload(&asset).expect("upload");
     let gpu_mesh = ctx().reference.upload(&mesh).expect("upload mesh");
     let r = asset.header().frame.radius;
-    let views = lumigraph_core::view::random_orbit_views(
-        asset.header().frame.center,
-        2.5 * r,
-        3,
-        7,
-        40.0,
-        128,
-    );
+    let views = eval_views(&asset, 3, 7, 128);
     for method in [Method::Default, Method::Fixed] {
         let mut comparisons = Vec::new();
         for view in &views {
@@ -1254,15 +1280,7 @@ fn coarse_to_fine_guide_keeps_quality_and_skips_work() {
     let (mesh, asset) = baked_demo(42, 96);
     let field = ctx().renderer.upload(&asset).expect("upload");
     let gpu_mesh = ctx().reference.upload(&mesh).expect("upload mesh");
-    let r = asset.header().frame.radius;
-    let views = lumigraph_core::view::random_orbit_views(
-        asset.header().frame.center,
-        2.5 * r,
-        3,
-        11,
-        40.0,
-        192,
-    );
+    let views = eval_views(&asset, 3, 11, 192);
     let render = |view: &View, guide| {
         let options = RenderOptions {
             guide: Some(guide),
@@ -1349,7 +1367,7 @@ fn tile_compaction_and_pass_timing_change_no_pixel() {
     let center = asset.header().frame.center;
     // Random orbits, a far view (a few tiles), a near one filling the frame, a non-multiple
     // of 8 size, and guides 2, 4 and 8.
-    let mut views = lumigraph_core::view::random_orbit_views(center, 2.5 * r, 3, 5, 40.0, 200);
+    let mut views = eval_views(&asset, 3, 5, 200);
     let at = |offset: [f64; 3]| {
         [
             center[0] + offset[0],
@@ -1422,14 +1440,7 @@ fn interior_pass_matches_marching() {
     let field = renderer.upload(&asset).expect("upload");
     let gpu_mesh = ctx().reference.upload(&mesh).expect("upload mesh");
     let r = asset.header().frame.radius;
-    let views = lumigraph_core::view::random_orbit_views(
-        asset.header().frame.center,
-        2.5 * r,
-        4,
-        21,
-        40.0,
-        256,
-    );
+    let views = eval_views(&asset, 4, 21, 256);
     let (mut marched_q, mut interior_q) = (Vec::new(), Vec::new());
     for view in &views {
         let options = RenderOptions::default();
@@ -1483,27 +1494,13 @@ fn interior_pass_matches_marching() {
 /// them (x in ±gap/2).
 fn slit_plates(gap: f32) -> Mesh {
     let (w, h, t) = (1.0f32, 1.0f32, 0.02f32);
-    let mut positions = Vec::new();
-    let mut triangles = Vec::new();
+    let (mut positions, mut triangles) = (Vec::new(), Vec::new());
     for (x0, x1) in [(-0.5 * gap - w, -0.5 * gap), (0.5 * gap, 0.5 * gap + w)] {
-        let base = positions.len() as u32;
-        for i in 0..8u32 {
-            let x = if i & 1 == 0 { x0 } else { x1 };
-            let y = if i & 2 == 0 { -0.5 * h } else { 0.5 * h };
-            let z = if i & 4 == 0 { -t } else { t };
-            positions.push([x, y, z]);
-        }
-        for f in [
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-        ] {
-            triangles.push([base + f[0], base + f[1], base + f[2]]);
-            triangles.push([base + f[0], base + f[2], base + f[3]]);
-        }
+        push_box(
+            (&mut positions, &mut triangles),
+            [x0, -0.5 * h, -t],
+            [x1, 0.5 * h, t],
+        );
     }
     Mesh::from_arrays(positions, triangles, None).expect("plates")
 }
