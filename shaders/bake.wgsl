@@ -127,6 +127,26 @@ fn trace(o: vec3<f32>, d: vec3<f32>, t_max: f32) -> Hit {
     return hit;
 }
 
+// The ray of parabolic-map point uv (in [-1, 1]²) of camera `cam`: unit direction w and the chord
+// from the camera to the unit sphere along it (≤ 0 beyond the recorded hemisphere).
+struct MapRay {
+    w: vec3<f32>,
+    chord: f32,
+}
+
+fn map_ray(cam: Camera, uv: vec2<f32>) -> MapRay {
+    let q = dot(uv, uv);
+    let rz = (1.0 - q) / (1.0 + q);
+    let r = vec3<f32>(uv * (1.0 + rz), rz);
+    // The chord from the camera to the unit sphere along this direction is 2·r_z (|p| = 1).
+    return MapRay(normalize(cam.x.xyz * r.x + cam.y.xyz * r.y + cam.z.xyz * r.z), 2.0 * rz);
+}
+
+// Centre of texel (column x, row y) in the parabolic map.
+fn texel_uv(x: u32, y: u32, n: u32) -> vec2<f32> {
+    return (vec2<f32>(f32(x), f32(y)) + 0.5) / f32(n) * 2.0 - 1.0;
+}
+
 @compute @workgroup_size(8, 8, 1)
 fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let n = params.resolution;
@@ -136,18 +156,14 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let out_index = (gid.z * n + gid.y) * n + gid.x;
     let cam = cameras[params.first_camera + gid.z];
     // Texel (row a = y, column b = x) centre in the parabolic map.
-    let uv = (vec2<f32>(f32(gid.x), f32(gid.y)) + 0.5) / f32(n) * 2.0 - 1.0;
-    let q = dot(uv, uv);
-    let rz = (1.0 - q) / (1.0 + q);
-    let r = vec3<f32>(uv * (1.0 + rz), rz);
-    // The chord from the camera to the unit sphere along this direction is 2·r_z (|p| = 1).
-    let chord = 2.0 * rz;
+    let ray = map_ray(cam, texel_uv(gid.x, gid.y, n));
+    let chord = ray.chord;
+    let w = ray.w;
     out_color[out_index] = 0u;
     out_depth[out_index] = 1.0;
     if chord <= 0.0 {
         return;
     }
-    let w = normalize(cam.x.xyz * r.x + cam.y.xyz * r.y + cam.z.xyz * r.z);
     let o = cam.position.xyz;
     let hit = trace(o, w, chord);
     if hit.triangle == 0xffffffffu {
@@ -165,4 +181,64 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let color = shade(albedo, n_interp, -w, params.shading);
     out_color[out_index] = pack4x8unorm(vec4<f32>(color, 1.0));
     out_depth[out_index] = hit.t / chord;
+}
+
+// Bisection steps of `cs_edges`: the silhouette lies within 2^-7 texel of the final bracket's
+// midpoint (the alpha byte holds 1/255; lumigraph's renderer keeps 1/16).
+const EDGE_ITERATIONS: u32 = 6u;
+
+// Normalized depth of camera `cam`'s first hit through map point uv, or −1 where it hits nothing.
+fn covered_depth(cam: Camera, uv: vec2<f32>) -> f32 {
+    let ray = map_ray(cam, uv);
+    if ray.chord <= 0.0 {
+        return -1.0;
+    }
+    let hit = trace(cam.position.xyz, ray.w, ray.chord);
+    return select(hit.t / ray.chord, -1.0, hit.triangle == 0xffffffffu);
+}
+
+// `cs_edges`'s work, listed by the CPU from `cs_main`'s depths (`edge_pairs` in bake.rs): one
+// entry per no-hit texel and hit 4-neighbour of it, the texel as an index into the batch's
+// outputs (camera · n² + row · n + column) in bits 0–29 and the neighbour's direction in bits
+// 30–31 (+x, −x, +y, −y); and per entry, the crossing found.
+@group(2) @binding(0) var<storage, read> edge_pairs: array<u32>;
+@group(2) @binding(1) var<storage, read_write> edge_crossings: array<vec2<f32>>;
+
+// Sub-texel silhouettes (docs/format.md §8.5), run after `cs_main`, one invocation per listed
+// pair (lavapipe runs every instruction for every lane, so a pass over all texels would trace for
+// all of them): bisection on the segment from the hit neighbour's centre to the no-hit texel's
+// finds where the neighbour's ray stops hitting the mesh. Output: how far along the segment
+// (texel spacings, 0–1) and the normalized depth of the last hit before it (the silhouette's
+// depth); the CPU averages them per texel into its colour.
+@compute @workgroup_size(64, 1, 1)
+fn cs_edges(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if gid.x >= arrayLength(&edge_pairs) {
+        return;
+    }
+    let n = params.resolution;
+    let entry = edge_pairs[gid.x];
+    let out_index = entry & 0x3fffffffu;
+    let direction = entry >> 30u;
+    let camera = out_index / (n * n);
+    let layer = camera * n * n;
+    let texel = vec2<i32>(vec2<u32>((out_index - layer) % n, (out_index - layer) / n));
+    let offset = select(vec2<i32>(select(-1, 1, direction == 0u), 0), vec2<i32>(0, select(-1, 1, direction == 2u)), direction >= 2u);
+    let p = clamp(texel + offset, vec2<i32>(0), vec2<i32>(i32(n) - 1));
+    let cam = cameras[params.first_camera + camera];
+    let own = texel_uv(u32(texel.x), u32(texel.y), n);
+    let hit_uv = texel_uv(u32(p.x), u32(p.y), n);
+    var lo = 0.0;
+    var hi = 1.0;
+    var depth = out_depth[layer + u32(p.y) * n + u32(p.x)];
+    for (var it = 0u; it < EDGE_ITERATIONS; it++) {
+        let mid = 0.5 * (lo + hi);
+        let dm = covered_depth(cam, mix(hit_uv, own, mid));
+        if dm >= 0.0 {
+            lo = mid;
+            depth = dm;
+        } else {
+            hi = mid;
+        }
+    }
+    edge_crossings[gid.x] = vec2<f32>(0.5 * (lo + hi), depth);
 }

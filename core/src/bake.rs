@@ -111,7 +111,11 @@ pub struct BakeReport {
 pub struct Baker {
     gpu: Arc<Gpu>,
     pipeline: wgpu::ComputePipeline,
+    /// `cs_edges`: sub-texel silhouette positions in the alpha of no-hit texels.
+    edges: wgpu::ComputePipeline,
     frame_layout: wgpu::BindGroupLayout,
+    /// `cs_edges`'s list of texels.
+    edge_layout: wgpu::BindGroupLayout,
     mesh_layout: wgpu::BindGroupLayout,
     sampler: wgpu::Sampler,
 }
@@ -294,19 +298,39 @@ impl Baker {
             bind_group_layouts: &[Some(&frame_layout), Some(&mesh_layout)],
             immediate_size: 0,
         });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("bake"),
-            layout: Some(&layout),
-            module: &module,
-            entry_point: Some("cs_main"),
-            compilation_options: wgpu::PipelineCompilationOptions::default(),
-            cache: None,
+        let edge_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("bake edge texels"),
+            entries: &[storage_entry(0, true), storage_entry(1, false)].map(|e| {
+                wgpu::BindGroupLayoutEntry {
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ..e
+                }
+            }),
         });
+        let edges_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("bake edges"),
+            bind_group_layouts: &[Some(&frame_layout), Some(&mesh_layout), Some(&edge_layout)],
+            immediate_size: 0,
+        });
+        let entry = |name, layout| {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(name),
+                layout: Some(layout),
+                module: &module,
+                entry_point: Some(name),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                cache: None,
+            })
+        };
+        let pipeline = entry("cs_main", &layout);
+        let edges = entry("cs_edges", &edges_layout);
         let sampler = mesh_sampler(&gpu);
         Baker {
             gpu,
             pipeline,
+            edges,
             frame_layout,
+            edge_layout,
             mesh_layout,
             sampler,
         }
@@ -479,25 +503,67 @@ impl Baker {
                     },
                 ],
             });
-            let mut encoder = gpu
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("bake"),
-                });
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("bake"),
-                    timestamp_writes: None,
-                });
-                pass.set_pipeline(&self.pipeline);
-                pass.set_bind_group(0, &frame_group, &[]);
-                pass.set_bind_group(1, &mesh_group, &[]);
-                pass.dispatch_workgroups(n.div_ceil(8), n.div_ceil(8), count);
-            }
-            gpu.queue.submit([encoder.finish()]);
+            let dispatch = |pipeline: &wgpu::ComputePipeline,
+                            edge_group: Option<&wgpu::BindGroup>,
+                            groups: (u32, u32, u32)| {
+                let mut encoder =
+                    gpu.device
+                        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                            label: Some("bake"),
+                        });
+                {
+                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                        label: Some("bake"),
+                        timestamp_writes: None,
+                    });
+                    pass.set_pipeline(pipeline);
+                    pass.set_bind_group(0, &frame_group, &[]);
+                    pass.set_bind_group(1, &mesh_group, &[]);
+                    if let Some(group) = edge_group {
+                        pass.set_bind_group(2, group, &[]);
+                    }
+                    pass.dispatch_workgroups(groups.0, groups.1, groups.2);
+                }
+                gpu.queue.submit([encoder.finish()]);
+            };
+            dispatch(&self.pipeline, None, (n.div_ceil(8), n.div_ceil(8), count));
             let used = u64::from(count) * texels * 4;
-            let colors = gpu.read_buffer(&out_color, used)?;
             let depths = gpu.read_buffer(&out_depth, used)?;
+            let pairs = edge_pairs(bytemuck::cast_slice(&depths), n as usize);
+            let mut colors = gpu.read_buffer(&out_color, used)?;
+            if !pairs.is_empty() {
+                let list = storage_buffer(
+                    gpu,
+                    "bake edge pairs",
+                    bytemuck::cast_slice(&pairs),
+                    wgpu::BufferUsages::empty(),
+                );
+                let crossings_bytes = pairs.len() as u64 * 8;
+                let crossings = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("bake edge crossings"),
+                    size: crossings_bytes,
+                    usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+                    mapped_at_creation: false,
+                });
+                let edge_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("bake edge pairs"),
+                    layout: &self.edge_layout,
+                    entries: &[
+                        wgpu::BindGroupEntry {
+                            binding: 0,
+                            resource: list.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 1,
+                            resource: crossings.as_entire_binding(),
+                        },
+                    ],
+                });
+                let groups = u32::try_from(pairs.len().div_ceil(64)).unwrap_or(u32::MAX);
+                dispatch(&self.edges, Some(&edge_group), (groups, 1, 1));
+                let found = gpu.read_buffer(&crossings, crossings_bytes)?;
+                store_edges(&mut colors, &pairs, bytemuck::cast_slice(&found));
+            }
             let image_bytes = (texels * 4) as usize;
             for c in 0..count {
                 let camera = first + c;
@@ -517,6 +583,66 @@ impl Baker {
             progress(first, total);
         }
         Ok(())
+    }
+}
+
+/// Mask of a pair's texel index in `edge_pairs`; the neighbour's direction is above it.
+const EDGE_INDEX_MASK: u32 = (1 << 30) - 1;
+
+/// `cs_edges`'s work (bake.wgsl) for a batch of `n×n` depth maps (normalized, ≥ 1 = no hit):
+/// each no-hit texel with a hit 4-neighbour, once per such neighbour, as the texel's index into
+/// the batch with the neighbour's direction (0 +x, 1 −x, 2 +y, 3 −y) in bits 30–31.
+fn edge_pairs(depths: &[f32], n: usize) -> Vec<u32> {
+    let hit = |i: usize| depths[i] < 1.0;
+    let mut out = Vec::new();
+    for (map, _) in depths.chunks_exact(n * n).enumerate() {
+        let base = map * n * n;
+        for y in 0..n {
+            for x in 0..n {
+                let i = base + y * n + x;
+                if hit(i) {
+                    continue;
+                }
+                let Ok(index) = u32::try_from(i) else {
+                    continue;
+                };
+                let neighbours = [
+                    x + 1 < n && hit(i + 1),
+                    x > 0 && hit(i - 1),
+                    y + 1 < n && hit(i + n),
+                    y > 0 && hit(i - n),
+                ];
+                for (direction, _) in neighbours.iter().enumerate().filter(|(_, h)| **h) {
+                    out.push((index & EDGE_INDEX_MASK) | ((direction as u32) << 30));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Writes the sub-texel silhouettes `cs_edges` found into the batch's colours (docs/format.md
+/// §8.5): per listed no-hit texel, the mean crossing distance e over its hit neighbours as
+/// A = max(1, round(255 · e)) and the mean silhouette depth as a 16-bit code in R (low byte) and
+/// G. `crossings[i]` is pair i's (distance, depth).
+fn store_edges(colors: &mut [u8], pairs: &[u32], crossings: &[[f32; 2]]) {
+    let mut i = 0;
+    while i < pairs.len() {
+        let index = pairs[i] & EDGE_INDEX_MASK;
+        let (mut e, mut depth, mut count) = (0.0_f64, 0.0_f64, 0.0_f64);
+        while i < pairs.len() && pairs[i] & EDGE_INDEX_MASK == index {
+            e += f64::from(crossings[i][0]);
+            depth += f64::from(crossings[i][1]);
+            count += 1.0;
+            i += 1;
+        }
+        let a = (255.0 * e / count).round().clamp(1.0, 255.0) as u8;
+        let code = (depth / count * 65535.0).round().clamp(0.0, 65534.0) as u16;
+        let [lo, hi] = code.to_le_bytes();
+        let at = index as usize * 4;
+        if let Some(texel) = colors.get_mut(at..at + 4) {
+            texel.copy_from_slice(&[lo, hi, 0, a]);
+        }
     }
 }
 

@@ -41,7 +41,9 @@ const EDGE_GAP: f32 = 0.05;
 /// half-texel-accurate silhouettes is biased outwards, and a front layer that must hold 60 % of
 /// the weight cancels that bias. Measured (12 views, 256-px maps, masked PSNR, 0.5 → 0.6):
 /// bunny 162 cams 25.45 → 26.23 dB, bunny 42 25.63 → 26.03, cow 162 22.64 → 23.16,
-/// demo 162 26.85 → 27.46; 0.7 and 0.8 were worse again on the bunny (26.14, 25.24).
+/// demo 162 26.85 → 27.46; 0.7 and 0.8 were worse again on the bunny (26.14, 25.24). With
+/// sub-texel silhouettes ([`edge_codes`]) it matters less, as the edge texels place most
+/// silhouettes (bunny: 28.48, 28.49, 28.32 dB at 0.5, 0.6, 0.7).
 const FRONT_MASS: f32 = 0.6;
 
 /// Errors while rendering.
@@ -827,6 +829,7 @@ impl Renderer {
                 codes
             };
             visible.add_map(&codes, n as usize, positions[k as usize]);
+            let codes = edge_codes(&codes, &mut colors[k as usize], n as usize);
             depths.push(footprint_texels(&codes, n as usize));
         }
         let color_refs: Vec<&[u8]> = colors.iter().map(Vec::as_slice).collect();
@@ -1425,6 +1428,75 @@ fn requantize_u16_to_u8(code: u16) -> u16 {
     geometry::encode_depth_u16(geometry::decode_depth_u8(d8))
 }
 
+/// First footprint code of a no-hit texel beside the silhouette ([`edge_codes`]); hit codes are
+/// capped below it (every hit of a valid asset has depth < 0.854, code ≤ 55 962).
+const EDGE_BASE: u16 = 56_000;
+/// Levels of the silhouette position e in an edge code: e = (level + 0.5) / 16 texel.
+const EDGE_E_LEVELS: u16 = 16;
+/// Levels of the extrapolated depth in an edge code: depth = level / 591. Edge codes end at
+/// 56 000 + 16 · 592 − 1 = 65 471, below the no-hit code.
+const EDGE_DEPTH_LEVELS: u16 = 592;
+/// Nearest a silhouette may sit to a hit texel's centre, in texel spacings (`EDGE_MIN` in
+/// render.wgsl).
+const EDGE_MIN: f64 = 0.025;
+
+/// Folds the sub-texel silhouettes of a camera's `n×n` colour map into its depth codes, where
+/// `probe` (render.wgsl) reads them in the same load as the depths. A no-hit texel with alpha
+/// A > 0 lies beside the silhouette, which passes e = A / 255 texel spacings from the centres of
+/// its hit 4-neighbours at depth code R | G << 8 (docs/format.md §8.5). It gets code
+/// `EDGE_BASE + e level · 592 + depth level`, where the depth is the line from its neighbours'
+/// mean depth through the silhouette's depth (at e) extended to its own centre: bilinear weights
+/// over the footprint then reproduce the surface receding to the silhouette instead of a flat
+/// skirt in front of it. Its colour becomes 0, as the format has no-hit colour; a texel without a
+/// hit neighbour (no silhouette to place) stays plain no hit.
+fn edge_codes(codes: &[u16], color: &mut [u8], n: usize) -> Vec<u16> {
+    let mut out: Vec<u16> = codes
+        .iter()
+        .map(|&c| {
+            if c == geometry::NO_HIT_U16 {
+                c
+            } else {
+                c.min(EDGE_BASE - 1)
+            }
+        })
+        .collect();
+    for (i, texel) in color.chunks_exact_mut(4).enumerate().take(codes.len()) {
+        if codes[i] != geometry::NO_HIT_U16 || texel[3] == 0 {
+            continue;
+        }
+        let (a, silhouette) = (texel[3], u16::from_le_bytes([texel[0], texel[1]]));
+        texel.copy_from_slice(&[0; 4]);
+        let (x, y) = (i % n, i / n);
+        let neighbours = [
+            (x + 1 < n).then(|| i + 1),
+            (x > 0).then(|| i - 1),
+            (y + 1 < n).then(|| i + n),
+            (y > 0).then(|| i - n),
+        ];
+        let hits: Vec<f64> = neighbours
+            .into_iter()
+            .flatten()
+            .filter_map(|j| codes.get(j).copied())
+            .filter(|&c| c != geometry::NO_HIT_U16)
+            .map(|c| f64::from(c) / 65535.0)
+            .collect();
+        if hits.is_empty() {
+            continue;
+        }
+        let near = hits.iter().sum::<f64>() / hits.len() as f64;
+        let e_level = (f64::from(a) / 255.0 * f64::from(EDGE_E_LEVELS)).floor() as u16;
+        let e_level = e_level.min(EDGE_E_LEVELS - 1);
+        // The position the shader decodes, so that its bilinear depth meets the silhouette's
+        // exactly there.
+        let e = ((f64::from(e_level) + 0.5) / f64::from(EDGE_E_LEVELS)).max(EDGE_MIN);
+        let silhouette = f64::from(silhouette.min(geometry::NO_HIT_U16 - 1)) / 65535.0;
+        let extrapolated = (near + (silhouette - near) / e).clamp(0.0, 1.0);
+        let depth_level = (extrapolated * f64::from(EDGE_DEPTH_LEVELS - 1)).round() as u16;
+        out[i] = EDGE_BASE + e_level * EDGE_DEPTH_LEVELS + depth_level;
+    }
+    out
+}
+
 /// Packs a camera's `n×n` depth codes into footprint texels: texel `(x, y)` holds the codes of
 /// `(x, y)`, `(x+1, y)`, `(x, y+1)`, `(x+1, y+1)` (clamped at the border), as `Rgba16Uint` bytes.
 fn footprint_texels(codes: &[u16], n: usize) -> Vec<u8> {
@@ -1509,6 +1581,72 @@ mod tests {
             local = 4 * local + child;
         }
         start + local
+    }
+
+    /// `probe`'s decoding of an edge code (render.wgsl): (e, extrapolated depth), in f32 as there.
+    fn decode_edge_like_shader(code: u16) -> (f32, f32) {
+        let rel = f32::from(code) - f32::from(EDGE_BASE);
+        let e_level = ((rel + 0.5) * (1.0 / f32::from(EDGE_DEPTH_LEVELS))).floor();
+        let e = (e_level + 0.5) * (1.0 / f32::from(EDGE_E_LEVELS));
+        let depth = (rel - e_level * f32::from(EDGE_DEPTH_LEVELS))
+            * (1.0 / f32::from(EDGE_DEPTH_LEVELS - 1));
+        (e, depth)
+    }
+
+    #[test]
+    fn edge_codes_place_the_silhouette_and_extend_the_depth() {
+        // A 4×2 map: row 0 = hit (depth 0.4), edge texel (e = 100/255, silhouette depth 0.5),
+        // plain no hit, an edge texel with no hit neighbour; row 1 = a hit whose code lies in
+        // the edge range (capped), then no hits with alpha 0.
+        let n = 4;
+        let code = |d: f64| (d * 65535.0).round() as u16;
+        let no = geometry::NO_HIT_U16;
+        let codes = vec![code(0.4), no, no, no, 60_000, no, no, no];
+        let mut color = vec![0u8; 32];
+        color[..4].copy_from_slice(&[10, 20, 30, 255]);
+        let sil = code(0.5).to_le_bytes();
+        color[4..8].copy_from_slice(&[sil[0], sil[1], 0, 100]);
+        color[12..16].copy_from_slice(&[sil[0], sil[1], 0, 77]);
+        color[16..20].copy_from_slice(&[1, 2, 3, 255]);
+        let out = edge_codes(&codes, &mut color, n);
+        // Hits keep their codes and colours, capped below the edge range.
+        assert_eq!(out[0], codes[0]);
+        assert_eq!(out[4], EDGE_BASE - 1);
+        assert_eq!(&color[..4], &[10, 20, 30, 255]);
+        // Plain no-hit texels stay; an edge texel without a hit 4-neighbour (texel 3: its
+        // neighbours are texels 2 and 7) becomes plain no hit; edge colours are cleared.
+        assert_eq!((out[2], out[3], out[5]), (no, no, no));
+        assert_eq!(&color[4..8], &[0; 4]);
+        assert_eq!(&color[12..16], &[0; 4]);
+        // Texel 1: its neighbours are texel 0 (hit, 0.4), texel 2 and texel 5 (no hit).
+        assert!((EDGE_BASE..no).contains(&out[1]));
+        let (e, depth) = decode_edge_like_shader(out[1]);
+        // e: 100/255 = 0.392 lies in level 6 of 16 (0.375–0.4375), decoded at its middle.
+        assert_eq!(e, 6.5 / 16.0);
+        // The line from 0.4 (at the hit centre) through 0.5 (at e) reaches 0.4 + 0.1 / e at this
+        // texel's centre; within half a depth level (0.5 / 591) plus f32 rounding.
+        let want = 0.4 + 0.1 / f64::from(e);
+        assert!(
+            (f64::from(depth) - want).abs() <= 0.5 / 591.0 + 1e-5,
+            "{depth} vs {want}"
+        );
+        // Every code round-trips: all e levels and depth levels decode to themselves.
+        for e_level in 0..EDGE_E_LEVELS {
+            for depth_level in [0, 1, 295, EDGE_DEPTH_LEVELS - 1] {
+                let c = EDGE_BASE + e_level * EDGE_DEPTH_LEVELS + depth_level;
+                assert!(c < no);
+                let (e, d) = decode_edge_like_shader(c);
+                assert_eq!(e, (f32::from(e_level) + 0.5) / 16.0);
+                let want = f32::from(depth_level) / f32::from(EDGE_DEPTH_LEVELS - 1);
+                assert!((d - want).abs() < 1e-6, "{c}: {d} vs {want}");
+            }
+        }
+        // Extrapolation is clamped to [0, 1]: a silhouette far behind a near hit at e ≈ 0.
+        let mut color = vec![0u8; 16];
+        let far = code(0.85).to_le_bytes();
+        color[4..8].copy_from_slice(&[far[0], far[1], 0, 1]);
+        let out = edge_codes(&[code(0.1), no, no, no], &mut color, 2);
+        assert_eq!(decode_edge_like_shader(out[1]).1, 1.0);
     }
 
     #[test]

@@ -215,6 +215,228 @@ fn baked_depth_is_exact_per_texel() {
     );
 }
 
+/// Normalized depth of camera `p`'s (frame `axes`) first hit on the box [lo, hi] through
+/// parabolic-map point `uv`, in f64 (`covered_depth` in bake.wgsl); `None` where it misses.
+fn box_depth(p: DVec3, axes: [DVec3; 3], uv: glam::DVec2, lo: DVec3, hi: DVec3) -> Option<f64> {
+    let q = uv.length_squared();
+    let rz = (1.0 - q) / (1.0 + q);
+    let chord = 2.0 * rz;
+    if chord <= 0.0 {
+        return None;
+    }
+    let w = (axes[0] * uv.x * (1.0 + rz) + axes[1] * uv.y * (1.0 + rz) + axes[2] * rz).normalize();
+    ray_box(p, w, lo, hi)
+        .filter(|t| *t <= chord)
+        .map(|t| t / chord)
+}
+
+/// Bisection from `hit_uv` (covered) towards `own` (not) over the box, `iterations` steps: the
+/// final bracket's midpoint (fraction of the segment) and the depth of the last covered sample.
+fn box_crossing(
+    cam: (DVec3, [DVec3; 3]),
+    hit_uv: glam::DVec2,
+    own: glam::DVec2,
+    start_depth: f64,
+    iterations: u32,
+    (lo, hi): (DVec3, DVec3),
+) -> (f64, f64) {
+    let (mut a, mut b, mut depth) = (0.0, 1.0, start_depth);
+    for _ in 0..iterations {
+        let mid = 0.5 * (a + b);
+        match box_depth(cam.0, cam.1, hit_uv.lerp(own, mid), lo, hi) {
+            Some(d) => {
+                a = mid;
+                depth = d;
+            }
+            None => b = mid,
+        }
+    }
+    (0.5 * (a + b), depth)
+}
+
+#[test]
+fn bake_places_silhouettes_between_texel_centres() {
+    // Every no-hit texel beside a hit one stores where the silhouette crosses the segments to
+    // its hit 4-neighbours (docs/format.md §8.5), checked against the analytic cube in f64:
+    // - the crossing: within 2^-7 texel (6 bisection steps, final midpoint) + 0.5/255 (the byte)
+    //   + 1e-3 (f32 ray tracing) of the exact one;
+    // - against the same 6-step bisection replayed in f64: within 0.5/255 + 1e-4, and the
+    //   silhouette depth within 0.5/65535 + 2e-5 (f32 tracing, as `baked_depth_is_exact_per_texel`)
+    //   — except texels where some bisection probe passes within f32 rounding of a cube edge,
+    //   which may go either way (at most 2 %);
+    // - every other no-hit texel stays (0, 0, 0, 0), every hit keeps A = 255.
+    let (center, h) = ([0.3f32, -0.2, 0.1], 0.5f32);
+    let n = 64u32;
+    let asset = bake(
+        &cube(center, h),
+        &BakeOptions {
+            cameras: 42,
+            resolution: n,
+            ..Default::default()
+        },
+    );
+    let frame = &asset.header().frame;
+    let scale = frame.world_from_lf_scale();
+    let c = DVec3::from(frame.center);
+    let lo = (DVec3::from(center.map(f64::from)) - f64::from(h) - c) / scale;
+    let hi = (DVec3::from(center.map(f64::from)) + f64::from(h) - c) / scale;
+    let set = geometry::camera_set();
+    let uv = |a: u32, b: u32| geometry::texel_center_uv(a, b, n).as_dvec2();
+    let (mut edges, mut replay_misses, mut worst_exact) = (0usize, 0usize, 0.0f64);
+    let mut spread = (0.0f64, 0.0f64);
+    for k in 0..42u32 {
+        let depth = asset
+            .read_image(ImageKey::new(0, 0, k, Channel::Depth))
+            .expect("depth");
+        let color = asset
+            .read_image(ImageKey::new(0, 0, k, Channel::Color))
+            .expect("colour");
+        let code = |a: u32, b: u32| {
+            let i = ((a * n + b) * 2) as usize;
+            u16::from_le_bytes([depth[i], depth[i + 1]])
+        };
+        let p = set.positions[k as usize].as_dvec3();
+        let axes = geometry::camera_frame(set.positions[k as usize]).map(glam::Vec3::as_dvec3);
+        for a in 0..n {
+            for b in 0..n {
+                let texel = &color[((a * n + b) * 4) as usize..][..4];
+                if code(a, b) != geometry::NO_HIT_U16 {
+                    assert_eq!(texel[3], 255, "camera {k} texel ({a},{b}): hit alpha");
+                    continue;
+                }
+                let neighbours: Vec<(u32, u32)> = [(0i64, 1i64), (0, -1), (1, 0), (-1, 0)]
+                    .iter()
+                    .map(|(da, db)| (i64::from(a) + da, i64::from(b) + db))
+                    .filter(|(x, y)| (0..i64::from(n)).contains(x) && (0..i64::from(n)).contains(y))
+                    .map(|(x, y)| (x as u32, y as u32))
+                    .filter(|&(x, y)| code(x, y) != geometry::NO_HIT_U16)
+                    .collect();
+                if neighbours.is_empty() {
+                    assert_eq!(texel, [0, 0, 0, 0], "camera {k} texel ({a},{b})");
+                    continue;
+                }
+                assert!(texel[3] > 0, "camera {k} texel ({a},{b}): no edge");
+                assert_eq!(texel[2], 0);
+                edges += 1;
+                let stored_e = f64::from(texel[3]) / 255.0;
+                let stored_depth = f64::from(u16::from_le_bytes([texel[0], texel[1]])) / 65535.0;
+                let (mut exact, mut replay, mut replay_depth) = (0.0, 0.0, 0.0);
+                for &(x, y) in &neighbours {
+                    let start = f64::from(geometry::decode_depth_u16(code(x, y)));
+                    let cam = (p, axes);
+                    exact += box_crossing(cam, uv(x, y), uv(a, b), start, 40, (lo, hi)).0;
+                    let (e, d) = box_crossing(cam, uv(x, y), uv(a, b), start, 6, (lo, hi));
+                    replay += e;
+                    replay_depth += d;
+                }
+                let count = neighbours.len() as f64;
+                let (exact, replay, replay_depth) =
+                    (exact / count, replay / count, replay_depth / count);
+                worst_exact = worst_exact.max((stored_e - exact).abs());
+                if (stored_e - replay).abs() > 0.5 / 255.0 + 1e-4
+                    || (stored_depth - replay_depth).abs() > 0.5 / 65535.0 + 2e-5
+                {
+                    replay_misses += 1;
+                }
+                spread.0 += stored_e;
+                spread.1 += stored_e * stored_e;
+            }
+        }
+    }
+    assert!(edges > 2_000, "{edges} edge texels");
+    assert!(
+        worst_exact <= 1.0 / 128.0 + 0.5 / 255.0 + 1e-3,
+        "worst crossing error {worst_exact} texel"
+    );
+    assert!(
+        replay_misses * 50 <= edges,
+        "{replay_misses} of {edges} edge texels differ from the replayed bisection"
+    );
+    // The crossings are spread over the texel, not a constant (mean ≈ 0.5, deviation ≈ 0.29 for
+    // uniform positions).
+    eprintln!(
+        "{edges} edge texels, worst crossing error {worst_exact:.5}, {replay_misses} differ from the replay"
+    );
+    let mean = spread.0 / edges as f64;
+    let deviation = (spread.1 / edges as f64 - mean * mean).sqrt();
+    assert!(
+        (0.35..0.65).contains(&mean) && deviation > 0.2,
+        "mean {mean}, deviation {deviation}"
+    );
+}
+
+/// `asset` re-encoded without its edge texels (docs/format.md §8.5): every no-hit texel's
+/// colour (0, 0, 0, 0), as a writer without sub-texel silhouettes stores it.
+fn without_edges(asset: &AssetFile) -> AssetFile {
+    let header = asset.header().clone();
+    let mut images = Vec::new();
+    for k in 0..header.geometry.camera_count {
+        let key = |channel| ImageKey::new(0, 0, k, channel);
+        let depth = asset.read_image(key(Channel::Depth)).expect("depth");
+        let mut color = asset.read_image(key(Channel::Color)).expect("colour");
+        for (texel, code) in color.chunks_exact_mut(4).zip(depth.chunks_exact(2)) {
+            if u16::from_le_bytes([code[0], code[1]]) == geometry::NO_HIT_U16 {
+                texel.copy_from_slice(&[0; 4]);
+            }
+        }
+        images.push((key(Channel::Color), color));
+        images.push((key(Channel::Depth), depth));
+    }
+    let bytes = lumigraph_core::asset::encode_asset(header, images).expect("encode");
+    AssetFile::from_bytes(bytes).expect("re-encoded asset opens")
+}
+
+#[test]
+fn sub_texel_silhouettes_cut_coverage_errors() {
+    // The same bake rendered with and without its edge texels against the mesh: the silhouette
+    // placed between texel centres must cut the pixels covered in one mask only by a fifth at
+    // least and raise masked PSNR and SSIM (measured on these views: see the eprintln). An asset
+    // without edge texels still renders as before (the floors of
+    // `light_field_render_matches_reference_on_the_demo`).
+    let (mesh, asset) = baked_demo(162, 128);
+    let plain = without_edges(&asset);
+    let gpu_mesh = ctx().reference.upload(&mesh).expect("upload mesh");
+    let views = eval_views(&asset, 4, 3, 192);
+    let measure = |asset: &AssetFile| {
+        let field = ctx().renderer.upload(asset).expect("upload");
+        let comparisons: Vec<_> = views
+            .iter()
+            .map(|view| {
+                let truth = ctx()
+                    .reference
+                    .render(&gpu_mesh, view, &Shading::default())
+                    .expect("reference");
+                metrics::compare(&rendered(&field, view, &RenderOptions::default()), &truth)
+                    .expect("compare")
+            })
+            .collect();
+        metrics::mean_comparison(&comparisons).expect("mean")
+    };
+    let (with, without) = (measure(&asset), measure(&plain));
+    eprintln!(
+        "with edge texels: {:.2} dB, SSIM {:.4}, {:.0} px; without: {:.2} dB, SSIM {:.4}, {:.0} px",
+        with.masked_psnr,
+        with.ssim,
+        with.mask_mismatch_px,
+        without.masked_psnr,
+        without.ssim,
+        without.mask_mismatch_px
+    );
+    assert!(
+        with.mask_mismatch_px <= 0.8 * without.mask_mismatch_px,
+        "{with:?} vs {without:?}"
+    );
+    assert!(with.masked_psnr >= without.masked_psnr + 0.3);
+    assert!(with.ssim > without.ssim);
+    assert!(
+        without.masked_psnr > 22.0 && without.ssim > 0.85,
+        "{without:?}"
+    );
+    // Depth keeps its accuracy: the edge texels extend surfaces to their silhouettes, they do not
+    // move them (median within 10 %).
+    assert!(with.depth.median <= 1.1 * without.depth.median + 1e-6);
+}
+
 /// The unit cube baked at `cameras` × `resolution` and uploaded.
 fn unit_cube(
     cameras: u32,
@@ -905,11 +1127,19 @@ fn stability_thin_structure_at_lod_12() {
     let view = View::look_at([0.9, 0.3, 1.6], [0.0, 0.0, 0.0], 40.0, 96, 96);
     // Depth bound: the rod's width (0.02 = 0.023 r): on a structure one or two map texels
     // wide, cameras find the crossing on the rod's side faces rather than the one facing the
-    // view (measured 1.0e-2 r at LOD 12, 6.4e-3 r at 162); more cameras must not be worse.
-    // The coarse-to-fine guide must not lose the rod either: coarse rays that pass close to
-    // it are marked, and the pixels around them march from where they first came near.
+    // view (measured 4.0e-3 r at LOD 12, 6.3e-3 r at 162, medians); more cameras must not be
+    // worse where both cover the rod. The coarse-to-fine guide must not lose the rod either: coarse
+    // rays that pass close to it are marked, and the pixels around them march from where they
+    // first came near.
+    //
+    // Recall at LOD 12 is 0.61 (86 of 142 pixels; 42 and 162 cameras: all 142): with sub-texel
+    // silhouettes each map shows the rod at its true width, and behind a feature a texel wide
+    // the shadow a camera 63° from the view casts along a ray is about one march step long, so
+    // a step can miss it. Before edge texels every map showed it ~70 % wider (0.99 recall at
+    // LOD 12, but 172 pixels covered at LOD 42 for 142).
     for guide in [0, 4] {
         let mut medians = Vec::new();
+        let mut frames = Vec::new();
         for (lod, recall, median) in [(12, 0.5, 0.023), (162, 0.8, 0.023)] {
             let options = RenderOptions {
                 lod: Some(lod),
@@ -933,10 +1163,22 @@ fn stability_thin_structure_at_lod_12() {
             );
             assert!(a.median < median, "lod {lod}, guide {guide}: {a:?}");
             medians.push(a.median);
+            frames.push(frame);
         }
+        // 162 cameras over the pixels LOD 12 covers: no worse in the tail (95th percentile;
+        // measured 1.0e-2 r against 1.7e-2 r at LOD 12; the medians, 4.8e-3 and 4.0e-3 r, are
+        // both a fifth of the rod's width and swap with the face the cameras find).
+        let mut common = frames[1].clone();
+        for (z, z12) in common.depth.iter_mut().zip(&frames[0].depth) {
+            if !z12.is_finite() {
+                *z = f32::INFINITY;
+            }
+        }
+        let common = box_agreement(&common, &view, lo, hi, r);
+        let p95_12 = box_agreement(&frames[0], &view, lo, hi, r).p95;
         assert!(
-            medians[1] <= medians[0],
-            "guide {guide}: 162 cameras worse than 12: {medians:?}"
+            common.p95 <= p95_12,
+            "guide {guide}: 162 cameras worse than 12: {common:?} vs p95 {p95_12}, {medians:?}"
         );
     }
 }
