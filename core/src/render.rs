@@ -1430,21 +1430,19 @@ fn requantize_u16_to_u8(code: u16) -> u16 {
 
 /// First footprint code of a no-hit texel beside the silhouette ([`edge_codes`]); hit codes are
 /// capped below it (every hit of a valid asset has depth < 0.854, code ≤ 55 962).
-const EDGE_BASE: u16 = 56_000;
+const EDGE_BASE: u16 = u16::MAX - EDGE_CODES;
+/// Edge codes: `EDGE_BASE + (e level << 9 | depth level)`, up to 65 534 (no-hit is 65 535).
+const EDGE_CODES: u16 = EDGE_E_LEVELS * EDGE_DEPTH_LEVELS;
 /// Levels of the silhouette position e in an edge code: e = (level + 0.5) / 16 texel.
 const EDGE_E_LEVELS: u16 = 16;
-/// Levels of the extrapolated depth in an edge code: depth = level / 591. Edge codes end at
-/// 56 000 + 16 · 592 − 1 = 65 471, below the no-hit code.
-const EDGE_DEPTH_LEVELS: u16 = 592;
-/// Nearest a silhouette may sit to a hit texel's centre, in texel spacings (`EDGE_MIN` in
-/// render.wgsl).
-const EDGE_MIN: f64 = 0.025;
+/// Levels of the extrapolated depth in an edge code: depth = level / 511.
+const EDGE_DEPTH_LEVELS: u16 = 512;
 
 /// Folds the sub-texel silhouettes of a camera's `n×n` colour map into its depth codes, where
 /// `probe` (render.wgsl) reads them in the same load as the depths. A no-hit texel with alpha
 /// A > 0 lies beside the silhouette, which passes e = A / 255 texel spacings from the centres of
 /// its hit 4-neighbours at depth code R | G << 8 (docs/format.md §8.5). It gets code
-/// `EDGE_BASE + e level · 592 + depth level`, where the depth is the line from its neighbours'
+/// `EDGE_BASE + e level · 512 + depth level`, where the depth is the line from its neighbours'
 /// mean depth through the silhouette's depth (at e) extended to its own centre: bilinear weights
 /// over the footprint then reproduce the surface receding to the silhouette instead of a flat
 /// skirt in front of it. Its colour becomes 0, as the format has no-hit colour; a texel without a
@@ -1488,7 +1486,7 @@ fn edge_codes(codes: &[u16], color: &mut [u8], n: usize) -> Vec<u16> {
         let e_level = e_level.min(EDGE_E_LEVELS - 1);
         // The position the shader decodes, so that its bilinear depth meets the silhouette's
         // exactly there.
-        let e = ((f64::from(e_level) + 0.5) / f64::from(EDGE_E_LEVELS)).max(EDGE_MIN);
+        let e = (f64::from(e_level) + 0.5) / f64::from(EDGE_E_LEVELS);
         let silhouette = f64::from(silhouette.min(geometry::NO_HIT_U16 - 1)) / 65535.0;
         let extrapolated = (near + (silhouette - near) / e).clamp(0.0, 1.0);
         let depth_level = (extrapolated * f64::from(EDGE_DEPTH_LEVELS - 1)).round() as u16;
@@ -1585,11 +1583,10 @@ mod tests {
 
     /// `probe`'s decoding of an edge code (render.wgsl): (e, extrapolated depth), in f32 as there.
     fn decode_edge_like_shader(code: u16) -> (f32, f32) {
-        let rel = f32::from(code) - f32::from(EDGE_BASE);
-        let e_level = ((rel + 0.5) * (1.0 / f32::from(EDGE_DEPTH_LEVELS))).floor();
-        let e = (e_level + 0.5) * (1.0 / f32::from(EDGE_E_LEVELS));
-        let depth = (rel - e_level * f32::from(EDGE_DEPTH_LEVELS))
-            * (1.0 / f32::from(EDGE_DEPTH_LEVELS - 1));
+        let rel = u32::from(code.wrapping_sub(EDGE_BASE));
+        assert!(rel < u32::from(EDGE_CODES));
+        let e = ((rel >> 9) as f32 + 0.5) / f32::from(EDGE_E_LEVELS);
+        let depth = (rel & 511) as f32 * (1.0 / 511.0);
         (e, depth)
     }
 
@@ -1624,10 +1621,10 @@ mod tests {
         // e: 100/255 = 0.392 lies in level 6 of 16 (0.375–0.4375), decoded at its middle.
         assert_eq!(e, 6.5 / 16.0);
         // The line from 0.4 (at the hit centre) through 0.5 (at e) reaches 0.4 + 0.1 / e at this
-        // texel's centre; within half a depth level (0.5 / 591) plus f32 rounding.
+        // texel's centre; within half a depth level (0.5 / 511) plus f32 rounding.
         let want = 0.4 + 0.1 / f64::from(e);
         assert!(
-            (f64::from(depth) - want).abs() <= 0.5 / 591.0 + 1e-5,
+            (f64::from(depth) - want).abs() <= 0.5 / 511.0 + 1e-5,
             "{depth} vs {want}"
         );
         // Every code round-trips: all e levels and depth levels decode to themselves.
