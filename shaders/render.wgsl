@@ -197,15 +197,19 @@ fn probe(cam: Camera, k: u32, x: vec3<f32>, edge_aware: bool) -> Probe {
             // edge texel sigma = 1 − (1 − front_mass) / e, so that between it and a front texel
             // the share falls to `front_mass` exactly at the silhouette, e of the way from the
             // front texel.
+            // The interior pass (ROLE 2: flat tiles, no silhouette near the eye's ray) reads edge
+            // texels as plain no hit: the same pixels (bunny and demo, 12 views at 256², masked
+            // PSNR within 0.002 dB), 1.9 ms less per 512² bunny frame.
+            let edges = edge & vec4<bool>(ROLE != 2u);
             let sigma = vec4<f32>(1.0) - ((1.0 - params.front_mass) * f32(EDGE_E_LEVELS)) / (vec4<f32>(rel >> vec4<u32>(9u)) + 0.5);
-            let share = select(select(vec4<f32>(0.0), sigma, edge), vec4<f32>(1.0), front);
+            let share = select(select(vec4<f32>(0.0), sigma, edges), vec4<f32>(1.0), front);
             let chosen = dot(bw, share) >= params.front_mass;
             // Colour from the chosen layer's hits (`layer_color` normalizes); depth in the front
             // layer from its hits and edge texels, whose extrapolated depths make the surface
             // recede to the silhouette's depth.
             color_weights = bw * vec4<f32>(select(!front, front, chosen));
-            d = select(d, vec4<f32>(rel & vec4<u32>(511u)) * (1.0 / 511.0), edge & vec4<bool>(chosen));
-            bw = select(color_weights, bw * vec4<f32>(front | edge), chosen);
+            d = select(d, vec4<f32>(rel & vec4<u32>(511u)) * (1.0 / 511.0), edges & vec4<bool>(chosen));
+            bw = select(color_weights, bw * vec4<f32>(front | edges), chosen);
             bw = bw / max(bw.x + bw.y + bw.z + bw.w, 1e-12);
         }
     }
