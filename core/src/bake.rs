@@ -597,24 +597,21 @@ fn edge_pairs(depths: &[f32], n: usize) -> Vec<u32> {
     let mut out = Vec::new();
     for (map, _) in depths.chunks_exact(n * n).enumerate() {
         let base = map * n * n;
-        for y in 0..n {
-            for x in 0..n {
-                let i = base + y * n + x;
-                if hit(i) {
-                    continue;
-                }
-                let Ok(index) = u32::try_from(i) else {
-                    continue;
-                };
-                let neighbours = [
-                    x + 1 < n && hit(i + 1),
-                    x > 0 && hit(i - 1),
-                    y + 1 < n && hit(i + n),
-                    y > 0 && hit(i - n),
-                ];
-                for (direction, _) in neighbours.iter().enumerate().filter(|(_, h)| **h) {
-                    out.push((index & EDGE_INDEX_MASK) | ((direction as u32) << 30));
-                }
+        for texel in 0..n * n {
+            let i = base + texel;
+            let Ok(index) = u32::try_from(i) else {
+                continue;
+            };
+            if hit(i) {
+                continue;
+            }
+            let neighbours = geometry::texel_neighbours(texel, n);
+            for (direction, _) in neighbours
+                .iter()
+                .enumerate()
+                .filter(|(_, j)| j.is_some_and(|j| hit(base + j)))
+            {
+                out.push((index & EDGE_INDEX_MASK) | ((direction as u32) << 30));
             }
         }
     }

@@ -520,6 +520,18 @@ pub fn parabolic_inverse(uv: Vec2) -> Vec3 {
     }
 }
 
+/// The 4-neighbours of texel `i` (row-major) of an `n×n` map that lie inside it, in the order
+/// +x, −x, +y, −y (the directions of the bake's `cs_edges` pairs).
+pub(crate) fn texel_neighbours(i: usize, n: usize) -> [Option<usize>; 4] {
+    let (x, y) = (i % n, i / n);
+    [
+        (x + 1 < n).then(|| i + 1),
+        (x > 0).then(|| i - 1),
+        (y + 1 < n).then(|| i + n),
+        (y > 0).then(|| i - n),
+    ]
+}
+
 /// `uv` of the centre of texel (row `a`, column `b`) of an `n × n` parabolic
 /// map: `u = (b + 0.5) / n · 2 − 1`, `v = (a + 0.5) / n · 2 − 1`.
 ///

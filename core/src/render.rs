@@ -1464,24 +1464,18 @@ fn edge_codes(codes: &[u16], color: &mut [u8], n: usize) -> Vec<u16> {
         }
         let (a, silhouette) = (texel[3], u16::from_le_bytes([texel[0], texel[1]]));
         texel.copy_from_slice(&[0; 4]);
-        let (x, y) = (i % n, i / n);
-        let neighbours = [
-            (x + 1 < n).then(|| i + 1),
-            (x > 0).then(|| i - 1),
-            (y + 1 < n).then(|| i + n),
-            (y > 0).then(|| i - n),
-        ];
-        let hits: Vec<f64> = neighbours
+        let (sum, count) = geometry::texel_neighbours(i, n)
             .into_iter()
             .flatten()
             .filter_map(|j| codes.get(j).copied())
             .filter(|&c| c != geometry::NO_HIT_U16)
-            .map(|c| f64::from(c) / 65535.0)
-            .collect();
-        if hits.is_empty() {
+            .fold((0.0_f64, 0_u32), |(sum, count), c| {
+                (sum + f64::from(c) / 65535.0, count + 1)
+            });
+        if count == 0 {
             continue;
         }
-        let near = hits.iter().sum::<f64>() / hits.len() as f64;
+        let near = sum / f64::from(count);
         let e_level = (f64::from(a) / 255.0 * f64::from(EDGE_E_LEVELS)).floor() as u16;
         let e_level = e_level.min(EDGE_E_LEVELS - 1);
         // The position the shader decodes, so that its bilinear depth meets the silhouette's

@@ -143,14 +143,12 @@ fn baked_demo(cameras: u32, resolution: u32) -> (Mesh, AssetFile) {
     (mesh, asset)
 }
 
-#[test]
-fn baked_depth_is_exact_per_texel() {
-    // Tolerance: 16-bit quantization (0.5/65535 ≈ 7.6e-6 in d) plus f32 ray tracing (~1e-6).
+/// The cube of half-size 0.5 around (0.3, −0.2, 0.1), baked at 42 cameras × `n` px, with the
+/// cube's corners in the asset's light-field frame (where the maps' depths are measured).
+fn baked_offset_cube(n: u32) -> (AssetFile, (DVec3, DVec3)) {
     let (center, h) = ([0.3f32, -0.2, 0.1], 0.5f32);
-    let mesh = cube(center, h);
-    let n = 64;
     let asset = bake(
-        &mesh,
+        &cube(center, h),
         &BakeOptions {
             cameras: 42,
             resolution: n,
@@ -162,6 +160,14 @@ fn baked_depth_is_exact_per_texel() {
     let c = DVec3::from(frame.center);
     let lo = (DVec3::from(center.map(f64::from)) - f64::from(h) - c) / scale;
     let hi = (DVec3::from(center.map(f64::from)) + f64::from(h) - c) / scale;
+    (asset, (lo, hi))
+}
+
+#[test]
+fn baked_depth_is_exact_per_texel() {
+    // Tolerance: 16-bit quantization (0.5/65535 ≈ 7.6e-6 in d) plus f32 ray tracing (~1e-6).
+    let n = 64;
+    let (asset, (lo, hi)) = baked_offset_cube(n);
     let set = geometry::camera_set();
     let (mut hits, mut near_edge_mismatch, mut max_err) = (0, 0, 0.0f64);
     for k in 0..42u32 {
@@ -265,21 +271,8 @@ fn bake_places_silhouettes_between_texel_centres() {
     //   — except texels where some bisection probe passes within f32 rounding of a cube edge,
     //   which may go either way (at most 2 %);
     // - every other no-hit texel stays (0, 0, 0, 0), every hit keeps A = 255.
-    let (center, h) = ([0.3f32, -0.2, 0.1], 0.5f32);
     let n = 64u32;
-    let asset = bake(
-        &cube(center, h),
-        &BakeOptions {
-            cameras: 42,
-            resolution: n,
-            ..Default::default()
-        },
-    );
-    let frame = &asset.header().frame;
-    let scale = frame.world_from_lf_scale();
-    let c = DVec3::from(frame.center);
-    let lo = (DVec3::from(center.map(f64::from)) - f64::from(h) - c) / scale;
-    let hi = (DVec3::from(center.map(f64::from)) + f64::from(h) - c) / scale;
+    let (asset, (lo, hi)) = baked_offset_cube(n);
     let set = geometry::camera_set();
     let uv = |a: u32, b: u32| geometry::texel_center_uv(a, b, n).as_dvec2();
     let (mut edges, mut replay_misses, mut worst_exact) = (0usize, 0usize, 0.0f64);
