@@ -374,6 +374,18 @@ fn coarse_nearest(p: vec2<u32>) -> vec2<i32> {
     return vec2<i32>(round(coarse_position(p)));
 }
 
+// Line o + t·d (|d| = 1) against the box [lo, hi] (slab test): the entry and exit t, entry > exit
+// when missed. Near-zero direction components are replaced by ±1e-20 so every product stays
+// finite.
+fn box_roots(o: vec3<f32>, d: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> vec2<f32> {
+    let dd = select(d, select(vec3<f32>(1e-20), vec3<f32>(-1e-20), d < vec3<f32>(0.0)), abs(d) < vec3<f32>(1e-20));
+    let t0 = (lo - o) / dd;
+    let t1 = (hi - o) / dd;
+    let near = min(t0, t1);
+    let far = max(t0, t1);
+    return vec2<f32>(max(max(near.x, near.y), near.z), min(min(far.x, far.y), far.z));
+}
+
 // The frame's 8×8 tiles (workgroups) per row and per column.
 fn frame_tiles() -> vec2<u32> {
     return (vec2<u32>(params.width, params.height) + 7u) / 8u;
@@ -586,42 +598,38 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
         shade_interior(gid.xy, index, o, d, z_rate, slot);
         return;
     }
-    // A coarse pass grows the sphere and box by its reach at their far side, so a ray that
-    // passes just outside them is marked near, over where it crosses the grown sphere or box: a
-    // fine pixel beside it may hit.
+    // A coarse pass grows the sphere and box by its reach at their far side and marches what
+    // they bound, so a ray passing just outside them is marked near where it comes near a
+    // surface (a fine pixel beside it may hit), like any other. (Marking every ray that met
+    // the grown sphere or box near, without marching it, sent a ring of tiles along the
+    // sphere's and box's outlines to the guided pass: bunny, one view at 512², 1039 → 431
+    // marched tiles; frame 10–20 % faster on the four fixtures, masked PSNR −0.003 to
+    // +0.03 dB.) The march stays inside the camera sphere, where the cameras can tell; when the
+    // reach takes the grown sphere beyond it (a far eye), a ray meeting the grown sphere and box
+    // is marked near from where it enters them, as before, unless the march finds a surface.
     let grow = select(0.0, params.near_scale * (length(o) + BOUNDING_RADIUS), coarse_pass());
-    let bounds = sphere_roots(o, d, BOUNDING_RADIUS);
-    if bounds.y < 0.0 || bounds.x > bounds.y {
-        if coarse_pass() {
-            let grown = sphere_roots(o, d, BOUNDING_RADIUS + grow);
-            if grown.y >= 0.0 && grown.x <= grown.y {
-                out_depth[index] = -2.0 - max(grown.x, 0.0) * z_rate;
-            }
+    var reach_t = 1e30;
+    if coarse_pass() && BOUNDING_RADIUS + grow > 1.0 {
+        let gs = sphere_roots(o, d, BOUNDING_RADIUS + grow);
+        let gb = box_roots(o, d, params.box_min - vec3<f32>(grow), params.box_max + vec3<f32>(grow));
+        let g_in = max(max(gs.x, gb.x), 0.0);
+        if g_in <= min(gs.y, gb.y) {
+            reach_t = g_in;
+            out_depth[index] = -2.0 - g_in * z_rate;
         }
+    }
+    let bounds = sphere_roots(o, d, min(BOUNDING_RADIUS + grow, 1.0));
+    if bounds.y < 0.0 || bounds.x > bounds.y {
         return;
     }
     var t_in = max(bounds.x, 0.0);
     var t_out = bounds.y;
     if !is_fixed() {
-        // Clip to the visible box (slab test; near-zero direction components are replaced by
-        // ±1e-20 so every product stays finite). The fixed baseline keeps the seed's sphere.
-        let dd = select(d, select(vec3<f32>(1e-20), vec3<f32>(-1e-20), d < vec3<f32>(0.0)), abs(d) < vec3<f32>(1e-20));
-        let t0 = (params.box_min - o) / dd;
-        let t1 = (params.box_max - o) / dd;
-        let near = min(t0, t1);
-        let far = max(t0, t1);
-        t_in = max(t_in, max(max(near.x, near.y), near.z));
-        t_out = min(t_out, min(min(far.x, far.y), far.z));
+        // Clip to the visible box. The fixed baseline keeps the seed's sphere.
+        let box = box_roots(o, d, params.box_min - vec3<f32>(grow), params.box_max + vec3<f32>(grow));
+        t_in = max(t_in, box.x);
+        t_out = min(t_out, box.y);
         if t_in > t_out {
-            if coarse_pass() {
-                let g0 = (params.box_min - vec3<f32>(grow) - o) / dd;
-                let g1 = (params.box_max + vec3<f32>(grow) - o) / dd;
-                let g_in = max(max(max(min(g0, g1).x, min(g0, g1).y), min(g0, g1).z), 0.0);
-                let g_out = min(min(max(g0, g1).x, max(g0, g1).y), max(g0, g1).z);
-                if g_in <= g_out {
-                    out_depth[index] = -2.0 - g_in * z_rate;
-                }
-            }
             return;
         }
         if guided_pass() {
@@ -701,8 +709,9 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
         m = march_refined(o, d, t_in, t_out, loc.cameras, loc.weights, c0, c1, c2);
     }
     var fetches = m.fetches;
-    if coarse_pass() && !m.hit && m.near_first < 1e29 {
-        out_depth[index] = -2.0 - m.near_first * z_rate;
+    let near_t = min(m.near_first, reach_t);
+    if coarse_pass() && !m.hit && near_t < 1e29 {
+        out_depth[index] = -2.0 - near_t * z_rate;
     }
     if m.hit {
         let shaded = shade(o, d, z_rate, m.t, loc, c0, c1, c2, false);
