@@ -321,8 +321,8 @@ struct Targets {
     tile_args: wgpu::Buffer,
 }
 
-/// One coarse pass's buffers: its parameters, its depths (rows of [`coarse_stride`] pixels;
-/// its colour is scratch) and their copy as a texture, which the next finer pass reads, and its
+/// One coarse pass's buffers: its parameters, its results (rows of [`coarse_stride`] pixels, two
+/// floats each, render.wgsl `coarse`; its colour is scratch) and their copy as a texture, which the next finer pass reads, and its
 /// bind group (which binds the texture of the pass guiding it).
 struct CoarseLevel {
     uniform: wgpu::Buffer,
@@ -448,8 +448,8 @@ const GIVEN_BACK_ARGS: u64 = 24;
 /// is guided without compaction).
 const MAX_TILES: u32 = 65_535;
 
-/// Pixels per row of a coarse pass's output: a multiple of 64, so that its depth rows (4 bytes
-/// a pixel) meet the 256-byte row alignment of a buffer-to-texture copy.
+/// Pixels per row of a coarse pass's output: a multiple of 64, so that its rows (8 bytes a
+/// pixel) meet the 256-byte row alignment of a buffer-to-texture copy.
 fn coarse_stride(width: u32) -> u32 {
     width.div_ceil(64) * 64
 }
@@ -916,7 +916,7 @@ impl Renderer {
                 mip_level_count: 1,
                 sample_count: 1,
                 dimension: wgpu::TextureDimension::D2,
-                format: wgpu::TextureFormat::R32Float,
+                format: wgpu::TextureFormat::Rg32Float,
                 usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
                 view_formats: &[],
             })
@@ -1012,7 +1012,7 @@ impl Renderer {
             let pixels = u64::from(coarse_stride(w)) * u64::from(h);
             let uniform = make(name, params_size, uniform_usage);
             let color = make(name, pixels * 4, out);
-            let depth = make(name, pixels * 4, out);
+            let depth = make(name, pixels * 8, out);
             let group = group(name, [&uniform, &color, &depth, &counters], guide);
             CoarseLevel {
                 uniform,
@@ -1232,7 +1232,7 @@ impl Renderer {
                     buffer: &level.depth,
                     layout: wgpu::TexelCopyBufferLayout {
                         offset: 0,
-                        bytes_per_row: Some(4 * coarse_stride(cw)),
+                        bytes_per_row: Some(8 * coarse_stride(cw)),
                         rows_per_image: Some(ch),
                     },
                 },
