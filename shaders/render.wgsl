@@ -54,8 +54,9 @@ struct RenderParams {
 @group(0) @binding(1) var<storage, read_write> out_color: array<u32>;
 @group(0) @binding(2) var<storage, read_write> out_depth: array<f32>;
 @group(0) @binding(3) var<storage, read_write> counters: array<atomic<u32>, 4>;
-// The coarse pass's results (guided passes), two per pixel: x its z-depth (−1 a miss, −2 − z a
-// near miss that first came near a surface at z-depth z), y for a near miss the z-depth where it
+// The coarse pass's results (guided passes), two per pixel: x its z-depth (−1 a miss, or 0
+// where a compacted coarse pass skipped the pixel; −2 − z a near miss that first came near a
+// surface at z-depth z), y for a near miss the z-depth where it
 // last did (1e30: unknown). A coarse pass writes them as pairs to `out_depth`. A texture, because
 // lavapipe reads a storage buffer one lane at a time.
 @group(0) @binding(4) var coarse: texture_2d<f32>;
@@ -509,11 +510,13 @@ fn shade_interior(gid: vec2<u32>, index: u32, o: vec3<f32>, d: vec3<f32>, z_rate
 // and four colour loads each.
 const INTERIOR_FETCHES: u32 = 15u;
 
-// Tile compaction for a guided pass, one invocation per 8×8 tile of the frame: a tile is
-// kept when some pixel of it has a coarse neighbour that hit or passed near a surface, i.e. when
-// the guided pass would march some pixel of it (see `guided_pass` in `cs_main`). Lavapipe runs every
-// instruction of a shader for every pixel, early `return` or not, so skipping a pixel saves
-// nothing; only a workgroup never dispatched costs nothing.
+// Tile compaction for a guided pass (the frame's, or a coarse pass guided by a pre-coarse one),
+// one invocation per 8×8 tile of its output: a tile is kept when some pixel of it has a coarse
+// neighbour that hit or passed near a surface, i.e. when the guided pass would march some pixel
+// of it (see `guided_pass` in `cs_main`). Lavapipe runs every instruction of a shader for every
+// pixel, early `return` or not, so skipping a pixel saves nothing; only a workgroup never
+// dispatched costs nothing. (The coarse pass of a 512² frame with nothing in view: 2.0–3.1 ms
+// uncompacted.)
 //
 // A kept tile is flat when `interior_curvature` > 0, every coarse pixel around it hit, and no
 // second difference of their z-depths along x or y exceeds `interior_curvature`: no silhouette
@@ -541,9 +544,10 @@ fn cs_tiles(@builtin(global_invocation_id) gid: vec3<u32>) {
     for (var y = lo.y; y <= hi.y; y++) {
         for (var x = lo.x; x <= hi.x; x++) {
             let v = textureLoad(coarse, vec2<i32>(x, y), 0).x;
-            // Not a far miss (−1): a hit (≥ 0) or a near miss (−2).
-            keep = keep || !(v < 0.0 && v > -1.5);
-            flat = flat && v >= 0.0;
+            // Not a far miss (−1, or 0 where a compacted coarse pass skipped the pixel): a hit
+            // (> 0) or a near miss (≤ −2).
+            keep = keep || !(v <= 0.0 && v > -1.5);
+            flat = flat && v > 0.0;
             z[min(u32((y - lo.y) * 8 + (x - lo.x)), 63u)] = v;
         }
     }
@@ -682,7 +686,7 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
                         near_misses += 1u;
                         near_min = min(near_min, -2.0 - z);
                         near_max = max(near_max, c.y);
-                    } else if z < 0.0 {
+                    } else if z <= 0.0 {
                         misses += 1u;
                     } else {
                         z_min = min(z_min, z);

@@ -319,6 +319,8 @@ struct Targets {
     /// one buffer cannot be bound as storage and read as dispatch arguments by the same pass).
     tile_dispatch: wgpu::Buffer,
     tile_args: wgpu::Buffer,
+    /// `tile_dispatch`'s starting values, copied in before each tile listing.
+    tile_reset: wgpu::Buffer,
 }
 
 /// One coarse pass's buffers: its parameters, its results (rows of [`coarse_stride`] pixels, two
@@ -966,6 +968,16 @@ impl Renderer {
             TILE_ARGS_SIZE,
             wgpu::BufferUsages::INDIRECT | wgpu::BufferUsages::COPY_DST,
         );
+        // Three dispatch sizes (x, 1, 1), none counted yet: the tiles to march, the flat tiles,
+        // the flat tiles given back.
+        let tile_reset = {
+            use wgpu::util::DeviceExt;
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("render tile dispatch reset"),
+                contents: bytemuck::cast_slice(&[0u32, 1, 1, 0, 1, 1, 0, 1, 1, 0, 0, 0]),
+                usage: wgpu::BufferUsages::COPY_SRC,
+            })
+        };
         // Every pass binds the depth texture of the pass guiding it (any, if none) and the tile
         // list; only a guided pass reads them.
         let group = |label, entries: [&wgpu::Buffer; 4], guide: &wgpu::TextureView| {
@@ -1012,7 +1024,8 @@ impl Renderer {
             let pixels = u64::from(coarse_stride(w)) * u64::from(h);
             let uniform = make(name, params_size, uniform_usage);
             let color = make(name, pixels * 4, out);
-            let depth = make(name, pixels * 8, out);
+            // Cleared before a compacted pass.
+            let depth = make(name, pixels * 8, out | wgpu::BufferUsages::COPY_DST);
             let group = group(name, [&uniform, &color, &depth, &counters], guide);
             CoarseLevel {
                 uniform,
@@ -1038,7 +1051,42 @@ impl Renderer {
             pre,
             tile_dispatch,
             tile_args,
+            tile_reset,
         }
+    }
+
+    /// Records a tile listing (`cs_tiles`, one invocation per 8×8 tile of a `columns` × `rows`
+    /// grid, in 8×8 workgroups) for the pass whose bind group is `group`, leaving its indirect
+    /// dispatch sizes in `targets.tile_args`.
+    fn list_tiles(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        targets: &Targets,
+        group: &wgpu::BindGroup,
+        field_group: &wgpu::BindGroup,
+        (columns, rows): (u32, u32),
+    ) {
+        encoder.copy_buffer_to_buffer(
+            &targets.tile_reset,
+            0,
+            &targets.tile_dispatch,
+            0,
+            TILE_ARGS_SIZE,
+        );
+        record_pass(
+            encoder,
+            "render tiles",
+            &self.tiles_pipeline,
+            (group, field_group),
+            Workgroups::Grid(columns.div_ceil(8), rows.div_ceil(8)),
+        );
+        encoder.copy_buffer_to_buffer(
+            &targets.tile_dispatch,
+            0,
+            &targets.tile_args,
+            0,
+            TILE_ARGS_SIZE,
+        );
     }
 
     /// Renders `view` (world coordinates) from `field`.
@@ -1156,6 +1204,14 @@ impl Renderer {
             fine.coarse_width = cw;
             fine.coarse_height = ch;
         }
+        // A guided pass is compacted: `cs_tiles` lists the 8×8 tiles with some pixel to march
+        // and the pass runs one workgroup per listed tile; the rest of its output stays cleared
+        // (a miss). Lavapipe would run every instruction for a skipped pixel anyway. The frame's
+        // pass and a coarse pass guided by a pre-coarse one are compacted alike.
+        let (columns, rows) = tile_grid(view.width, view.height);
+        let tiled = coarse.is_some()
+            && u64::from(columns) * u64::from(rows) <= u64::from(MAX_TILES)
+            && self.compaction.load(std::sync::atomic::Ordering::Relaxed);
         for (i, &(level, (w, h), focal)) in levels.iter().enumerate() {
             let mut level_params = RenderParams {
                 width: w,
@@ -1169,17 +1225,11 @@ impl Renderer {
                 level_params.coarse_factor = PRE_FACTOR;
                 level_params.coarse_width = gw;
                 level_params.coarse_height = gh;
+                level_params.tiled = u32::from(tiled);
             }
             gpu.queue
                 .write_buffer(&level.uniform, 0, bytemuck::bytes_of(&level_params));
         }
-        // A guided pass is compacted: `cs_tiles` lists the 8×8 tiles with some pixel to march
-        // and the pass runs one workgroup per listed tile; the rest of the frame stays cleared
-        // (a miss). Lavapipe would run every instruction for a skipped pixel anyway.
-        let (columns, rows) = tile_grid(view.width, view.height);
-        let tiled = coarse.is_some()
-            && u64::from(columns) * u64::from(rows) <= u64::from(MAX_TILES)
-            && self.compaction.load(std::sync::atomic::Ordering::Relaxed);
         fine.tiled = u32::from(tiled);
         // Flat tiles skip the march (default method only: the fixed baseline marches every
         // pixel it renders).
@@ -1189,15 +1239,6 @@ impl Renderer {
         if interior {
             fine.interior_curvature =
                 INTERIOR_CURVATURE * first.tolerance.min(second.tolerance) * field.scale as f32;
-        }
-        if tiled {
-            // Three dispatch sizes (x, 1, 1): the tiles to march, the flat tiles, the flat
-            // tiles given back.
-            gpu.queue.write_buffer(
-                &targets.tile_dispatch,
-                0,
-                bytemuck::cast_slice(&[0u32, 1, 1, 0, 1, 1, 0, 1, 1, 0, 0, 0]),
-            );
         }
         if interior {
             let given_back = RenderParams { tiled: 2, ..fine };
@@ -1218,14 +1259,30 @@ impl Renderer {
         let mut timer = PassTimer::new(self.pass_timing.load(std::sync::atomic::Ordering::Relaxed));
         encoder = timer.split(gpu, encoder, "uploads")?;
         for (i, &(level, (cw, ch), _)) in levels.iter().enumerate() {
-            // Every coarse pass marks near misses; all but the coarsest are guided.
+            // Every coarse pass marks near misses; all but the coarsest are guided, and
+            // compacted with the frame (the pixels it skips read as far misses, cleared to 0).
             let (level_columns, level_rows) = tile_grid(cw, ch);
+            let compact = tiled && i > 0;
+            if compact {
+                encoder.clear_buffer(&level.depth, 0, None);
+                self.list_tiles(
+                    &mut encoder,
+                    targets,
+                    &level.group,
+                    &field.group,
+                    (level_columns, level_rows),
+                );
+            }
             record_pass(
                 &mut encoder,
                 "render coarse",
                 self.pipeline(methods, ROLE_GUIDED),
                 (&level.group, &field.group),
-                Workgroups::Grid(level_columns, level_rows),
+                if compact {
+                    Workgroups::Indirect(&targets.tile_args, 0)
+                } else {
+                    Workgroups::Grid(level_columns, level_rows)
+                },
             );
             encoder.copy_buffer_to_texture(
                 wgpu::TexelCopyBufferInfo {
@@ -1258,20 +1315,12 @@ impl Renderer {
         if tiled {
             encoder.clear_buffer(&targets.color, 0, Some(pixels * 4));
             encoder.clear_buffer(&targets.depth, 0, Some(pixels * 4));
-            // One invocation per tile, in 8×8 workgroups.
-            record_pass(
+            self.list_tiles(
                 &mut encoder,
-                "render tiles",
-                &self.tiles_pipeline,
-                (&targets.group, &field.group),
-                Workgroups::Grid(columns.div_ceil(8), rows.div_ceil(8)),
-            );
-            encoder.copy_buffer_to_buffer(
-                &targets.tile_dispatch,
-                0,
-                &targets.tile_args,
-                0,
-                TILE_ARGS_SIZE,
+                targets,
+                &targets.group,
+                &field.group,
+                (columns, rows),
             );
             encoder = timer.split(gpu, encoder, "tiles")?;
         }

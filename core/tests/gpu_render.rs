@@ -1652,8 +1652,9 @@ fn coarse_to_fine_guide_keeps_small_and_far_objects() {
 
 #[test]
 fn tile_compaction_and_pass_timing_change_no_pixel() {
-    // A guided pass runs only the 8×8 tiles `cs_tiles` lists (some pixel with a coarse
-    // neighbour that hit or passed near a surface); every other pixel must be a miss anyway.
+    // A guided pass (the frame's, and a coarse pass guided by a pre-coarse one) runs only the
+    // 8×8 tiles `cs_tiles` lists (some pixel with a coarse neighbour that hit or passed near a
+    // surface); every other pixel must be a miss anyway.
     // Exact equality: compaction changes which workgroups run, never what a pixel computes.
     // (With the interior pass off: it comes with compaction and does change pixels, within
     // the bounds `interior_pass_matches_marching` checks.)
