@@ -585,7 +585,13 @@ fn cs_tiles(@builtin(global_invocation_id) gid: vec3<u32>) {
 @compute @workgroup_size(8, 8, 1)
 fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgroup_id) group_id: vec3<u32>, @builtin(local_invocation_id) local_id: vec3<u32>) {
     g_invocation = global_id.x;
-    var gid = global_id;
+    // Which pixel of its 8×8 tile an invocation renders. Lavapipe runs a workgroup as 8-lane
+    // SIMD batches of consecutive invocations, one row of the tile each, and a batch marches
+    // as long as its slowest lane; each batch takes a 4×2 block of pixels instead, whose
+    // marches are more alike (lane-steps of the guided pass −16 % on the bunny, −18 % on the
+    // demo, one view at 512²; guided and coarse passes 7–11 % faster in all, the same pixels).
+    let lane = vec2<u32>((local_id.y % 2u) * 4u + local_id.x % 4u, (local_id.y / 2u) * 2u + local_id.x / 4u);
+    var gid = vec3<u32>(group_id.xy * 8u + lane, 0u);
     var slot = group_id.x;
     if ROLE == 2u || (ROLE == 1u && per_invocation(params.tiled != 0u)) {
         // Tiles to march from the front of the list, flat ones from the back of its first half,
@@ -598,7 +604,7 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
             slot = tile_count + group_id.x;
         }
         let tile = atomicLoad(&tiles[slot]) & 0x7fffffffu;
-        gid = vec3<u32>(vec2<u32>(tile & 0xffffu, tile >> 16u) * 8u + local_id.xy, 0u);
+        gid = vec3<u32>(vec2<u32>(tile & 0xffffu, tile >> 16u) * 8u + lane, 0u);
     }
     if gid.x >= params.width || gid.y >= params.height {
         return;
