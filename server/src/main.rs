@@ -32,7 +32,30 @@ fn quiet_broken_pipe() {
     }));
 }
 
+/// Keeps freed heap memory for reuse instead of handing it back to the kernel (glibc). Each
+/// frame allocates and frees buffers of a megabyte and more (a 512² frame's colour and depth,
+/// and the driver's per-submission allocations); above glibc's mmap threshold each is a fresh
+/// mapping whose every page faults on first touch, and freed memory at the top of the heap is
+/// returned once it exceeds the trim threshold. Both thresholds raised: a 512² frame with nothing
+/// in view renders in 1.72 ms instead of 2.63 (minima of 20, lavapipe), and copying a frame out
+/// of the mapped readback buffer takes 0.26 ms instead of 0.65. Allocations of 64 MiB and more
+/// (light-field textures) are still mapped, and the heap keeps at most 256 MiB it does not use.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+#[allow(unsafe_code)]
+fn keep_freed_memory() {
+    // SAFETY: `mallopt` only sets allocator parameters; it is called once, first thing in
+    // `main`, before any other thread exists or anything is allocated through these settings.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 64 << 20);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 256 << 20);
+    }
+}
+
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn keep_freed_memory() {}
+
 fn main() -> std::process::ExitCode {
+    keep_freed_memory();
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
