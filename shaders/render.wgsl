@@ -56,9 +56,9 @@ struct RenderParams {
 @group(0) @binding(3) var<storage, read_write> counters: array<atomic<u32>, 4>;
 // The coarse pass's results (guided passes), two per pixel: x its z-depth (−1 a miss, or 0
 // where a compacted coarse pass skipped the pixel; −2 − z a near miss that first came near a
-// surface at z-depth z), y for a near miss the z-depth where it
-// last did (1e30: unknown). A coarse pass writes them as pairs to `out_depth`. A texture, because
-// lavapipe reads a storage buffer one lane at a time.
+// surface at z-depth z), y for a near miss the z-depth where it last did (1e30: unknown). A
+// coarse pass writes them as pairs to `out_depth`. A texture, because lavapipe reads a storage
+// buffer one lane at a time.
 @group(0) @binding(4) var coarse: texture_2d<f32>;
 // The tiles a guided pass renders (x | y << 16, in 8×8 tiles; twice the frame's tile count)
 // and the indirect dispatch sizes (x, 1, 1) that count them. `cs_tiles` lists the tiles to march
@@ -444,7 +444,7 @@ fn shade(o: vec3<f32>, d: vec3<f32>, z_rate: f32, t: f32, loc: Located, c0: Came
         var c: vec4<f32>;
         if edge_aware {
             c = layer_color(k, pb.tc, pb.layer_weights);
-            fetches += 5u;
+            fetches += LAYER_SHADE_FETCHES;
         } else {
             c = bilinear_color(k, pb.tc);
             fetches += 2u;
@@ -506,9 +506,10 @@ fn shade_interior(gid: vec2<u32>, index: u32, o: vec3<f32>, d: vec3<f32>, z_rate
     }
 }
 
-// What `shade` counts for an edge-aware pixel, the interior pass's: three cameras, one footprint
-// and four colour loads each.
-const INTERIOR_FETCHES: u32 = 15u;
+// What `shade` counts per camera for an edge-aware pixel: one footprint and four colour loads.
+const LAYER_SHADE_FETCHES: u32 = 5u;
+// What `shade` counts for an interior pixel: three cameras, edge-aware.
+const INTERIOR_FETCHES: u32 = 3u * LAYER_SHADE_FETCHES;
 
 // Tile compaction for a guided pass (the frame's, or a coarse pass guided by a pre-coarse one),
 // one invocation per 8×8 tile of its output: a tile is kept when some pixel of it has a coarse
@@ -705,7 +706,6 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
             }
             var lo = 1e30;
             var hi = -1e30;
-            var stride_from_hits = -1e30;
             if z_min <= z_max {
                 // Hits: a quarter step of margin (the coarse depths are accurate to far less)
                 // plus the neighbourhood's own depth spread: on a steep or curved surface this
@@ -716,7 +716,6 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
                 let margin = 0.25 * g_step + (z_max - z_min) / z_rate;
                 lo = z_min / z_rate - margin;
                 hi = z_max / z_rate + margin + select(0.0, 3.0 * g_step, misses + near_misses > 0u);
-                stride_from_hits = hi;
             }
             if near_misses > 0u {
                 // A neighbour passed close to a surface without finding it (a thin feature
@@ -730,8 +729,8 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
                 // on the four fixtures (within +0.005 dB, 12 views at 256²), 3–4 % fewer
                 // fetches, the demo's 512² guided pass 0.4–0.7 ms faster.
                 lo = min(lo, near_min / z_rate - g_step);
+                stride_from = max(hi, near_max / z_rate + NEAR_PAST * g_step);
                 hi = 1e30;
-                stride_from = max(stride_from_hits, near_max / z_rate + NEAR_PAST * g_step);
             }
             t_in = max(t_in, lo);
             t_out = min(t_out, hi);

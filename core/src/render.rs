@@ -324,8 +324,9 @@ struct Targets {
 }
 
 /// One coarse pass's buffers: its parameters, its results (rows of [`coarse_stride`] pixels, two
-/// floats each, render.wgsl `coarse`; its colour is scratch) and their copy as a texture, which the next finer pass reads, and its
-/// bind group (which binds the texture of the pass guiding it).
+/// floats each, render.wgsl `coarse`; its colour is scratch) and their copy as a texture, which
+/// the next finer pass reads, and its bind group (which binds the texture of the pass guiding
+/// it).
 struct CoarseLevel {
     uniform: wgpu::Buffer,
     depth: wgpu::Buffer,
