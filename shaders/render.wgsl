@@ -74,7 +74,8 @@ struct RenderParams {
 // (shaders.rs `render_source`).
 @group(1) @binding(0) var<uniform> cameras: array<Camera, CAMERA_COUNT>;
 @group(1) @binding(1) var<uniform> hierarchy: array<HierTriangle, TRIANGLE_COUNT>;
-@group(1) @binding(5) var<uniform> split_normals: array<vec4<f32>, SPLIT_COUNT>;
+// The level-MAX_LEVEL triangle of each direction (octahedral map; `locate`).
+@group(1) @binding(5) var direction_lookup: texture_2d<u32>;
 @group(1) @binding(2) var color_maps: texture_2d_array<f32>;
 @group(1) @binding(3) var footprints: texture_2d_array<u32>;
 @group(1) @binding(4) var linear_sampler: sampler;

@@ -428,6 +428,117 @@ impl CameraSet {
 }
 
 // ---------------------------------------------------------------------------
+// Direction lookup (the marcher's triangle search)
+// ---------------------------------------------------------------------------
+
+/// Texels per side of the marcher's octahedral direction lookup
+/// ([`CameraSet::direction_lookup`]): 1024² texels of 2 bytes (2 MiB); no direction lies more
+/// than [`DIRECTION_LOOKUP_REACH`] from its texel's centre. (512² renders as fast on lavapipe
+/// but doubles the reach.)
+pub const DIRECTION_LOOKUP_SIZE: u32 = 1024;
+
+/// An upper bound on the angle (radians) between a direction and the centre of the
+/// [`DIRECTION_LOOKUP_SIZE`]² octahedral texel holding it: half a texel's diagonal where the
+/// map stretches most, 0.00414 measured (the tests check it over every texel's corners and
+/// edge midpoints).
+pub const DIRECTION_LOOKUP_REACH: f64 = 0.0042;
+
+/// The unit direction at the centre of texel `(i, j)` of an `n` × `n` octahedral map: the
+/// square `[-1, 1]²` holds the upper hemisphere (z ≥ 0) as the octahedron `|x| + |y| + z = 1`
+/// inside its diamond `|u| + |v| ≤ 1`, and the lower one folded out into its four corners.
+#[must_use]
+pub fn octahedral_direction(i: u32, j: u32, n: u32) -> DVec3 {
+    let n = f64::from(n.max(1));
+    octahedral_unfold(DVec2::new(
+        (f64::from(i) + 0.5) / n * 2.0 - 1.0,
+        (f64::from(j) + 0.5) / n * 2.0 - 1.0,
+    ))
+}
+
+/// The unit direction at point `uv` of the octahedral square `[-1, 1]²`.
+#[must_use]
+pub fn octahedral_unfold(uv: DVec2) -> DVec3 {
+    let z = 1.0 - uv.x.abs() - uv.y.abs();
+    let sign = |x: f64| if x >= 0.0 { 1.0 } else { -1.0 };
+    let (x, y) = if z < 0.0 {
+        (
+            (1.0 - uv.y.abs()) * sign(uv.x),
+            (1.0 - uv.x.abs()) * sign(uv.y),
+        )
+    } else {
+        (uv.x, uv.y)
+    };
+    DVec3::new(x, y, z).normalize()
+}
+
+/// The texel `(i, j)` of an `n` × `n` octahedral map holding direction `p`, computed as the
+/// marcher does (`locate` in `shaders/shared/lightfield.wgsl`), in `f32`. Zero and non-finite
+/// directions give some texel inside the map.
+#[must_use]
+#[allow(
+    clippy::cast_possible_truncation,
+    clippy::cast_sign_loss,
+    clippy::cast_precision_loss,
+    reason = "the texel is clamped to the map before the conversion"
+)]
+pub fn octahedral_texel(p: Vec3, n: u32) -> (u32, u32) {
+    let q = p / (p.x.abs() + p.y.abs() + p.z.abs()).max(1e-30);
+    let sign = |x: f32| if x >= 0.0 { 1.0 } else { -1.0 };
+    let uv = if q.z < 0.0 {
+        Vec2::new((1.0 - q.y.abs()) * sign(q.x), (1.0 - q.x.abs()) * sign(q.y))
+    } else {
+        Vec2::new(q.x, q.y)
+    };
+    let last = n.max(1) - 1;
+    let texel = |c: f32| {
+        let t = ((c * 0.5 + 0.5) * n as f32).floor();
+        if t.is_nan() {
+            0
+        } else {
+            (t.max(0.0) as u32).min(last)
+        }
+    };
+    (texel(uv.x), texel(uv.y))
+}
+
+impl CameraSet {
+    /// The marcher's triangle lookup: for each texel of an `n` × `n` octahedral map of
+    /// directions ([`octahedral_direction`]), row by row, the index within level
+    /// [`MAX_LEVEL`] of the triangle holding the texel's centre. Its ancestor at level `l` is
+    /// triangle `index >> 2 (MAX_LEVEL − l)` of that level (the children of triangle `k` of a
+    /// level are triangles `4k..4k + 4` of the next).
+    ///
+    /// One texel load replaces the marcher's descent of the hierarchy, which read three edge
+    /// normals per level. A direction less than [`DIRECTION_LOOKUP_REACH`] from a triangle's
+    /// edge may find the neighbour across it; its weights there, clamped to the edge, differ
+    /// from the exact ones by at most about that distance over the triangle's height (the
+    /// tests bound it).
+    #[must_use]
+    #[allow(
+        clippy::cast_possible_truncation,
+        reason = "level-3 triangle indices are < 1280"
+    )]
+    pub fn direction_lookup(&self, n: u32) -> Vec<u16> {
+        let range = self.level_range(MAX_LEVEL);
+        let mut out = Vec::with_capacity((n as usize) * (n as usize));
+        // Neighbouring texels mostly share a triangle: try the previous one first.
+        let mut last: Option<usize> = None;
+        for j in 0..n {
+            for i in 0..n {
+                let p = octahedral_direction(i, j, n);
+                let t = match last {
+                    Some(t) if self.score(t, p) > 1e-9 => t,
+                    _ => self.locate(p.as_vec3(), MAX_LEVEL).triangle as usize,
+                };
+                last = Some(t);
+                out.push((t - range.start) as u16);
+            }
+        }
+        out
+    }
+}
+
+// ---------------------------------------------------------------------------
 // Camera local frame
 // ---------------------------------------------------------------------------
 

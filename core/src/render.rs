@@ -531,7 +531,8 @@ pub struct Renderer {
     linear: wgpu::Sampler,
     camera_buffer: wgpu::Buffer,
     hierarchy_buffer: wgpu::Buffer,
-    split_buffer: wgpu::Buffer,
+    /// [`geometry::CameraSet::direction_lookup`] (`locate` in the marcher).
+    lookup_view: wgpu::TextureView,
     /// Reusable targets; the lock also serializes frames on the one queue.
     targets: Mutex<Option<Targets>>,
     max_px: u32,
@@ -618,7 +619,16 @@ impl Renderer {
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
                     count: None,
                 },
-                buffer_entry(5, wgpu::BufferBindingType::Uniform),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 5,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Uint,
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
             ],
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -644,7 +654,6 @@ impl Renderer {
             .iter()
             .map(|t| [t.v[0], t.v[1], t.v[2], t.first_child])
             .collect();
-        let splits = split_normals();
         // Uniform buffers (render.wgsl says why). The largest, the cameras, is 41 KiB: within
         // every Vulkan, Metal and DX12 device's 64 KiB; a smaller limit fails pipeline creation
         // with a GPU error at the first frame, so say which limit it is here.
@@ -666,7 +675,7 @@ impl Renderer {
         };
         let camera_buffer = uniform("icosphere cameras", bytemuck::cast_slice(&cameras));
         let hierarchy_buffer = uniform("icosphere hierarchy", bytemuck::cast_slice(&hierarchy));
-        let split_buffer = uniform("icosphere split normals", bytemuck::cast_slice(&splits));
+        let lookup_view = direction_lookup_texture(&gpu);
         let max_px = DEFAULT_MAX_VIEW_PX.min(gpu.device.limits().max_texture_dimension_2d);
         let tiles_pipeline = compute_pipeline(
             device,
@@ -690,7 +699,7 @@ impl Renderer {
             linear,
             camera_buffer,
             hierarchy_buffer,
-            split_buffer,
+            lookup_view,
             targets: Mutex::new(None),
             max_px,
         };
@@ -885,7 +894,7 @@ impl Renderer {
                     },
                     wgpu::BindGroupEntry {
                         binding: 5,
-                        resource: self.split_buffer.as_entire_binding(),
+                        resource: wgpu::BindingResource::TextureView(&self.lookup_view),
                     },
                 ],
             });
@@ -1559,24 +1568,34 @@ fn footprint_texels(codes: &[u16], n: usize) -> Vec<u8> {
     out
 }
 
-/// For every triangle of levels 0–2, the unit normals of its middle child's edges that it shares
-/// with corner children 0, 1, 2 (`shaders/shared/lightfield.wgsl`, `locate`), as `vec4`s.
-fn split_normals() -> Vec<[f32; 4]> {
-    let set = geometry::camera_set();
-    let parents = set.level_range(0).start..set.level_range(2).end;
-    let mut out = Vec::with_capacity(parents.len() * 3);
-    for t in &set.triangles[parents] {
-        // Children: (v0, m01, m20), (m01, v1, m12), (m20, m12, v2), middle (m01, m12, m20).
-        let middle = set.triangles[t.first_child as usize + 3]
-            .v
-            .map(|i| set.positions[i as usize].as_dvec3());
-        let [m01, m12, m20] = middle;
-        for (a, b) in [(m20, m01), (m01, m12), (m12, m20)] {
-            let n = a.cross(b).normalize().as_vec3();
-            out.push([n.x, n.y, n.z, 0.0]);
-        }
-    }
-    out
+/// The marcher's direction lookup ([`geometry::CameraSet::direction_lookup`]) as a texture,
+/// built once per process.
+fn direction_lookup_texture(gpu: &Gpu) -> wgpu::TextureView {
+    use wgpu::util::DeviceExt;
+    static LOOKUP: std::sync::OnceLock<Vec<u16>> = std::sync::OnceLock::new();
+    let n = geometry::DIRECTION_LOOKUP_SIZE;
+    let lookup = LOOKUP.get_or_init(|| geometry::camera_set().direction_lookup(n));
+    gpu.device
+        .create_texture_with_data(
+            &gpu.queue,
+            &wgpu::TextureDescriptor {
+                label: Some("icosphere direction lookup"),
+                size: wgpu::Extent3d {
+                    width: n,
+                    height: n,
+                    depth_or_array_layers: 1,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: wgpu::TextureFormat::R16Uint,
+                usage: wgpu::TextureUsages::TEXTURE_BINDING,
+                view_formats: &[],
+            },
+            wgpu::util::TextureDataOrder::LayerMajor,
+            bytemuck::cast_slice(lookup),
+        )
+        .create_view(&wgpu::TextureViewDescriptor::default())
 }
 
 #[cfg(test)]
@@ -1584,45 +1603,30 @@ mod tests {
     use super::*;
     use glam::Vec3;
 
-    /// The shader's `locate` descent, replayed on the CPU with the same tables.
-    fn locate_like_shader(p: Vec3, level: u32) -> u32 {
+    /// The shader's `locate`, replayed on the CPU in f32 with the same lookup: the triangle
+    /// and the weights of its cameras.
+    fn locate_like_shader(p: Vec3, level: u32) -> (usize, [u32; 3], [f32; 3]) {
+        static LOOKUP: std::sync::OnceLock<Vec<u16>> = std::sync::OnceLock::new();
         let set = geometry::camera_set();
-        let split = split_normals();
-        let mut best = 0;
-        let mut best_score = f32::NEG_INFINITY;
-        for (i, t) in set.level_triangles(0).iter().enumerate() {
-            let [a, b, c] = t.v.map(|k| set.positions[k as usize].as_dvec3());
-            let s = [(a, b), (b, c), (c, a)]
-                .iter()
-                .map(|(x, y)| x.cross(*y).normalize().as_vec3().dot(p))
-                .fold(f32::INFINITY, f32::min);
-            if s > best_score {
-                best_score = s;
-                best = i as u32;
-            }
-        }
-        let (mut start, mut local, mut count) = (0u32, best, 20u32);
-        for _ in 0..level {
-            let t = (start + local) as usize;
-            let s: Vec<f32> = (0..3)
-                .map(|e| Vec3::from_slice(&split[3 * t + e][..3]).dot(p))
-                .collect();
-            let child = if s.iter().copied().fold(f32::INFINITY, f32::min) < 0.0 {
-                if s[0] <= s[1] && s[0] <= s[2] {
-                    0
-                } else if s[1] <= s[2] {
-                    1
-                } else {
-                    2
-                }
-            } else {
-                3
-            };
-            start += count;
-            count *= 4;
-            local = 4 * local + child;
-        }
-        start + local
+        let n = geometry::DIRECTION_LOOKUP_SIZE;
+        let lookup = LOOKUP.get_or_init(|| set.direction_lookup(n));
+        let (i, j) = geometry::octahedral_texel(p, n);
+        let finest = u32::from(lookup[(j * n + i) as usize]);
+        let l = level.min(geometry::MAX_LEVEL);
+        let local = finest >> (2 * (geometry::MAX_LEVEL - l));
+        let level_start = 20 * ((1u32 << (2 * l)) - 1) / 3;
+        let t = (level_start + local) as usize;
+        let v = set.triangles[t].v;
+        let [v0, v1, v2] = v.map(|k| set.positions[k as usize]);
+        let w = Vec3::new(
+            p.dot(v1.cross(v2)),
+            v0.dot(p.cross(v2)),
+            v0.dot(v1.cross(p)),
+        )
+        .max(Vec3::ZERO);
+        let sum = w.x + w.y + w.z;
+        let w = if sum > 0.0 { w / sum } else { Vec3::X };
+        (t, v, w.to_array())
     }
 
     /// `probe`'s decoding of an edge code (render.wgsl): (e, extrapolated depth), in f32 as there.
@@ -1718,10 +1722,44 @@ mod tests {
         );
     }
 
+    /// The largest difference, over the cameras of both, between the weights the shader's
+    /// lookup gives direction `p` at `level` and the exact ones of [`geometry::CameraSet::locate`],
+    /// and how far (sine of the angle) `p` lies outside the triangle the lookup found.
+    fn lookup_error(p: Vec3, level: u32) -> (f32, f32) {
+        let set = geometry::camera_set();
+        let (t, cams, w) = locate_like_shader(p, level);
+        assert!(
+            set.level_range(level).contains(&t),
+            "level {level}: triangle {t}"
+        );
+        let exact = set.locate(p, level);
+        let weight_of = |cams: &[u32; 3], w: &[f32; 3], k: u32| {
+            cams.iter()
+                .zip(w)
+                .filter(|(c, _)| **c == k)
+                .map(|(_, w)| *w)
+                .sum::<f32>()
+        };
+        let worst = cams
+            .iter()
+            .chain(&exact.cameras)
+            .map(|&k| {
+                (weight_of(&cams, &w, k) - weight_of(&exact.cameras, &exact.weights, k)).abs()
+            })
+            .fold(0.0f32, f32::max);
+        let [a, b, c] = cams.map(|k| set.positions[k as usize]);
+        let outside = [(a, b), (b, c), (c, a)]
+            .iter()
+            .map(|(x, y)| -x.cross(*y).normalize().dot(p))
+            .fold(f32::NEG_INFINITY, f32::max);
+        (worst, outside)
+    }
+
     #[test]
-    fn shader_lookup_tables_find_the_containing_triangle() {
-        // Same triangle as the CPU geometry, or (on a shared edge, within 1e-6) a neighbour
-        // that contains the point as well.
+    fn shader_lookup_finds_the_triangle_within_its_reach() {
+        // Random directions, and the places a lookup can go wrong: the cameras (vertices), the
+        // midpoints of every level's edges, points just beside both, the octahedral map's fold
+        // (z = 0), its axes and its corners (the poles).
         let set = geometry::camera_set();
         let mut state = 0x2545_f491_4f6c_dd1du64;
         let mut next = || {
@@ -1730,21 +1768,67 @@ mod tests {
             state ^= state << 17;
             (state >> 11) as f32 / (1u64 << 53) as f32 * 2.0 - 1.0
         };
-        for _ in 0..20_000 {
-            let p = Vec3::new(next(), next(), next()).normalize();
-            for level in 0..=3 {
-                let t = locate_like_shader(p, level) as usize;
-                let [a, b, c] = set.triangles[t].v.map(|k| set.positions[k as usize]);
-                let worst = [(a, b), (b, c), (c, a)]
-                    .iter()
-                    .map(|(x, y)| x.cross(*y).normalize().dot(p))
-                    .fold(f32::INFINITY, f32::min);
-                assert!(
-                    worst > -1e-5,
-                    "level {level}: {p} is {worst} outside triangle {t}"
-                );
-                assert!(set.level_range(level).contains(&t));
+        let mut points: Vec<Vec3> = (0..20_000)
+            .map(|_| Vec3::new(next(), next(), next()).normalize())
+            .collect();
+        for t in &set.triangles {
+            let [a, b, c] = t.v.map(|k| set.positions[k as usize]);
+            for q in [
+                a,
+                (a + b).normalize(),
+                (b + c).normalize(),
+                (c + a).normalize(),
+            ] {
+                points.push(q);
+                for _ in 0..4 {
+                    let jitter = Vec3::new(next(), next(), next()) * 3e-3;
+                    points.push((q + jitter).normalize());
+                }
             }
+        }
+        for k in 0..2000 {
+            let a = k as f32 / 2000.0 * std::f32::consts::TAU;
+            points.push(Vec3::new(a.cos(), a.sin(), 0.0));
+            points.push(Vec3::new(a.cos(), a.sin(), 1e-7).normalize());
+            points.push(Vec3::new(a.cos(), a.sin(), -1e-7).normalize());
+        }
+        points.extend([Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z]);
+        // A direction lies within DIRECTION_LOOKUP_REACH of its texel's centre, which its
+        // triangle holds, so it lies at most that far outside it (sine, plus f32 rounding).
+        let reach = geometry::DIRECTION_LOOKUP_REACH.sin() as f32 + 1e-5;
+        // Weights: a point δ outside its triangle, across an edge, gets the weights of the
+        // nearest point of that edge, where the exact triangle gives its opposite camera
+        // about δ / h of weight (h: the height over that edge, as a sine); the weights of the
+        // edge's cameras move by as much. Bound: 2 · reach / the smallest height of the
+        // level's triangles.
+        for level in 0..=3u32 {
+            let height = set.triangles[set.level_range(level)]
+                .iter()
+                .flat_map(|t| {
+                    let [a, b, c] = t.v.map(|k| set.positions[k as usize]);
+                    [(a, b, c), (b, c, a), (c, a, b)]
+                        .map(|(x, y, z)| x.cross(y).normalize().dot(z).abs())
+                })
+                .fold(f32::INFINITY, f32::min);
+            let bound = 2.0 * reach / height;
+            let (mut worst_w, mut worst_out) = (0.0f32, f32::NEG_INFINITY);
+            for &p in &points {
+                let (w, out) = lookup_error(p, level);
+                worst_w = worst_w.max(w);
+                worst_out = worst_out.max(out);
+            }
+            eprintln!(
+                "level {level}: weights off by up to {worst_w} (bound {bound}, smallest height \
+                 {height}), outside by up to {worst_out}"
+            );
+            assert!(
+                worst_out <= reach,
+                "level {level}: {worst_out} outside (reach {reach})"
+            );
+            assert!(
+                worst_w <= bound,
+                "level {level}: weights off by {worst_w} (bound {bound})"
+            );
         }
     }
 }

@@ -393,6 +393,82 @@ proptest! {
 }
 
 // ---------------------------------------------------------------------------
+// direction lookup
+// ---------------------------------------------------------------------------
+
+#[test]
+fn octahedral_texels_round_trip_and_stay_within_reach() {
+    // Every texel: its centre maps back to it (f32, as the shader computes it), and its corners
+    // and edge midpoints (the farthest points of a texel; the map is continuous across the fold)
+    // lie within DIRECTION_LOOKUP_REACH of its centre.
+    let n = DIRECTION_LOOKUP_SIZE;
+    let mut farthest = 0.0f64;
+    for j in 0..n {
+        for i in 0..n {
+            let c = octahedral_direction(i, j, n);
+            assert_eq!(octahedral_texel(c.as_vec3(), n), (i, j));
+            for (di, dj) in [
+                (0.0, 0.0),
+                (0.5, 0.0),
+                (1.0, 0.0),
+                (0.0, 0.5),
+                (1.0, 0.5),
+                (0.0, 1.0),
+                (0.5, 1.0),
+                (1.0, 1.0),
+            ] {
+                let uv = glam::DVec2::new(
+                    (f64::from(i) + di) / f64::from(n) * 2.0 - 1.0,
+                    (f64::from(j) + dj) / f64::from(n) * 2.0 - 1.0,
+                );
+                farthest = farthest.max(c.angle_between(octahedral_unfold(uv)));
+            }
+        }
+    }
+    assert!(
+        farthest <= DIRECTION_LOOKUP_REACH,
+        "a texel reaches {farthest} rad from its centre"
+    );
+    assert!(
+        farthest > 0.9 * DIRECTION_LOOKUP_REACH,
+        "the bound {DIRECTION_LOOKUP_REACH} is loose: {farthest}"
+    );
+    // Degenerate directions still give a texel inside the map.
+    for p in [
+        Vec3::ZERO,
+        Vec3::NAN,
+        Vec3::INFINITY,
+        Vec3::new(f32::NEG_INFINITY, 0.0, 1.0),
+    ] {
+        let (i, j) = octahedral_texel(p, n);
+        assert!(i < n && j < n);
+    }
+}
+
+#[test]
+fn direction_lookup_holds_each_texel_centres_triangle_and_its_ancestors() {
+    let set = camera_set();
+    let n = 256;
+    let lookup = set.direction_lookup(n);
+    assert_eq!(lookup.len(), (n * n) as usize);
+    for j in 0..n {
+        for i in 0..n {
+            let c = octahedral_direction(i, j, n);
+            let finest = u32::from(lookup[(j * n + i) as usize]);
+            for level in 0..=MAX_LEVEL {
+                let local = finest >> (2 * (MAX_LEVEL - level));
+                let t = set.level_range(level).start + local as usize;
+                assert!(set.level_range(level).contains(&t));
+                assert!(
+                    min_edge_det(set, t, c) >= -1e-9,
+                    "texel ({i}, {j}): level {level} triangle {t} does not hold its centre"
+                );
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------
 // camera frame
 // ---------------------------------------------------------------------------
 
