@@ -158,11 +158,12 @@ struct Probe {
 fn project(cam: Camera, x: vec3<f32>) -> vec4<f32> {
     let q = x - cam.position.xyz;
     let len = length(q);
-    let r = vec3<f32>(dot(q, cam.x.xyz), dot(q, cam.y.xyz), dot(q, cam.z.xyz)) / max(len, 1e-12);
-    let uv = r.xy / max(1.0 + r.z, 1e-6);
+    let qz = dot(q, cam.z.xyz);
+    // uv = r.xy / (1 + r.z) for the unit direction r = q / |q|, with one division.
+    let uv = vec2<f32>(dot(q, cam.x.xyz), dot(q, cam.y.xyz)) / max(len + qz, 1e-6 * max(len, 1e-12));
     let tc = (uv + 1.0) * 0.5 * params.resolution;
     // (texel x, texel y, |x − p|, chord 2·r_z)
-    return vec4<f32>(tc, len, 2.0 * r.z);
+    return vec4<f32>(tc, len, 2.0 * qz / max(len, 1e-12));
 }
 
 // Edge codes: a no-hit texel beside the silhouette has footprint code
@@ -192,37 +193,34 @@ fn probe(cam: Camera, k: u32, x: vec3<f32>, edge_aware: bool) -> Probe {
     // Edge texels (no hit, beside the silhouette) read as no hit (1) for the split.
     let rel = codes - vec4<u32>(EDGE_BASE);
     let edge = rel < vec4<u32>(EDGE_CODES);
-    var d = select(vec4<f32>(codes) * (1.0 / 65535.0), vec4<f32>(1.0), edge);
+    let d = select(vec4<f32>(codes) * (1.0 / 65535.0), vec4<f32>(1.0), edge);
     let fr = fract(tc - 0.5);
-    var bw = vec4<f32>((1.0 - fr.x) * (1.0 - fr.y), fr.x * (1.0 - fr.y), (1.0 - fr.x) * fr.y, fr.x * fr.y);
-    var color_weights = bw;
-    if edge_aware {
-        let lo = min(min(d.x, d.y), min(d.z, d.w));
-        let hi = max(max(d.x, d.y), max(d.z, d.w));
-        if hi - lo > params.edge_gap {
-            let split = 0.5 * (lo + hi);
-            let front = d <= vec4<f32>(split);
-            // The front layer's share of the footprint: a front texel counts 1, a back one 0, an
-            // edge texel sigma = 1 − (1 − front_mass) / e, so that between it and a front texel
-            // the share falls to `front_mass` exactly at the silhouette, e of the way from the
-            // front texel.
-            // The interior pass (ROLE 2: flat tiles, no silhouette near the eye's ray) reads edge
-            // texels as plain no hit: the same pixels (bunny and demo, 12 views at 256², masked
-            // PSNR within 0.002 dB), 1.9 ms less per 512² bunny frame.
-            let edges = edge & vec4<bool>(ROLE != 2u);
-            let sigma = vec4<f32>(1.0) - ((1.0 - params.front_mass) * f32(EDGE_E_LEVELS)) / (vec4<f32>(rel >> vec4<u32>(9u)) + 0.5);
-            let share = select(select(vec4<f32>(0.0), sigma, edges), vec4<f32>(1.0), front);
-            let chosen = dot(bw, share) >= params.front_mass;
-            // Colour from the chosen layer's hits (`layer_color` normalizes); depth in the front
-            // layer from its hits and edge texels, whose extrapolated depths make the surface
-            // recede to the silhouette's depth.
-            color_weights = bw * vec4<f32>(select(!front, front, chosen));
-            d = select(d, vec4<f32>(rel & vec4<u32>(511u)) * (1.0 / 511.0), edges & vec4<bool>(chosen));
-            bw = select(color_weights, bw * vec4<f32>(front | edges), chosen);
-            bw = bw / max(bw.x + bw.y + bw.z + bw.w, 1e-12);
-        }
-    }
-    let depth = dot(bw, d);
+    let bw = vec4<f32>((1.0 - fr.x) * (1.0 - fr.y), fr.x * (1.0 - fr.y), (1.0 - fr.x) * fr.y, fr.x * fr.y);
+    // Written without `if`: lavapipe runs an `if`'s body whatever the condition, then merges
+    // every value it assigned; as selects, the split costs what its arithmetic does, and a march
+    // probe computes no colour weights (a 512² demo frame 0.5–1.0 ms faster).
+    let lo = min(min(d.x, d.y), min(d.z, d.w));
+    let hi = max(max(d.x, d.y), max(d.z, d.w));
+    let split = edge_aware & (hi - lo > params.edge_gap);
+    let front = d <= vec4<f32>(0.5 * (lo + hi));
+    // The front layer's share of the footprint: a front texel counts 1, a back one 0, an edge
+    // texel sigma = 1 − (1 − front_mass) / e, so that between it and a front texel the share
+    // falls to `front_mass` exactly at the silhouette, e of the way from the front texel.
+    // The interior pass (ROLE 2: flat tiles, no silhouette near the eye's ray) reads edge
+    // texels as plain no hit: the same pixels (bunny and demo, 12 views at 256², masked PSNR
+    // within 0.002 dB), 1.9 ms less per 512² bunny frame.
+    let edges = edge & vec4<bool>(ROLE != 2u);
+    let sigma = vec4<f32>(1.0) - ((1.0 - params.front_mass) * f32(EDGE_E_LEVELS)) / (vec4<f32>(rel >> vec4<u32>(9u)) + 0.5);
+    let share = select(select(vec4<f32>(0.0), sigma, edges), vec4<f32>(1.0), front);
+    let chosen = dot(bw, share) >= params.front_mass;
+    // Colour from the chosen layer's hits (`layer_color` normalizes); depth in the front layer
+    // from its hits and edge texels, whose extrapolated depths make the surface recede to the
+    // silhouette's depth. Unsplit: the whole footprint.
+    let layer = select(!front, front, chosen);
+    let color_weights = select(bw, bw * vec4<f32>(layer), split);
+    let kept = select(vec4<f32>(0.0), bw, layer | (edges & vec4<bool>(chosen)));
+    let layer_d = select(d, vec4<f32>(rel & vec4<u32>(511u)) * (1.0 / 511.0), edges & vec4<bool>(chosen));
+    let depth = select(dot(bw, d), dot(kept, layer_d) / max(kept.x + kept.y + kept.z + kept.w, 1e-12), split);
     return Probe(pr.z - depth * pr.w, tc, color_weights);
 }
 
