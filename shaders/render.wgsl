@@ -30,14 +30,14 @@ struct RenderParams {
     near_scale: f32,
     // Box around every surface point the maps hold (see `visible_box` in render.rs).
     box_min: vec3<f32>,
-    // Non-zero in a compacted guided pass: workgroup w renders the 8×8 tile `tiles[w]` (see
-    // `cs_tiles`) instead of the w-th tile of the frame; 2 in the pass that marches the tiles
-    // the interior pass gave back (`tiles[tile count + w]`).
+    // Non-zero in a compacted guided pass: workgroup w renders the 4×4 quads `tiles[4w..4w + 4]`
+    // (see `cs_tiles`) instead of the w-th 8×8 tile of the frame; 2 in the pass that marches the
+    // quads the interior pass gave back (`tiles[quad count + 4w..]`).
     tiled: u32,
     box_max: vec3<f32>,
-    // Non-zero in a compacted guided pass whose flat tiles take the interior pass (see
+    // Non-zero in a compacted guided pass whose flat quads take the interior pass (see
     // `cs_tiles`): the largest second difference of coarse z-depths between neighbours that a
-    // flat tile may hold (z units).
+    // flat quad may hold (z units).
     interior_curvature: f32,
     level_b: u32,
     step_b: f32,
@@ -60,14 +60,15 @@ struct RenderParams {
 // coarse pass writes them as pairs to `out_depth`. A texture, because lavapipe reads a storage
 // buffer one lane at a time.
 @group(0) @binding(4) var coarse: texture_2d<f32>;
-// The tiles a guided pass renders (x | y << 16, in 8×8 tiles; twice the frame's tile count)
-// and the indirect dispatch sizes (x, 1, 1) that count them. `cs_tiles` lists the tiles to march
-// from the front of `tiles` (counted in `tile_dispatch[0]`) and the flat tiles for the interior
-// pass from the back of its first half (`tile_dispatch[3]`); the interior pass lists the flat
-// tiles it gives back to be marched in the second half (`tile_dispatch[6]`), and sets the top
-// bit of a flat tile's entry once it has.
+// The 4×4 quads a guided pass renders (x | y << 16, in quads; twice the frame's quad count),
+// the indirect dispatch sizes (x, 1, 1) of the passes that render them, four quads per
+// workgroup, and the lists' lengths. `cs_tiles` lists the quads to march from the front of
+// `tiles` (workgroups in `tile_dispatch[0]`, quads in `[9]`) and the flat quads for the interior
+// pass from the back of its first half (`[3]`, `[10]`); the interior pass lists the flat quads
+// it gives back to be marched in the second half (`[6]`, `[11]`), and sets the top bit of a
+// flat quad's entry once it has.
 @group(0) @binding(5) var<storage, read_write> tiles: array<atomic<u32>>;
-@group(0) @binding(6) var<storage, read_write> tile_dispatch: array<atomic<u32>, 9>;
+@group(0) @binding(6) var<storage, read_write> tile_dispatch: array<atomic<u32>, 12>;
 
 // Uniform, not storage, buffers: lavapipe reads a storage buffer one lane at a time, a uniform
 // one as a vector gather (the frame time halved). The sizes come from the camera set
@@ -401,9 +402,19 @@ fn box_roots(o: vec3<f32>, d: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> vec2<f
     return vec2<f32>(max(max(near.x, near.y), near.z), min(min(far.x, far.y), far.z));
 }
 
-// The frame's 8×8 tiles (workgroups) per row and per column.
-fn frame_tiles() -> vec2<u32> {
-    return (vec2<u32>(params.width, params.height) + 7u) / 8u;
+// The frame's 4×4 quads per row and per column.
+fn frame_quads() -> vec2<u32> {
+    return (vec2<u32>(params.width, params.height) + 3u) / 4u;
+}
+
+// Appends quad `entry` to list `list` (0: to march, 1: flat, 2: given back), whose k-th entry
+// lives at `tiles[first + step · k]`, and counts a workgroup for every fourth.
+fn list_quad(list: u32, first: u32, step: i32, entry: u32) {
+    let k = atomicAdd(&tile_dispatch[9u + list], 1u);
+    if k % 4u == 0u {
+        atomicAdd(&tile_dispatch[3u * list], 1u);
+    }
+    atomicStore(&tiles[u32(i32(first) + step * i32(k))], entry);
 }
 
 // A hit's colour (packed), z-depth and texture fetches, and whether some camera agreed with it.
@@ -479,11 +490,11 @@ fn shade(o: vec3<f32>, d: vec3<f32>, z_rate: f32, t: f32, loc: Located, c0: Came
     return Shaded(pack4x8unorm(vec4<f32>(color.rgb, 1.0)), z, fetches, total > 1e-6);
 }
 
-// The interior pass (ROLE 2): a pixel of a flat tile (see `cs_tiles`) takes the z-depth
+// The interior pass (ROLE 2): a pixel of a flat quad (see `cs_tiles`) takes the z-depth
 // interpolated between its four nearest coarse pixels, all hits, instead of marching, and is
 // shaded there; one Newton step (`shade`) corrects the depth it reports. Where no camera agrees
 // with the interpolated point (a gap or an edge narrower than the coarse pixels, which their
-// depths cannot show), the tile is given back: listed once, it is marched by the next pass.
+// depths cannot show), the quad is given back: listed once, it is marched by the next pass.
 fn shade_interior(gid: vec2<u32>, index: u32, o: vec3<f32>, d: vec3<f32>, z_rate: f32, slot: u32) {
     let cc = coarse_position(gid);
     let base = vec2<i32>(floor(cc));
@@ -500,12 +511,12 @@ fn shade_interior(gid: vec2<u32>, index: u32, o: vec3<f32>, d: vec3<f32>, z_rate
     let shaded = shade(o, d, z_rate, t, loc, cameras[loc.cameras.x], cameras[loc.cameras.y], cameras[loc.cameras.z], true);
     out_color[index] = shaded.color;
     out_depth[index] = shaded.z;
-    // Its work is counted by `cs_tiles`, per tile.
+    // Its work is counted by `cs_tiles`, per quad.
     if !shaded.agreed {
         let entry = atomicOr(&tiles[slot], 0x80000000u);
         if entry < 0x80000000u {
-            let grid = frame_tiles();
-            atomicStore(&tiles[grid.x * grid.y + atomicAdd(&tile_dispatch[6], 1u)], entry);
+            let grid = frame_quads();
+            list_quad(2u, grid.x * grid.y, 1, entry);
         }
     }
 }
@@ -515,74 +526,75 @@ const LAYER_SHADE_FETCHES: u32 = 5u;
 // What `shade` counts for an interior pixel: three cameras, edge-aware.
 const INTERIOR_FETCHES: u32 = 3u * LAYER_SHADE_FETCHES;
 
-// Tile compaction for a guided pass (the frame's, or a coarse pass guided by a pre-coarse one),
-// one invocation per 8×8 tile of its output: a tile is kept when some pixel of it has a coarse
+// Compaction for a guided pass (the frame's, or a coarse pass guided by a pre-coarse one), one
+// invocation per 4×4 quad of its output: a quad is kept when some pixel of it has a coarse
 // neighbour that hit or passed near a surface, i.e. when the guided pass would march some pixel
 // of it (see `guided_pass` in `cs_main`). Lavapipe runs every instruction of a shader for every
-// pixel, early `return` or not, so skipping a pixel saves nothing; only a workgroup never
-// dispatched costs nothing. (The coarse pass of a 512² frame with nothing in view: 2.0–3.1 ms
+// pixel, early `return` or not, so skipping a pixel saves nothing; only work never dispatched
+// costs nothing. (The coarse pass of a 512² frame with nothing in view: 2.0–3.1 ms
 // uncompacted.)
 //
-// A kept tile is flat when `interior_curvature` > 0, every coarse pixel around it hit, and no
+// A kept quad is flat when `interior_curvature` > 0, every coarse pixel around it hit, and no
 // second difference of their z-depths along x or y exceeds `interior_curvature`: no silhouette
 // or occlusion edge crosses it (a depth jump is a large second difference), and bilinear
 // interpolation between the coarse depths is within an eighth of the bound per axis of any
-// smooth surface through them. Flat tiles go to the interior pass, which does not march.
+// smooth surface through them. Flat quads go to the interior pass, which does not march.
+// Quads rather than the 8×8 tiles of a workgroup: a tile along an edge held pixels that needed
+// no march, and marched them (one demo view at 512²: 792 of its 2536 quads had nine hits
+// around every pixel, 276 no pixel to march; eval, 6 views at 512², 4 interleaved runs, demo
+// 24.7 → 22.0 ms, bunny 20.9 → 19.2).
 @compute @workgroup_size(8, 8, 1)
 fn cs_tiles(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let grid = frame_tiles();
+    let grid = frame_quads();
     if any(gid.xy >= grid) {
         return;
     }
     let last = vec2<i32>(i32(params.coarse_width) - 1, i32(params.coarse_height) - 1);
-    let first_px = gid.xy * 8u;
-    let last_px = min(first_px + 7u, vec2<u32>(params.width - 1u, params.height - 1u));
-    // Every coarse pixel a pixel of the tile reads: its 3×3 neighbourhood, which holds the four
+    let first_px = gid.xy * 4u;
+    let last_px = min(first_px + 3u, vec2<u32>(params.width - 1u, params.height - 1u));
+    // Every coarse pixel a pixel of the quad reads: its 3×3 neighbourhood, which holds the four
     // it interpolates between.
     let lo = clamp(coarse_nearest(first_px) - 1, vec2<i32>(0), last);
     let hi = clamp(coarse_nearest(last_px) + 1, vec2<i32>(0), last);
     let size = hi - lo + 1;
+    // At most 4×4 coarse pixels (a quad spans at most 1.5 coarse pixels for a coarse factor of
+    // 2 or more), read as 4×4 with coordinates clamped to the neighbourhood: constant loops,
+    // unrolled, so the depths stay in registers.
     var keep = false;
-    // `&`, not `&&` (see `per_invocation`).
-    var flat = (params.interior_curvature > 0.0) & (size.x <= 8) & (size.y <= 8);
-    var z: array<f32, 64>;
-    for (var y = lo.y; y <= hi.y; y++) {
-        for (var x = lo.x; x <= hi.x; x++) {
-            let v = textureLoad(coarse, vec2<i32>(x, y), 0).x;
+    var all_hit = true;
+    var z: array<f32, 16>;
+    for (var j = 0; j < 4; j++) {
+        for (var i = 0; i < 4; i++) {
+            let v = textureLoad(coarse, min(lo + vec2<i32>(i, j), hi), 0).x;
             // Not a far miss (−1, or 0 where a compacted coarse pass skipped the pixel): a hit
             // (> 0) or a near miss (≤ −2).
-            keep = keep || !(v <= 0.0 && v > -1.5);
-            flat = flat && v > 0.0;
-            z[min(u32((y - lo.y) * 8 + (x - lo.x)), 63u)] = v;
+            keep = keep | !((v <= 0.0) & (v > -1.5));
+            all_hit = all_hit & (v > 0.0);
+            z[j * 4 + i] = v;
         }
     }
-    if flat {
-        for (var y = 0; y < size.y; y++) {
-            for (var x = 0; x < size.x; x++) {
-                let c = 2.0 * z[y * 8 + x];
-                if x > 0 && x + 1 < size.x {
-                    flat = flat && abs(z[y * 8 + x - 1] + z[y * 8 + x + 1] - c) <= params.interior_curvature;
-                }
-                if y > 0 && y + 1 < size.y {
-                    flat = flat && abs(z[y * 8 + x - 8] + z[y * 8 + x + 8] - c) <= params.interior_curvature;
-                }
-            }
+    var bumpy = false;
+    for (var j = 0; j < 4; j++) {
+        for (var i = 1; i < 3; i++) {
+            let along_x = abs(z[j * 4 + i - 1] + z[j * 4 + i + 1] - 2.0 * z[j * 4 + i]);
+            bumpy = bumpy | ((i + 1 < size.x) & (j < size.y) & (along_x > params.interior_curvature));
+            let along_y = abs(z[(i - 1) * 4 + j] + z[(i + 1) * 4 + j] - 2.0 * z[i * 4 + j]);
+            bumpy = bumpy | ((i + 1 < size.y) & (j < size.x) & (along_y > params.interior_curvature));
         }
     }
+    // `&`, not `&&` (see `per_invocation`).
+    let flat = keep & (params.interior_curvature > 0.0) & all_hit & !bumpy;
+    // The interior pass's work, counted here once per quad rather than by its pixels (lavapipe:
+    // 0.7 of the bunny's 6.9 ms interior pass at 512²): each pixel of a flat quad inside the
+    // frame is one ray shaded with INTERIOR_FETCHES fetches.
+    let pixels = select(0u, (last_px.x - first_px.x + 1u) * (last_px.y - first_px.y + 1u), flat);
+    count_work(INTERIOR_FETCHES * pixels, 0u, pixels);
     if keep {
-        let tile = gid.x | (gid.y << 16u);
+        let quad = gid.x | (gid.y << 16u);
         if flat {
-            let slot = atomicAdd(&tile_dispatch[3], 1u);
-            atomicStore(&tiles[grid.x * grid.y - 1u - slot], tile);
-            // The interior pass's work, counted here once per tile rather than by its pixels
-            // (lavapipe: 0.7 of the bunny's 6.9 ms interior pass at 512²): each pixel of the
-            // tile inside the frame is one ray shaded with INTERIOR_FETCHES fetches.
-            let pixels = (last_px.x - first_px.x + 1u) * (last_px.y - first_px.y + 1u);
-            atomicAdd(&counters[0], INTERIOR_FETCHES * pixels);
-            atomicAdd(&counters[2], pixels);
+            list_quad(1u, grid.x * grid.y - 1u, -1, quad);
         } else {
-            let slot = atomicAdd(&tile_dispatch[0], 1u);
-            atomicStore(&tiles[slot], tile);
+            list_quad(0u, 0u, 1, quad);
         }
     }
 }
@@ -597,19 +609,30 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
     // demo, one view at 512²; guided and coarse passes 7–11 % faster in all, the same pixels).
     let lane = vec2<u32>((local_id.y % 2u) * 4u + local_id.x % 4u, (local_id.y / 2u) * 2u + local_id.x / 4u);
     var gid = vec3<u32>(group_id.xy * 8u + lane, 0u);
-    var slot = group_id.x;
+    var slot = 0u;
     if ROLE == 2u || (ROLE == 1u && per_invocation(params.tiled != 0u)) {
-        // Tiles to march from the front of the list, flat ones from the back of its first half,
-        // given-back ones from its second half (see `tiles`).
-        let grid = frame_tiles();
-        let tile_count = grid.x * grid.y;
+        // Quads to march from the front of the list, flat ones from the back of its first half,
+        // given-back ones from its second half (see `tiles`); four quads per workgroup, each
+        // 8-lane batch a 4×2 half of one.
+        let grid = frame_quads();
+        let quad_count = grid.x * grid.y;
+        let invocation = local_id.y * 8u + local_id.x;
+        let k = 4u * group_id.x + invocation / 16u;
+        var list = 0u;
+        slot = k;
         if ROLE == 2u {
-            slot = tile_count - 1u - group_id.x;
+            list = 1u;
+            slot = quad_count - 1u - k;
         } else if per_invocation(params.tiled == 2u) {
-            slot = tile_count + group_id.x;
+            list = 2u;
+            slot = quad_count + k;
         }
-        let tile = atomicLoad(&tiles[slot]) & 0x7fffffffu;
-        gid = vec3<u32>(vec2<u32>(tile & 0xffffu, tile >> 16u) * 8u + lane, 0u);
+        if k >= atomicLoad(&tile_dispatch[9u + list]) {
+            return;
+        }
+        let quad = atomicLoad(&tiles[slot]) & 0x7fffffffu;
+        let within = invocation % 16u;
+        gid = vec3<u32>(vec2<u32>(quad & 0xffffu, quad >> 16u) * 4u + vec2<u32>(within % 4u, within / 4u), 0u);
     }
     if gid.x >= params.width || gid.y >= params.height {
         return;

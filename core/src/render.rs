@@ -109,10 +109,10 @@ pub struct RenderOptions {
     pub method: Method,
     /// Coarse-to-fine guidance, default method only: first render every `guide`-th pixel per
     /// axis (2–16), and let their hits bound each pixel's march. A pixel whose 3×3 coarse
-    /// neighbours all missed far from any surface is skipped (and an 8×8 tile of such pixels
+    /// neighbours all missed far from any surface is skipped (and a 4×4 quad of such pixels
     /// is never dispatched); where one passed close to a surface (a thin feature between the
     /// samples), the pixel marches from a step before where that neighbour first came close.
-    /// Flat 8×8 tiles (every coarse neighbour hit, a smooth depth between them) are shaded at
+    /// Flat 4×4 quads (every coarse neighbour hit, a smooth depth between them) are shaded at
     /// depths interpolated between the coarse hits, without marching, unless no camera agrees
     /// there. The coarse pass is guided the same way by one 4×
     /// coarser, when that has at least 4 pixels a side. 0: off; `None`: [`DEFAULT_GUIDE`] for
@@ -307,7 +307,7 @@ struct Targets {
     counters: wgpu::Buffer,
     readback: wgpu::Buffer,
     group: wgpu::BindGroup,
-    /// Parameters and bind group of the pass that marches the flat tiles the interior pass
+    /// Parameters and bind group of the pass that marches the flat quads the interior pass
     /// gave back.
     given_back_uniform: wgpu::Buffer,
     given_back_group: wgpu::BindGroup,
@@ -315,7 +315,7 @@ struct Targets {
     coarse: CoarseLevel,
     pre: CoarseLevel,
     /// The indirect dispatch size of a compacted guided pass (counted in `tile_dispatch` as
-    /// `cs_tiles` lists the tiles in a buffer only the bind groups hold, copied to `tile_args`:
+    /// `cs_tiles` lists the quads in a buffer only the bind groups hold, copied to `tile_args`:
     /// one buffer cannot be bound as storage and read as dispatch arguments by the same pass).
     tile_dispatch: wgpu::Buffer,
     tile_args: wgpu::Buffer,
@@ -351,13 +351,13 @@ const PIPELINE_DEFAULT: u32 = 2;
 const PIPELINE_BOTH: u32 = 3;
 /// [`Renderer::pipeline`] roles (render.wgsl `ROLE`): a plain pass (not guided, guiding
 /// nothing); any marching pass of a guided frame (its coarse passes, its guided pass, the pass
-/// over the tiles the interior pass gave back), which their parameters tell apart; the interior
-/// pass over the flat tiles `cs_tiles` lists.
+/// over the quads the interior pass gave back), which their parameters tell apart; the interior
+/// pass over the flat quads `cs_tiles` lists.
 const ROLE_PLAIN: u32 = 0;
 const ROLE_GUIDED: u32 = 1;
 const ROLE_INTERIOR: u32 = 2;
 
-/// Largest second difference of a flat tile's coarse z-depths (render.wgsl `cs_tiles`), in
+/// Largest second difference of a flat quad's coarse z-depths (render.wgsl `cs_tiles`), in
 /// tolerances: bilinear interpolation between them is then within an eighth of it per axis of
 /// a smooth surface through them, at most one tolerance in all. There the cameras' colours
 /// still get some weight (full weight within half a tolerance), a depth that far off shifts
@@ -438,17 +438,23 @@ fn tile_grid(width: u32, height: u32) -> (u32, u32) {
     (width.div_ceil(8), height.div_ceil(8))
 }
 
+/// The 4×4 quads a compacted pass over `width` × `height` pixels lists (render.wgsl
+/// `cs_tiles`), per row and per column.
+fn quad_grid(width: u32, height: u32) -> (u32, u32) {
+    (width.div_ceil(4), height.div_ceil(4))
+}
+
 /// Bytes of a compacted guided frame's indirect dispatch sizes: three (x, y, z) triples (the
-/// tiles to march, the flat tiles, the flat tiles given back to be marched; render.wgsl
-/// `tile_dispatch`), padded to 16-byte rows.
+/// quads to march, the flat quads, the flat quads given back to be marched; four quads per
+/// workgroup), then the three lists' lengths in quads (render.wgsl `tile_dispatch`).
 const TILE_ARGS_SIZE: u64 = 48;
 /// Byte offsets of the second and third triple.
 const INTERIOR_ARGS: u64 = 12;
 const GIVEN_BACK_ARGS: u64 = 24;
 
-/// Most tiles a compacted guided pass may list: its indirect dispatch counts them along one
-/// axis, whose size every device allows up to 65 535 (frames up to about 2048²; a larger frame
-/// is guided without compaction).
+/// Most workgroups (four listed quads each) a compacted guided pass may dispatch: its indirect
+/// dispatch counts them along one axis, whose size every device allows up to 65 535 (frames up
+/// to about 2048²; a larger frame is guided without compaction).
 const MAX_TILES: u32 = 65_535;
 
 /// Pixels per row of a coarse pass's output: a multiple of 64, so that its rows (8 bytes a
@@ -520,7 +526,7 @@ pub struct Renderer {
     /// off ([`Renderer::set_tile_compaction`]).
     tiles_pipeline: wgpu::ComputePipeline,
     compaction: std::sync::atomic::AtomicBool,
-    /// Whether compacted guided passes send flat tiles to the interior pass (on unless a test
+    /// Whether compacted guided passes send flat quads to the interior pass (on unless a test
     /// turns it off, [`Renderer::set_interior`]).
     interior: std::sync::atomic::AtomicBool,
     /// Per-pass timing ([`PASS_TIMING_VARIABLE`] at creation, or
@@ -959,7 +965,7 @@ impl Renderer {
             pixels * 8 + 16,
             wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
         );
-        let (columns, rows) = tile_grid(width, height);
+        let (columns, rows) = quad_grid(width, height);
         // Two lists (render.wgsl `tiles`).
         let tiles = make(
             "render tiles",
@@ -978,8 +984,8 @@ impl Renderer {
             TILE_ARGS_SIZE,
             wgpu::BufferUsages::INDIRECT | wgpu::BufferUsages::COPY_DST,
         );
-        // Three dispatch sizes (x, 1, 1), none counted yet: the tiles to march, the flat tiles,
-        // the flat tiles given back.
+        // Three dispatch sizes (x, 1, 1), none counted yet: the quads to march, the flat quads,
+        // the flat quads given back; then their three lengths, 0.
         let tile_reset = {
             use wgpu::util::DeviceExt;
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -1022,7 +1028,7 @@ impl Renderer {
             [&uniform, &color, &depth, &counters],
             &coarse_view,
         );
-        // The pass marching the tiles the interior pass gave back: the frame's, but for its
+        // The pass marching the quads the interior pass gave back: the frame's, but for its
         // parameters (`tiled` = 2).
         let given_back_uniform = make("render given-back params", params_size, uniform_usage);
         let given_back_group = group(
@@ -1065,8 +1071,8 @@ impl Renderer {
         }
     }
 
-    /// Records a tile listing (`cs_tiles`, one invocation per 8×8 tile of a `columns` × `rows`
-    /// grid, in 8×8 workgroups) for the pass whose bind group is `group`, leaving its indirect
+    /// Records a quad listing (`cs_tiles`, one invocation per 4×4 quad of a `width` × `height`
+    /// pass, in 8×8 workgroups) for the pass whose bind group is `group`, leaving its indirect
     /// dispatch sizes in `targets.tile_args`.
     fn list_tiles(
         &self,
@@ -1074,8 +1080,9 @@ impl Renderer {
         targets: &Targets,
         group: &wgpu::BindGroup,
         field_group: &wgpu::BindGroup,
-        (columns, rows): (u32, u32),
+        (width, height): (u32, u32),
     ) {
+        let (columns, rows) = quad_grid(width, height);
         encoder.copy_buffer_to_buffer(
             &targets.tile_reset,
             0,
@@ -1214,13 +1221,14 @@ impl Renderer {
             fine.coarse_width = cw;
             fine.coarse_height = ch;
         }
-        // A guided pass is compacted: `cs_tiles` lists the 8×8 tiles with some pixel to march
-        // and the pass runs one workgroup per listed tile; the rest of its output stays cleared
+        // A guided pass is compacted: `cs_tiles` lists the 4×4 quads with some pixel to march
+        // and the pass runs one workgroup per four listed quads; the rest of its output stays cleared
         // (a miss). Lavapipe would run every instruction for a skipped pixel anyway. The frame's
         // pass and a coarse pass guided by a pre-coarse one are compacted alike.
         let (columns, rows) = tile_grid(view.width, view.height);
+        let (quad_columns, quad_rows) = quad_grid(view.width, view.height);
         let tiled = coarse.is_some()
-            && u64::from(columns) * u64::from(rows) <= u64::from(MAX_TILES)
+            && (u64::from(quad_columns) * u64::from(quad_rows)).div_ceil(4) <= u64::from(MAX_TILES)
             && self.compaction.load(std::sync::atomic::Ordering::Relaxed);
         for (i, &(level, (w, h), focal)) in levels.iter().enumerate() {
             let mut level_params = RenderParams {
@@ -1241,7 +1249,7 @@ impl Renderer {
                 .write_buffer(&level.uniform, 0, bytemuck::bytes_of(&level_params));
         }
         fine.tiled = u32::from(tiled);
-        // Flat tiles skip the march (default method only: the fixed baseline marches every
+        // Flat quads skip the march (default method only: the fixed baseline marches every
         // pixel it renders).
         let interior = tiled
             && methods == PIPELINE_DEFAULT
@@ -1275,13 +1283,7 @@ impl Renderer {
             let compact = tiled && i > 0;
             if compact {
                 encoder.clear_buffer(&level.depth, 0, None);
-                self.list_tiles(
-                    &mut encoder,
-                    targets,
-                    &level.group,
-                    &field.group,
-                    (level_columns, level_rows),
-                );
+                self.list_tiles(&mut encoder, targets, &level.group, &field.group, (cw, ch));
             }
             record_pass(
                 &mut encoder,
@@ -1330,7 +1332,7 @@ impl Renderer {
                 targets,
                 &targets.group,
                 &field.group,
-                (columns, rows),
+                (view.width, view.height),
             );
             encoder = timer.split(gpu, encoder, "tiles")?;
         }
