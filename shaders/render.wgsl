@@ -212,7 +212,7 @@ fn probe(cam: Camera, k: u32, x: vec3<f32>, edge_aware: bool) -> Probe {
     // The front layer's share of the footprint: a front texel counts 1, a back one 0, an edge
     // texel sigma = 1 − (1 − front_mass) / e, so that between it and a front texel the share
     // falls to `front_mass` exactly at the silhouette, e of the way from the front texel.
-    // The interior pass (ROLE 2: flat tiles, no silhouette near the eye's ray) reads edge
+    // The interior pass (ROLE 2: flat quads, no silhouette near the eye's ray) reads edge
     // texels as plain no hit: the same pixels (bunny and demo, 12 views at 256², masked PSNR
     // within 0.002 dB), 1.9 ms less per 512² bunny frame.
     let edges = edge & vec4<bool>(ROLE != 2u);
@@ -602,7 +602,8 @@ fn cs_tiles(@builtin(global_invocation_id) gid: vec3<u32>) {
 @compute @workgroup_size(8, 8, 1)
 fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgroup_id) group_id: vec3<u32>, @builtin(local_invocation_id) local_id: vec3<u32>) {
     g_invocation = global_id.x;
-    // Which pixel of its 8×8 tile an invocation renders. Lavapipe runs a workgroup as 8-lane
+    // Which pixel of its 8×8 tile an invocation renders (a compacted pass maps the workgroup
+    // onto four listed quads below, each batch a 4×2 half of one). Lavapipe runs a workgroup as 8-lane
     // SIMD batches of consecutive invocations, one row of the tile each, and a batch marches
     // as long as its slowest lane; each batch takes a 4×2 block of pixels instead, whose
     // marches are more alike (lane-steps of the guided pass −16 % on the bunny, −18 % on the

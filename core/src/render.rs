@@ -1570,13 +1570,17 @@ fn footprint_texels(codes: &[u16], n: usize) -> Vec<u8> {
     out
 }
 
-/// The marcher's direction lookup ([`geometry::CameraSet::direction_lookup`]) as a texture,
-/// built once per process.
+/// The marcher's direction lookup ([`geometry::CameraSet::direction_lookup`] at
+/// [`geometry::DIRECTION_LOOKUP_SIZE`]), built once per process.
+fn direction_lookup() -> &'static [u16] {
+    static LOOKUP: std::sync::OnceLock<Vec<u16>> = std::sync::OnceLock::new();
+    LOOKUP.get_or_init(|| geometry::camera_set().direction_lookup(geometry::DIRECTION_LOOKUP_SIZE))
+}
+
+/// [`direction_lookup`] as a texture.
 fn direction_lookup_texture(gpu: &Gpu) -> wgpu::TextureView {
     use wgpu::util::DeviceExt;
-    static LOOKUP: std::sync::OnceLock<Vec<u16>> = std::sync::OnceLock::new();
     let n = geometry::DIRECTION_LOOKUP_SIZE;
-    let lookup = LOOKUP.get_or_init(|| geometry::camera_set().direction_lookup(n));
     gpu.device
         .create_texture_with_data(
             &gpu.queue,
@@ -1595,7 +1599,7 @@ fn direction_lookup_texture(gpu: &Gpu) -> wgpu::TextureView {
                 view_formats: &[],
             },
             wgpu::util::TextureDataOrder::LayerMajor,
-            bytemuck::cast_slice(lookup),
+            bytemuck::cast_slice(direction_lookup()),
         )
         .create_view(&wgpu::TextureViewDescriptor::default())
 }
@@ -1608,10 +1612,9 @@ mod tests {
     /// The shader's `locate`, replayed on the CPU in f32 with the same lookup: the triangle
     /// and the weights of its cameras.
     fn locate_like_shader(p: Vec3, level: u32) -> (usize, [u32; 3], [f32; 3]) {
-        static LOOKUP: std::sync::OnceLock<Vec<u16>> = std::sync::OnceLock::new();
         let set = geometry::camera_set();
         let n = geometry::DIRECTION_LOOKUP_SIZE;
-        let lookup = LOOKUP.get_or_init(|| set.direction_lookup(n));
+        let lookup = direction_lookup();
         let (i, j) = geometry::octahedral_texel(p, n);
         let finest = u32::from(lookup[(j * n + i) as usize]);
         let l = level.min(geometry::MAX_LEVEL);

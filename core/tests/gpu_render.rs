@@ -1546,7 +1546,7 @@ fn coarse_to_fine_guide_keeps_quality_and_skips_work() {
         p.masked_psnr, p.mask_mismatch_px, g.masked_psnr, g.mask_mismatch_px
     );
     // The guide changes where marches start and stop, not what they find: masked PSNR within
-    // 0.3 dB, median depth error at most 10 % worse (the interior pass's flat tiles are not
+    // 0.3 dB, median depth error at most 10 % worse (the interior pass's flat quads are not
     // marched; their depth is as good or better, see `interior_pass_matches_marching`),
     // coverage mismatches at most 10 % more.
     assert!(
@@ -1653,7 +1653,7 @@ fn coarse_to_fine_guide_keeps_small_and_far_objects() {
 #[test]
 fn tile_compaction_and_pass_timing_change_no_pixel() {
     // A guided pass (the frame's, and a coarse pass guided by a pre-coarse one) runs only the
-    // 8×8 tiles `cs_tiles` lists (some pixel with a coarse neighbour that hit or passed near a
+    // 4×4 quads `cs_tiles` lists (some pixel with a coarse neighbour that hit or passed near a
     // surface); every other pixel must be a miss anyway.
     // Exact equality: compaction changes which workgroups run, never what a pixel computes.
     // (With the interior pass off: it comes with compaction and does change pixels, within
@@ -1731,7 +1731,7 @@ fn tile_compaction_and_pass_timing_change_no_pixel() {
 
 #[test]
 fn interior_pass_matches_marching() {
-    // The interior pass shades the flat tiles of a guided frame (every coarse pixel around them
+    // The interior pass shades the flat quads of a guided frame (every coarse pixel around them
     // hit, no large second difference of their depths) at depths interpolated between the
     // coarse pass's, instead of marching them. Same frames with it on and off.
     let renderer = own_renderer();
