@@ -48,6 +48,9 @@ struct RenderParams {
     coarse_height: u32,
     // Pixels per row of the output buffers (a coarse pass pads rows for a texture copy).
     row_stride: u32,
+    // Quads per workgroup of the interior pass: 4, or 16 when it shades 2×2 blocks of pixels
+    // (ROLE 4).
+    interior_group_quads: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
@@ -73,7 +76,8 @@ struct RenderParams {
 // Uniform, not storage, buffers: lavapipe reads a storage buffer one lane at a time, a uniform
 // one as a vector gather (the frame time halved). The sizes come from the camera set
 // (shaders.rs `render_source`).
-@group(1) @binding(0) var<uniform> cameras: array<Camera, CAMERA_COUNT>;
+// The cameras: position and the index of the world axis their frame is built from (`camera`).
+@group(1) @binding(0) var<uniform> cameras: array<vec4<f32>, CAMERA_COUNT>;
 @group(1) @binding(1) var<uniform> hierarchy: array<HierTriangle, TRIANGLE_COUNT>;
 // The level-MAX_LEVEL triangle of each direction (octahedral map; `locate`).
 @group(1) @binding(5) var direction_lookup: texture_2d<u32>;
@@ -86,13 +90,16 @@ const METHOD_FIXED: u32 = 0u;
 // Pipeline specialisation. Lavapipe runs 8 pixels in SIMD lockstep and executes every branch of
 // an `if` for them, taken or not, so code a pass cannot use is compiled out instead of skipped:
 // METHODS is the marching methods this pipeline serves (1 = fixed, 2 = default, 3 = both, per
-// pixel). ROLE: 0 for a plain pass (not guided, guiding nothing); 1 for the passes of a guided
-// frame, which its parameters tell apart (`coarse_pass`, `guided_pass`); 2 for the interior pass
-// of a guided frame (`shade_interior`). The passes of a guided frame share one pipeline because
-// lavapipe keeps only so many instructions of compiled shaders (LLVM IR, all pipelines
-// together) and recompiles what it evicted: with one pipeline per pass it rebuilt one to three
-// shaders every frame, reading them from Mesa's shader cache (or, without one, compiling them:
-// 0.7 s a frame).
+// pixel). ROLE: 0 for a plain pass (not guided, guiding nothing); 1 for the marching passes of a
+// guided frame at full resolution (the guided pass and the pass over the quads the interior pass
+// gives back); 2 for the interior pass of a guided frame (`shade_interior`); 3 for its coarse
+// passes (pre-coarse and coarse, which their parameters tell apart: `guided_pass`), which mark
+// near misses and need no colour; 4 for the interior pass shading a 2×2 block of pixels per
+// invocation (`shade_interior_block`). Lavapipe runs all of a pipeline's code for every 8-pixel batch,
+// so code for another role costs every batch: the coarse passes without the shading code are
+// 0.3–0.4 ms faster per 512² demo frame. (A pipeline of its own per pass once made lavapipe
+// evict and rebuild shaders every frame — it keeps only so many LLVM instructions of compiled
+// shaders — but that was a branch on uniform values alone, below; none is rebuilt now.)
 override METHODS: u32 = 3u;
 override ROLE: u32 = 0u;
 
@@ -111,12 +118,17 @@ fn per_invocation(decision: bool) -> bool {
 
 // A coarse pass marks near misses for the pass it guides.
 fn coarse_pass() -> bool {
-    return ROLE == 1u && per_invocation(params.near_scale > 0.0);
+    return ROLE == 3u && per_invocation(params.near_scale > 0.0);
 }
 
 // A coarse pass's depths bound a guided pass's marches.
 fn guided_pass() -> bool {
-    return ROLE == 1u && per_invocation(params.coarse_factor != 0u);
+    return (ROLE == 1u || ROLE == 3u) && per_invocation(params.coarse_factor != 0u);
+}
+
+// The interior pass of a guided frame, one pixel per invocation or two.
+fn interior_role() -> bool {
+    return ROLE == 2u || ROLE == 4u;
 }
 
 // Whether this pixel marches with the fixed-step baseline.
@@ -162,11 +174,11 @@ struct Probe {
 }
 
 fn project(cam: Camera, x: vec3<f32>) -> vec4<f32> {
-    let q = x - cam.position.xyz;
+    let q = x - cam.position;
     let len = length(q);
-    let qz = dot(q, cam.z.xyz);
+    let qz = dot(q, cam.z);
     // uv = r.xy / (1 + r.z) for the unit direction r = q / |q|, with one division.
-    let uv = vec2<f32>(dot(q, cam.x.xyz), dot(q, cam.y.xyz)) / max(len + qz, 1e-6 * max(len, 1e-12));
+    let uv = vec2<f32>(dot(q, cam.x), dot(q, cam.y)) / max(len + qz, 1e-6 * max(len, 1e-12));
     let tc = (uv + 1.0) * 0.5 * params.resolution;
     // (texel x, texel y, |x − p|, chord 2·r_z)
     return vec4<f32>(tc, len, 2.0 * qz / max(len, 1e-12));
@@ -212,10 +224,10 @@ fn probe(cam: Camera, k: u32, x: vec3<f32>, edge_aware: bool) -> Probe {
     // The front layer's share of the footprint: a front texel counts 1, a back one 0, an edge
     // texel sigma = 1 − (1 − front_mass) / e, so that between it and a front texel the share
     // falls to `front_mass` exactly at the silhouette, e of the way from the front texel.
-    // The interior pass (ROLE 2: flat quads, no silhouette near the eye's ray) reads edge
+    // The interior pass (ROLE 2 and 4: flat quads, no silhouette near the eye's ray) reads edge
     // texels as plain no hit: the same pixels (bunny and demo, 12 views at 256², masked PSNR
     // within 0.002 dB), 1.9 ms less per 512² bunny frame.
-    let edges = edge & vec4<bool>(ROLE != 2u);
+    let edges = edge & vec4<bool>(!interior_role());
     let sigma = vec4<f32>(1.0) - ((1.0 - params.front_mass) * f32(EDGE_E_LEVELS)) / (vec4<f32>(rel >> vec4<u32>(9u)) + 0.5);
     let share = select(select(vec4<f32>(0.0), sigma, edges), vec4<f32>(1.0), front);
     let chosen = dot(bw, share) >= params.front_mass;
@@ -408,10 +420,11 @@ fn frame_quads() -> vec2<u32> {
 }
 
 // Appends quad `entry` to list `list` (0: to march, 1: flat, 2: given back), whose k-th entry
-// lives at `tiles[first + step · k]`, and counts a workgroup for every fourth.
+// lives at `tiles[first + step · k]`, and counts a workgroup for every fourth (every
+// `interior_group_quads`-th of the flat ones).
 fn list_quad(list: u32, first: u32, step: i32, entry: u32) {
     let k = atomicAdd(&tile_dispatch[9u + list], 1u);
-    if k % 4u == 0u {
+    if k % select(4u, params.interior_group_quads, list == 1u) == 0u {
         atomicAdd(&tile_dispatch[3u * list], 1u);
     }
     atomicStore(&tiles[u32(i32(first) + step * i32(k))], entry);
@@ -470,7 +483,7 @@ fn shade(o: vec3<f32>, d: vec3<f32>, z_rate: f32, t: f32, loc: Located, c0: Came
         color += w * c;
         total += w;
         if newton && agree >= 1.0 && loc.weights[i] > 0.0 {
-            correction = max(correction, pb.f / max(dot(d, normalize(x - cam.position.xyz)), 0.2));
+            correction = max(correction, pb.f / max(dot(d, normalize(x - cam.position)), 0.2));
         }
         if abs(pb.f) < fallback_f {
             fallback_f = abs(pb.f);
@@ -496,7 +509,68 @@ fn shade(o: vec3<f32>, d: vec3<f32>, z_rate: f32, t: f32, loc: Located, c0: Came
 // with the interpolated point (a gap or an edge narrower than the coarse pixels, which their
 // depths cannot show), the quad is given back: listed once, it is marched by the next pass.
 fn shade_interior(gid: vec2<u32>, index: u32, o: vec3<f32>, d: vec3<f32>, z_rate: f32, slot: u32) {
-    let cc = coarse_position(gid);
+    let loc = locate(sphere_entry(o, d), g_level);
+    let shaded = shade(o, d, z_rate, interior_t(gid, z_rate), loc, camera(loc.cameras.x), camera(loc.cameras.y), camera(loc.cameras.z), true);
+    out_color[index] = shaded.color;
+    out_depth[index] = shaded.z;
+    // Its work is counted by `cs_tiles`, per quad.
+    if !shaded.agreed {
+        give_back(slot);
+    }
+}
+
+// The interior pass with a 2×2 block of pixels per invocation (ROLE 4): they take the cameras
+// of the triangle met by the ray through the block's centre, each weighing them by its own
+// direction, so the triangle lookup and the cameras' frames serve all four (per 512² demo frame
+// the interior pass 6.0 → 4.8 ms; two pixels per invocation: 5.0 ms). A pixel whose direction
+// lies outside that triangle is off by at most the angle between its entry into the camera
+// sphere and the centre ray's, as a direction near a triangle's edge is off with the lookup
+// itself (`locate`); the renderer uses blocks only where that angle cannot exceed the lookup's
+// reach (`INTERIOR_BLOCK_REACH` in render.rs).
+fn shade_interior_block(gid: vec2<u32>, index: u32, o: vec3<f32>, slot: u32) {
+    let loc = locate(sphere_entry(o, pixel_ray(vec2<f32>(gid) + 1.0)), g_level);
+    let c0 = camera(loc.cameras.x);
+    let c1 = camera(loc.cameras.y);
+    let c2 = camera(loc.cameras.z);
+    let a = shade_block_pixel(gid, o, loc.cameras, c0, c1, c2);
+    let b = shade_block_pixel(gid + vec2<u32>(1u, 0u), o, loc.cameras, c0, c1, c2);
+    let c = shade_block_pixel(gid + vec2<u32>(0u, 1u), o, loc.cameras, c0, c1, c2);
+    let e = shade_block_pixel(gid + vec2<u32>(1u, 1u), o, loc.cameras, c0, c1, c2);
+    // The block's right column or bottom row lies outside a frame of odd width or height.
+    let right = gid.x + 1u < params.width;
+    let below = gid.y + 1u < params.height;
+    out_color[index] = a.color;
+    out_depth[index] = a.z;
+    if right {
+        out_color[index + 1u] = b.color;
+        out_depth[index + 1u] = b.z;
+    }
+    if below {
+        out_color[index + params.row_stride] = c.color;
+        out_depth[index + params.row_stride] = c.z;
+    }
+    if right & below {
+        out_color[index + params.row_stride + 1u] = e.color;
+        out_depth[index + params.row_stride + 1u] = e.z;
+    }
+    let agreed = a.agreed & (b.agreed | !right) & (c.agreed | !below) & (e.agreed | !(right & below));
+    if !agreed {
+        give_back(slot);
+    }
+}
+
+// One pixel of an interior block: shaded with the block's cameras, weighed by its own direction.
+fn shade_block_pixel(p: vec2<u32>, o: vec3<f32>, cams: vec3<u32>, c0: Camera, c1: Camera, c2: Camera) -> Shaded {
+    let d = pixel_ray(vec2<f32>(p) + 0.5);
+    let z_rate = dot(d, params.forward) * params.depth_scale;
+    let loc = Located(cams, triangle_weights(sphere_entry(o, d), c0.position, c1.position, c2.position));
+    return shade(o, d, z_rate, interior_t(p, z_rate), loc, c0, c1, c2, true);
+}
+
+// The interior pass's ray parameter for fine pixel p: the z-depth interpolated between its four
+// nearest coarse pixels (all hits in a flat quad), over the ray's z-depth per unit of t.
+fn interior_t(p: vec2<u32>, z_rate: f32) -> f32 {
+    let cc = coarse_position(p);
     let base = vec2<i32>(floor(cc));
     let fr = cc - floor(cc);
     let last = vec2<i32>(i32(params.coarse_width) - 1, i32(params.coarse_height) - 1);
@@ -505,20 +579,33 @@ fn shade_interior(gid: vec2<u32>, index: u32, o: vec3<f32>, d: vec3<f32>, z_rate
     let z01 = textureLoad(coarse, clamp(base + vec2<i32>(0, 1), vec2<i32>(0), last), 0).x;
     let z11 = textureLoad(coarse, clamp(base + vec2<i32>(1, 1), vec2<i32>(0), last), 0).x;
     let z = mix(mix(z00, z10, fr.x), mix(z01, z11, fr.x), fr.y);
-    let t = max(z / z_rate, 0.0);
-    let cs = sphere_roots(o, d, 1.0);
-    let loc = locate(normalize(o + cs.x * d), g_level);
-    let shaded = shade(o, d, z_rate, t, loc, cameras[loc.cameras.x], cameras[loc.cameras.y], cameras[loc.cameras.z], true);
-    out_color[index] = shaded.color;
-    out_depth[index] = shaded.z;
-    // Its work is counted by `cs_tiles`, per quad.
-    if !shaded.agreed {
-        let entry = atomicOr(&tiles[slot], 0x80000000u);
-        if entry < 0x80000000u {
-            let grid = frame_quads();
-            list_quad(2u, grid.x * grid.y, 1, entry);
-        }
+    return max(z / z_rate, 0.0);
+}
+
+// Lists a flat quad the interior pass could not shade (no camera agreed with some pixel) once,
+// to be marched by the next pass.
+fn give_back(slot: u32) {
+    let entry = atomicOr(&tiles[slot], 0x80000000u);
+    if entry < 0x80000000u {
+        let grid = frame_quads();
+        list_quad(2u, grid.x * grid.y, 1, entry);
     }
+}
+
+// The eye ray through point p of the image (in pixels from its top-left corner: pixel (i, j)
+// has its centre at (i + 0.5, j + 0.5)), unit.
+fn pixel_ray(p: vec2<f32>) -> vec3<f32> {
+    let px = (p.x - 0.5 * f32(params.width)) / params.focal_px;
+    let py = -(p.y - 0.5 * f32(params.height)) / params.focal_px;
+    return normalize(px * params.right + py * params.up + params.forward);
+}
+
+// The line o + t·d's first intersection with the camera sphere, as a direction from its centre:
+// it picks the three cameras (seed 000 §2), and exists whenever the line meets the bounding
+// sphere inside it.
+fn sphere_entry(o: vec3<f32>, d: vec3<f32>) -> vec3<f32> {
+    let cs = sphere_roots(o, d, 1.0);
+    return normalize(o + cs.x * d);
 }
 
 // What `shade` counts per camera for an edge-aware pixel: one footprint and four colour loads.
@@ -611,17 +698,21 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
     let lane = vec2<u32>((local_id.y % 2u) * 4u + local_id.x % 4u, (local_id.y / 2u) * 2u + local_id.x / 4u);
     var gid = vec3<u32>(group_id.xy * 8u + lane, 0u);
     var slot = 0u;
-    if ROLE == 2u || (ROLE == 1u && per_invocation(params.tiled != 0u)) {
+    let interior = interior_role();
+    if interior || ((ROLE == 1u || ROLE == 3u) && per_invocation(params.tiled != 0u)) {
         // Quads to march from the front of the list, flat ones from the back of its first half,
         // given-back ones from its second half (see `tiles`); four quads per workgroup, each
-        // 8-lane batch a 4×2 half of one.
+        // 8-lane batch a 4×2 half of one (ROLE 4: sixteen quads, each batch two, each
+        // invocation a 2×2 block; smaller workgroups of fewer quads each made the pass
+        // 0.3–0.5 ms slower on the demo).
         let grid = frame_quads();
         let quad_count = grid.x * grid.y;
         let invocation = local_id.y * 8u + local_id.x;
-        let k = 4u * group_id.x + invocation / 16u;
+        let per_quad = select(16u, 4u, ROLE == 4u);
+        let k = (64u / per_quad) * group_id.x + invocation / per_quad;
         var list = 0u;
         slot = k;
-        if ROLE == 2u {
+        if interior {
             list = 1u;
             slot = quad_count - 1u - k;
         } else if per_invocation(params.tiled == 2u) {
@@ -632,8 +723,9 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
             return;
         }
         let quad = atomicLoad(&tiles[slot]) & 0x7fffffffu;
-        let within = invocation % 16u;
-        gid = vec3<u32>(vec2<u32>(quad & 0xffffu, quad >> 16u) * 4u + vec2<u32>(within % 4u, within / 4u), 0u);
+        let within = invocation % per_quad;
+        let in_quad = select(vec2<u32>(within % 4u, within / 4u), vec2<u32>(within % 2u, within / 2u) * 2u, ROLE == 4u);
+        gid = vec3<u32>(vec2<u32>(quad & 0xffffu, quad >> 16u) * 4u + in_quad, 0u);
     }
     if gid.x >= params.width || gid.y >= params.height {
         return;
@@ -652,14 +744,16 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
     if coarse_pass() {
         out_depth[di + 1u] = -1.0;
     }
-    let px = (f32(gid.x) + 0.5 - 0.5 * f32(params.width)) / params.focal_px;
-    let py = -(f32(gid.y) + 0.5 - 0.5 * f32(params.height)) / params.focal_px;
-    let d = normalize(px * params.right + py * params.up + params.forward);
+    let d = pixel_ray(vec2<f32>(gid.xy) + 0.5);
     let o = params.eye;
     // z-depth per unit of t along this ray.
     let z_rate = dot(d, params.forward) * params.depth_scale;
     if ROLE == 2u {
         shade_interior(gid.xy, index, o, d, z_rate, slot);
+        return;
+    }
+    if ROLE == 4u {
+        shade_interior_block(gid.xy, index, o, slot);
         return;
     }
     // A coarse pass grows the sphere and box by its reach at their far side and marches what
@@ -788,15 +882,11 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
             }
         }
     }
-    // The line's first intersection with the camera sphere picks the three cameras (seed 000 §2);
-    // it exists whenever the line meets the bounding sphere inside it.
-    let cs = sphere_roots(o, d, 1.0);
-    let entry = normalize(o + cs.x * d);
-    let loc = locate(entry, g_level);
-    // Each camera's frame is read once per pixel, not once per probe.
-    let c0 = cameras[loc.cameras.x];
-    let c1 = cameras[loc.cameras.y];
-    let c2 = cameras[loc.cameras.z];
+    let loc = locate(sphere_entry(o, d), g_level);
+    // Each camera's frame is derived once per pixel, not once per probe.
+    let c0 = camera(loc.cameras.x);
+    let c1 = camera(loc.cameras.y);
+    let c2 = camera(loc.cameras.z);
     var m: March;
     if is_fixed() {
         m = march_fixed(o, d, t_in, t_out, loc.cameras, c0, c1, c2);
@@ -810,10 +900,16 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
         out_depth[di + 1u] = select(m.near_last * z_rate, 1e30, reach_t < 1e29);
     }
     if m.hit {
-        let shaded = shade(o, d, z_rate, m.t, loc, c0, c1, c2, false);
-        out_color[index] = shaded.color;
-        out_depth[di] = shaded.z;
-        fetches += shaded.fetches;
+        if ROLE == 3u {
+            // A coarse pass's depth is the march's (shading without a Newton step would not
+            // move it); nothing reads its colour.
+            out_depth[di] = m.t * z_rate;
+        } else {
+            let shaded = shade(o, d, z_rate, m.t, loc, c0, c1, c2, false);
+            out_color[index] = shaded.color;
+            out_depth[di] = shaded.z;
+            fetches += shaded.fetches;
+        }
     }
     // Work counters (`count_work`, generated: see shaders.rs).
     count_work(fetches, m.steps, 1u);

@@ -562,17 +562,32 @@ pub fn camera_frame(p: Vec3) -> [Vec3; 3] {
         return [Vec3::X, Vec3::Y, Vec3::Z];
     }
     let z = -d / len;
-    let az = z.abs();
-    let axis = if az.x <= az.y && az.x <= az.z {
-        DVec3::X
-    } else if az.y <= az.z {
-        DVec3::Y
-    } else {
-        DVec3::Z
-    };
+    let axis = [DVec3::X, DVec3::Y, DVec3::Z][camera_frame_axis(p)];
     let x = axis.cross(z).normalize();
     let y = z.cross(x);
     [x.as_vec3(), y.as_vec3(), z.as_vec3()]
+}
+
+/// The world axis (0 = x, 1 = y, 2 = z) that [`camera_frame`] crosses with the camera's `z`
+/// at position `p`: the one least aligned with it, ties broken in f64 as there. The marcher
+/// derives each frame from the position and this index (render.wgsl `camera`), so a tie
+/// that f32 would break otherwise cannot give it another frame. 0 for a zero or non-finite
+/// `p`.
+#[must_use]
+pub fn camera_frame_axis(p: Vec3) -> usize {
+    let d = p.as_dvec3();
+    let len = d.length();
+    if !(d.is_finite() && len > 0.0 && len.is_finite()) {
+        return 0;
+    }
+    let az = (-d / len).abs();
+    if az.x <= az.y && az.x <= az.z {
+        0
+    } else if az.y <= az.z {
+        1
+    } else {
+        2
+    }
 }
 
 // ---------------------------------------------------------------------------

@@ -15,7 +15,6 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use crate::asset::{AssetError, AssetFile, Channel, Encoding, ImageKey};
-use crate::bake::gpu_cameras;
 use crate::frame::{Frame, FrameStats};
 use crate::geometry::{self, CAMERA_COUNTS};
 use crate::gpu::{Gpu, GpuError, array_view, texture_array};
@@ -269,8 +268,10 @@ struct RenderParams {
     coarse_width: u32,
     coarse_height: u32,
     row_stride: u32,
+    interior_group_quads: u32,
+    _pad: [u32; 3],
 }
-const _: () = assert!(std::mem::size_of::<RenderParams>() == 176);
+const _: () = assert!(std::mem::size_of::<RenderParams>() == 192);
 
 /// One setting as the shader takes it: level, step and tolerance in light-field units,
 /// step bound, method code.
@@ -350,12 +351,42 @@ const PIPELINE_FIXED: u32 = 1;
 const PIPELINE_DEFAULT: u32 = 2;
 const PIPELINE_BOTH: u32 = 3;
 /// [`Renderer::pipeline`] roles (render.wgsl `ROLE`): a plain pass (not guided, guiding
-/// nothing); any marching pass of a guided frame (its coarse passes, its guided pass, the pass
-/// over the quads the interior pass gave back), which their parameters tell apart; the interior
-/// pass over the flat quads `cs_tiles` lists.
+/// nothing); a full-resolution marching pass of a guided frame (its guided pass, the pass over
+/// the quads the interior pass gave back); the interior pass over the flat quads `cs_tiles`
+/// lists; the coarse passes of a guided frame (pre-coarse and coarse), which need no shading;
+/// the interior pass shading a 2×2 block of pixels per invocation (see
+/// [`INTERIOR_BLOCK_REACH`]).
 const ROLE_PLAIN: u32 = 0;
 const ROLE_GUIDED: u32 = 1;
 const ROLE_INTERIOR: u32 = 2;
+const ROLE_COARSE: u32 = 3;
+const ROLE_INTERIOR_BLOCKS: u32 = 4;
+
+/// The interior pass shades a 2×2 block of pixels per invocation with the cameras of the
+/// triangle met by the ray through the block's centre (render.wgsl `shade_interior_block`)
+/// where the angle between any of its pixels' entries into the camera sphere and the centre
+/// ray's cannot exceed this (radians): the direction lookup's own reach
+/// ([`geometry::DIRECTION_LOOKUP_REACH`]), so a pixel lies no further outside the triangle whose
+/// weights it takes than the lookup alone may put it, plus that much again. For an eye at
+/// distance `e` from the centre (light-field units, camera sphere radius 1), rays at most
+/// `√2/2` pixel (`0.71 / focal_px` rad) from the centre ray meet the camera sphere at most
+/// `e + 1` along them, and an interior pixel's ray passes within the bounding sphere (radius
+/// `1/√2`), so it meets the camera sphere at least 45° from grazing: the angle is at most
+/// `√2 · (e + 1) · 0.71 / focal_px = (e + 1) / focal_px` ([`interior_block_angle`]; a test
+/// checks it on sampled rays). At 512² and 40° (focal 703 px) that holds up to `e` = 1.95
+/// (2.76 bounding radii from the centre).
+const INTERIOR_BLOCK_REACH: f64 = geometry::DIRECTION_LOOKUP_REACH;
+
+/// The bound of [`INTERIOR_BLOCK_REACH`] for an eye at distance `eye` from the centre
+/// (light-field units) and a focal length of `focal_px` pixels.
+fn interior_block_angle(eye: f64, focal_px: f64) -> f64 {
+    (eye + 1.0) / focal_px
+}
+
+/// [`Renderer::set_interior_blocks`] settings.
+const BLOCKS_AUTOMATIC: u8 = 0;
+const BLOCKS_OFF: u8 = 1;
+const BLOCKS_ON: u8 = 2;
 
 /// Largest second difference of a flat quad's coarse z-depths (render.wgsl `cs_tiles`), in
 /// tolerances: bilinear interpolation between them is then within an eighth of it per axis of
@@ -519,9 +550,9 @@ pub struct Renderer {
     gpu: Arc<Gpu>,
     module: wgpu::ShaderModule,
     layout: wgpu::PipelineLayout,
-    /// Specialised pipelines, built on first use: index `3 · (methods − 1) + role` (see
+    /// Specialised pipelines, built on first use: index `5 · (methods − 1) + role` (see
     /// [`Renderer::pipeline`]).
-    pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 9],
+    pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 15],
     /// Tile compaction of guided passes (render.wgsl `cs_tiles`), on unless a test turns it
     /// off ([`Renderer::set_tile_compaction`]).
     tiles_pipeline: wgpu::ComputePipeline,
@@ -529,6 +560,9 @@ pub struct Renderer {
     /// Whether compacted guided passes send flat quads to the interior pass (on unless a test
     /// turns it off, [`Renderer::set_interior`]).
     interior: std::sync::atomic::AtomicBool,
+    /// Whether the interior pass shades 2×2 blocks: [`BLOCKS_AUTOMATIC`] (by
+    /// [`INTERIOR_BLOCK_REACH`]) unless a test forces it ([`Renderer::set_interior_blocks`]).
+    interior_blocks: std::sync::atomic::AtomicU8,
     /// Per-pass timing ([`PASS_TIMING_VARIABLE`] at creation, or
     /// [`Renderer::set_pass_timing`]).
     pass_timing: std::sync::atomic::AtomicBool,
@@ -654,16 +688,23 @@ impl Renderer {
         };
         let linear = sampler("light-field linear", wgpu::FilterMode::Linear);
         let set = geometry::camera_set();
-        let cameras = gpu_cameras(set.positions.len());
+        // Each camera's position and the axis its frame is built from (render.wgsl `camera`).
+        let cameras: Vec<[f32; 4]> = set
+            .positions
+            .iter()
+            .map(|p| [p.x, p.y, p.z, geometry::camera_frame_axis(*p) as f32])
+            .collect();
         let hierarchy: Vec<[u32; 4]> = set
             .triangles
             .iter()
             .map(|t| [t.v[0], t.v[1], t.v[2], t.first_child])
             .collect();
-        // Uniform buffers (render.wgsl says why). The largest, the cameras, is 41 KiB: within
-        // every Vulkan, Metal and DX12 device's 64 KiB; a smaller limit fails pipeline creation
-        // with a GPU error at the first frame, so say which limit it is here.
-        let largest = std::mem::size_of_val(cameras.as_slice()) as u64;
+        // Uniform buffers (render.wgsl says why). The largest, the hierarchy, is 27 KiB (the
+        // cameras 10 KiB): within every Vulkan, Metal and DX12 device's 64 KiB; a smaller limit
+        // fails pipeline creation with a GPU error at the first frame, so say which limit it is
+        // here.
+        let largest = std::mem::size_of_val(cameras.as_slice())
+            .max(std::mem::size_of_val(hierarchy.as_slice())) as u64;
         let limit = gpu.device.limits().max_uniform_buffer_binding_size;
         if largest > limit {
             tracing::error!(
@@ -697,6 +738,7 @@ impl Renderer {
             tiles_pipeline,
             compaction: std::sync::atomic::AtomicBool::new(true),
             interior: std::sync::atomic::AtomicBool::new(true),
+            interior_blocks: std::sync::atomic::AtomicU8::new(BLOCKS_AUTOMATIC),
             pass_timing: std::sync::atomic::AtomicBool::new(
                 std::env::var_os(PASS_TIMING_VARIABLE).is_some(),
             ),
@@ -709,19 +751,22 @@ impl Renderer {
             targets: Mutex::new(None),
             max_px,
         };
-        // The default method's guided pair serves most frames: build it now, not in the first
-        // frame.
+        // The default method's guided pipelines serve most frames: build them now, not in the
+        // first frame.
         renderer.pipeline(PIPELINE_DEFAULT, ROLE_GUIDED);
         renderer.pipeline(PIPELINE_DEFAULT, ROLE_INTERIOR);
+        renderer.pipeline(PIPELINE_DEFAULT, ROLE_COARSE);
+        renderer.pipeline(PIPELINE_DEFAULT, ROLE_INTERIOR_BLOCKS);
         renderer
     }
 
     /// The marcher specialised for `methods` (1 = fixed, 2 = default, 3 = both, per pixel) and
-    /// `role` ([`ROLE_PLAIN`], [`ROLE_GUIDED`], [`ROLE_INTERIOR`]), built on first use.
-    /// Lavapipe executes both sides of every branch for its 8-pixel batches, so each pass runs
-    /// a pipeline holding only the code it can take (render.wgsl's `METHODS` and `ROLE`).
+    /// `role` ([`ROLE_PLAIN`], [`ROLE_GUIDED`], [`ROLE_INTERIOR`], [`ROLE_COARSE`],
+    /// [`ROLE_INTERIOR_BLOCKS`]), built on first use. Lavapipe executes both sides of every
+    /// branch for its 8-pixel batches, so each pass runs a pipeline holding only the code it can
+    /// take (render.wgsl's `METHODS` and `ROLE`).
     fn pipeline(&self, methods: u32, role: u32) -> &wgpu::ComputePipeline {
-        let index = (3 * (methods.clamp(1, 3) - 1) + role.min(2)) as usize;
+        let index = (5 * (methods.clamp(1, 3) - 1) + role.min(4)) as usize;
         self.pipelines[index].get_or_init(|| {
             compute_pipeline(
                 &self.gpu.device,
@@ -746,6 +791,19 @@ impl Renderer {
     pub fn set_interior(&self, enabled: bool) {
         self.interior
             .store(enabled, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// Forces the interior pass's 2×2 blocks on (`Some(true)`) or off (`Some(false)`) instead
+    /// of choosing them by [`INTERIOR_BLOCK_REACH`] (`None`, the default): for tests.
+    #[doc(hidden)]
+    pub fn set_interior_blocks(&self, blocks: Option<bool>) {
+        let value = match blocks {
+            None => BLOCKS_AUTOMATIC,
+            Some(false) => BLOCKS_OFF,
+            Some(true) => BLOCKS_ON,
+        };
+        self.interior_blocks
+            .store(value, std::sync::atomic::Ordering::Relaxed);
     }
 
     /// Turns per-pass timing on or off (see [`PASS_TIMING_VARIABLE`], which sets it when the
@@ -1181,6 +1239,8 @@ impl Renderer {
             coarse_width: 0,
             coarse_height: 0,
             row_stride: view.width,
+            interior_group_quads: 4,
+            _pad: [0; 3],
         };
         // Coarse-to-fine (`guide`, the first setting's): a coarse pass renders every
         // guide-th pixel per axis, and its depths bound each pixel's march (render.wgsl).
@@ -1254,6 +1314,18 @@ impl Renderer {
         let interior = tiled
             && methods == PIPELINE_DEFAULT
             && self.interior.load(std::sync::atomic::Ordering::Relaxed);
+        let blocks = match self
+            .interior_blocks
+            .load(std::sync::atomic::Ordering::Relaxed)
+        {
+            BLOCKS_OFF => false,
+            BLOCKS_ON => true,
+            _ => interior_block_angle(lf_eye.length(), basis.focal_px) <= INTERIOR_BLOCK_REACH,
+        };
+        if blocks {
+            // 16 quads per workgroup: 4 invocations each (render.wgsl `cs_main`).
+            fine.interior_group_quads = 16;
+        }
         if interior {
             fine.interior_curvature =
                 INTERIOR_CURVATURE * first.tolerance.min(second.tolerance) * field.scale as f32;
@@ -1288,7 +1360,7 @@ impl Renderer {
             record_pass(
                 &mut encoder,
                 "render coarse",
-                self.pipeline(methods, ROLE_GUIDED),
+                self.pipeline(methods, ROLE_COARSE),
                 (&level.group, &field.group),
                 if compact {
                     Workgroups::Indirect(&targets.tile_args, 0)
@@ -1357,7 +1429,14 @@ impl Renderer {
             record_pass(
                 &mut encoder,
                 "render interior",
-                self.pipeline(methods, ROLE_INTERIOR),
+                self.pipeline(
+                    methods,
+                    if blocks {
+                        ROLE_INTERIOR_BLOCKS
+                    } else {
+                        ROLE_INTERIOR
+                    },
+                ),
                 (&targets.group, &field.group),
                 Workgroups::Indirect(&targets.tile_args, INTERIOR_ARGS),
             );
@@ -1608,6 +1687,7 @@ fn direction_lookup_texture(gpu: &Gpu) -> wgpu::TextureView {
 mod tests {
     use super::*;
     use glam::Vec3;
+    use std::f64::consts::FRAC_1_SQRT_2;
 
     /// The shader's `locate`, replayed on the CPU in f32 with the same lookup: the triangle
     /// and the weights of its cameras.
@@ -1731,12 +1811,27 @@ mod tests {
     /// lookup gives direction `p` at `level` and the exact ones of [`geometry::CameraSet::locate`],
     /// and how far (sine of the angle) `p` lies outside the triangle the lookup found.
     fn lookup_error(p: Vec3, level: u32) -> (f32, f32) {
+        lookup_error_at(p, p, level)
+    }
+
+    /// [`lookup_error`] for a direction `p` weighed in the triangle the shader finds for
+    /// another, `c` (an interior block's centre, render.wgsl `shade_interior_block`).
+    fn lookup_error_at(c: Vec3, p: Vec3, level: u32) -> (f32, f32) {
         let set = geometry::camera_set();
-        let (t, cams, w) = locate_like_shader(p, level);
+        let (t, cams, _) = locate_like_shader(c, level);
         assert!(
             set.level_range(level).contains(&t),
             "level {level}: triangle {t}"
         );
+        let [v0, v1, v2] = cams.map(|k| set.positions[k as usize]);
+        let w = Vec3::new(
+            p.dot(v1.cross(v2)),
+            v0.dot(p.cross(v2)),
+            v0.dot(v1.cross(p)),
+        )
+        .max(Vec3::ZERO);
+        let sum = w.x + w.y + w.z;
+        let w = (if sum > 0.0 { w / sum } else { Vec3::X }).to_array();
         let exact = set.locate(p, level);
         let weight_of = |cams: &[u32; 3], w: &[f32; 3], k: u32| {
             cams.iter()
@@ -1834,6 +1929,172 @@ mod tests {
                 worst_w <= bound,
                 "level {level}: weights off by {worst_w} (bound {bound})"
             );
+        }
+    }
+
+    /// The shader's `camera`, replayed on the CPU in f32: the frame of a camera at `p` built
+    /// from the world axis of index `axis`.
+    fn camera_like_shader(p: Vec3, axis: f32) -> [Vec3; 3] {
+        let z = -p.normalize();
+        let a = Vec3::select(
+            Vec3::splat(axis).cmpeq(Vec3::new(0.0, 1.0, 2.0)),
+            Vec3::ONE,
+            Vec3::ZERO,
+        );
+        let x = a.cross(z).normalize();
+        [x, z.cross(x), z]
+    }
+
+    #[test]
+    fn shader_derives_the_camera_frames_of_the_bake() {
+        // Every camera of the set (642, all levels): the frame the marcher derives from the
+        // position and the axis index the renderer uploads equals the CPU's f64 frame, which
+        // the bake rendered with, to f32 rounding (bound 1e-6 per component of the unit
+        // vectors: a 256-texel map's texel spans about 0.008 rad, so a ten-thousandth of one).
+        let set = geometry::camera_set();
+        let mut worst = 0.0f32;
+        for &p in &set.positions {
+            let axis = geometry::camera_frame_axis(p) as f32;
+            let derived = camera_like_shader(p, axis);
+            let exact = geometry::camera_frame(p);
+            for (d, e) in derived.iter().zip(&exact) {
+                worst = worst.max((*d - *e).abs().max_element());
+            }
+        }
+        eprintln!("derived frames off by up to {worst}");
+        assert!(worst <= 1e-6, "{worst}");
+        // The axis index is the one the frame was built from: x is perpendicular to it.
+        for &p in &set.positions {
+            let axis = geometry::camera_frame_axis(p);
+            let [x, _, _] = geometry::camera_frame(p);
+            assert!(x[axis].abs() <= 1e-6, "{p}: axis {axis}, x {x}");
+        }
+    }
+
+    #[test]
+    fn interior_blocks_meet_the_camera_sphere_within_the_bound() {
+        // The rays of a 2×2 block of pixels and the ray through its centre, all passing within
+        // the bounding sphere (as an interior pixel's does), from eyes near and far, outside
+        // and inside the camera sphere, at several focal lengths: where each pixel's ray enters
+        // the camera sphere lies within `interior_block_angle` of where the centre ray does
+        // (f64).
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let entry = |o: glam::DVec3, d: glam::DVec3| -> Option<glam::DVec3> {
+            let b = o.dot(d);
+            let h = 1.0 - (o - b * d).length_squared();
+            (h >= 0.0).then(|| (o + (-b - h.sqrt()) * d).normalize())
+        };
+        let within = |o: glam::DVec3, d: glam::DVec3| (o - o.dot(d) * d).length() <= FRAC_1_SQRT_2;
+        let mut worst = 0.0f64;
+        let mut checked = 0;
+        for &eye in &[0.8, 1.05, 1.77, 3.0, 10.0, 100.0] {
+            for &focal in &[50.0, 352.0, 703.0, 2000.0] {
+                let bound = interior_block_angle(eye, focal);
+                for _ in 0..400 {
+                    // An eye at distance `eye`, looking at a random point of the bounding
+                    // sphere: the block's centre ray; its pixels' rays half a pixel off it
+                    // along two perpendicular image axes.
+                    let random = |next: &mut dyn FnMut() -> f64| {
+                        glam::DVec3::new(next() - 0.5, next() - 0.5, next() - 0.5).normalize()
+                    };
+                    let o = random(&mut next) * eye;
+                    let target = random(&mut next) * next().cbrt() * FRAC_1_SQRT_2;
+                    let centre = (target - o).normalize();
+                    let (right, up) = centre.any_orthonormal_pair();
+                    let Some(ec) = entry(o, centre) else {
+                        continue;
+                    };
+                    for (sx, sy) in [(-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)] {
+                        let d = (centre + (right * sx + up * sy) / focal).normalize();
+                        if !within(o, d) {
+                            continue;
+                        }
+                        let Some(e) = entry(o, d) else {
+                            continue;
+                        };
+                        let angle = e.angle_between(ec);
+                        worst = worst.max(angle / bound);
+                        assert!(
+                            angle <= bound,
+                            "eye {eye}, focal {focal}: {angle} > {bound}"
+                        );
+                        checked += 1;
+                    }
+                }
+            }
+        }
+        eprintln!("{checked} pixels, the angle at most {worst} of the bound");
+        assert!(checked > 20_000, "{checked}");
+        // At 512² and 40° the blocks cover the benchmarks' eyes (2.5 bounding radii).
+        let focal_512 = 256.0 / 20f64.to_radians().tan();
+        assert!(interior_block_angle(2.5 * FRAC_1_SQRT_2, focal_512) <= INTERIOR_BLOCK_REACH);
+    }
+
+    #[test]
+    fn interior_block_weights_stay_within_twice_the_lookups_error() {
+        // A pixel of an interior block takes the weights of the triangle found for the block's
+        // centre, at most INTERIOR_BLOCK_REACH away, which may itself lie up to
+        // DIRECTION_LOOKUP_REACH outside the centre's triangle: the pixel lies at most the sum
+        // outside the triangle it is weighed in, and its weights are off by at most that sum
+        // over the triangle's height, twice (as in the lookup's own test), per level. Centres
+        // at random, at the cameras and at edge midpoints; pixels at the full angle in 8
+        // directions around them.
+        let set = geometry::camera_set();
+        let mut state = 0x5851_f42d_4c95_7f2du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f32 / (1u64 << 53) as f32 * 2.0 - 1.0
+        };
+        let mut centres: Vec<Vec3> = (0..4000)
+            .map(|_| Vec3::new(next(), next(), next()).normalize())
+            .collect();
+        for t in &set.triangles {
+            let [a, b, c] = t.v.map(|k| set.positions[k as usize]);
+            centres.extend([
+                a,
+                (a + b).normalize(),
+                (b + c).normalize(),
+                (c + a).normalize(),
+            ]);
+        }
+        let angle = INTERIOR_BLOCK_REACH as f32;
+        let reach = (geometry::DIRECTION_LOOKUP_REACH + INTERIOR_BLOCK_REACH).sin() as f32 + 1e-5;
+        for level in 0..=3u32 {
+            let height = set.triangles[set.level_range(level)]
+                .iter()
+                .flat_map(|t| {
+                    let [a, b, c] = t.v.map(|k| set.positions[k as usize]);
+                    [(a, b, c), (b, c, a), (c, a, b)]
+                        .map(|(x, y, z)| x.cross(y).normalize().dot(z).abs())
+                })
+                .fold(f32::INFINITY, f32::min);
+            let bound = 2.0 * reach / height;
+            let (mut worst_w, mut worst_out) = (0.0f32, f32::NEG_INFINITY);
+            for &c in &centres {
+                let (u, v) = c.any_orthonormal_pair();
+                for k in 0..8 {
+                    let a = k as f32 * std::f32::consts::FRAC_PI_4;
+                    let p =
+                        (c * angle.cos() + (u * a.cos() + v * a.sin()) * angle.sin()).normalize();
+                    let (w, out) = lookup_error_at(c, p, level);
+                    worst_w = worst_w.max(w);
+                    worst_out = worst_out.max(out);
+                }
+            }
+            eprintln!(
+                "level {level}: weights off by up to {worst_w} (bound {bound}), outside by up \
+                 to {worst_out} (reach {reach})"
+            );
+            assert!(worst_out <= reach, "level {level}: {worst_out} > {reach}");
+            assert!(worst_w <= bound, "level {level}: {worst_w} > {bound}");
         }
     }
 }

@@ -267,11 +267,11 @@ impl FunctionState<'_, '_> {
 }
 
 /// The uniform-only branches of every pipeline the renderer builds from the marcher (METHODS
-/// 1–3 × ROLE 0–2, overrides fixed as constants the way the driver sees them).
+/// 1–3 × ROLE 0–4, overrides fixed as constants the way the driver sees them).
 fn uniform_branches(source: &str) -> Vec<String> {
     let mut found = Vec::new();
     for methods in 1..=3 {
-        for role in 0..=2 {
+        for role in 0..=4 {
             let specialised = source
                 .replace(
                     "override METHODS: u32 = 3u;",

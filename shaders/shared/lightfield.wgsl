@@ -1,10 +1,27 @@
 // Spherical light-field data shared by the marchers: cameras, the icosphere triangle hierarchy and the triangle lookup of seed 000 §2.
 
+// A camera's position on the unit sphere and its frame (z = −position: the pole of the
+// hemisphere it records).
 struct Camera {
-    position: vec4<f32>,
-    x: vec4<f32>,
-    y: vec4<f32>,
-    z: vec4<f32>,
+    position: vec3<f32>,
+    x: vec3<f32>,
+    y: vec3<f32>,
+    z: vec3<f32>,
+}
+
+// Camera k, its frame derived from its position as `geometry::camera_frame` derives it: z the
+// unit vector towards the centre, x = normalize(a × z) for the world axis a that rule picks
+// (its index in `cameras[k].w`, chosen on the CPU in f64, so f32 cannot break a tie otherwise),
+// y = z × x. Derived, not loaded: on lavapipe every per-pixel load of a uniform array is a
+// gather, and the nine floats of a frame cost more to gather than to compute (a 512² demo
+// frame 0.2–0.6 ms faster); the frame differs from the CPU's f64 one by f32 rounding (below
+// 1e-6, tests).
+fn camera(k: u32) -> Camera {
+    let p = cameras[k];
+    let z = -normalize(p.xyz);
+    let a = vec3<f32>(vec3<f32>(p.w) == vec3<f32>(0.0, 1.0, 2.0));
+    let x = normalize(cross(a, z));
+    return Camera(p.xyz, x, cross(z, x), z);
 }
 
 struct HierTriangle {
@@ -41,9 +58,13 @@ fn locate(p: vec3<f32>, level: u32) -> Located {
     let local = finest >> (2u * (MAX_LEVEL - l));
     let level_start = 20u * ((1u << (2u * l)) - 1u) / 3u;
     let t = hierarchy[level_start + local];
-    let v0 = cameras[t.v.x].position.xyz;
-    let v1 = cameras[t.v.y].position.xyz;
-    let v2 = cameras[t.v.z].position.xyz;
+    return Located(t.v, triangle_weights(p, cameras[t.v.x].xyz, cameras[t.v.y].xyz, cameras[t.v.z].xyz));
+}
+
+// Central-projection barycentric weights of unit direction p in the triangle of unit vertices
+// v0, v1, v2, clamped to the triangle (a direction outside it, within the lookup's reach, takes
+// the weights of the nearest point of the edge it lies beyond, about).
+fn triangle_weights(p: vec3<f32>, v0: vec3<f32>, v1: vec3<f32>, v2: vec3<f32>) -> vec3<f32> {
     var w = max(vec3<f32>(dot(p, cross(v1, v2)), dot(v0, cross(p, v2)), dot(v0, cross(v1, p))), vec3<f32>(0.0));
     let sum = w.x + w.y + w.z;
     if sum > 0.0 {
@@ -51,7 +72,7 @@ fn locate(p: vec3<f32>, level: u32) -> Located {
     } else {
         w = vec3<f32>(1.0, 0.0, 0.0);
     }
-    return Located(t.v, w);
+    return w;
 }
 
 // Line o + t·d (|d| = 1) against the sphere |x| = radius: both roots, or (1, -1) when missed.
