@@ -3,8 +3,10 @@
 # (real-mesh fixtures) and the demo at 162 cameras × 256 px, then evaluates 6 random 512² views
 # per scene with the fixed baseline (1/64), the default method unguided (--guide 0) and with
 # guides 2, 4 (its default) and 8, against the rasterized mesh. Each configuration runs
-# RUNS times (default 4, one process each); ms/frame is the mean over views of each view's
-# fastest run, which filters out a busy host (single runs vary by up to ±20 % here).
+# RUNS times (default 4, one process each), the configurations taking turns within each run
+# so that all of them see the same phases of a busy host; ms/frame is the mean over views of
+# each view's fastest run (single runs vary by up to ±20 % here, and this host's speed drifts
+# by up to 30 % over minutes).
 #   bash scripts/bench_guide.sh [OUT_DIR]   (default out/guide; about 5 min on 2-core lavapipe)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -14,14 +16,14 @@ mkdir -p "$OUT"
 source scripts/bench_common.sh
 for scene in ${SCENES:-bunny cow spot demo}; do
   scene_asset "$scene" --no-calibrate
-  for config in fixed unguided guide2 default guide8; do
-    case $config in
-      fixed) flags=(--method fixed) ;;
-      unguided) flags=(--guide 0) ;;
-      default) flags=() ;;
-      guide*) flags=(--guide "${config#guide}") ;;
-    esac
-    for run in $(seq 1 "${RUNS:-4}"); do
+  for run in $(seq 1 "${RUNS:-4}"); do
+    for config in fixed unguided guide2 default guide8; do
+      case $config in
+        fixed) flags=(--method fixed) ;;
+        unguided) flags=(--guide 0) ;;
+        default) flags=() ;;
+        guide*) flags=(--guide "${config#guide}") ;;
+      esac
       $LG eval "$ASSET" "${REF[@]}" --views 6 --size 512 "${flags[@]}" --json > "$OUT/$scene-$config-$run.json"
     done
   done
