@@ -43,3 +43,15 @@ pub mod tradeoff;
 pub mod view;
 
 pub use fsutil::atomic_write;
+
+/// Deterministic pseudo-random numbers for unit tests: Marsaglia's xorshift64 from `state`
+/// (non-zero), each call the next state.
+#[cfg(test)]
+pub(crate) fn xorshift(mut state: u64) -> impl FnMut() -> u64 {
+    move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    }
+}

@@ -1702,7 +1702,13 @@ mod tests {
         let level_start = 20 * ((1u32 << (2 * l)) - 1) / 3;
         let t = (level_start + local) as usize;
         let v = set.triangles[t].v;
-        let [v0, v1, v2] = v.map(|k| set.positions[k as usize]);
+        (t, v, weights_like_shader(p, v))
+    }
+
+    /// The shader's `triangle_weights` in f32: direction `p`'s central-projection barycentric
+    /// weights in the triangle of cameras `v`, clamped to it.
+    fn weights_like_shader(p: Vec3, v: [u32; 3]) -> [f32; 3] {
+        let [v0, v1, v2] = v.map(|k| geometry::camera_set().positions[k as usize]);
         let w = Vec3::new(
             p.dot(v1.cross(v2)),
             v0.dot(p.cross(v2)),
@@ -1710,8 +1716,27 @@ mod tests {
         )
         .max(Vec3::ZERO);
         let sum = w.x + w.y + w.z;
-        let w = if sum > 0.0 { w / sum } else { Vec3::X };
-        (t, v, w.to_array())
+        (if sum > 0.0 { w / sum } else { Vec3::X }).to_array()
+    }
+
+    /// Uniform pseudo-random numbers in [−1, 1) from `seed`.
+    fn signed_uniform(seed: u64) -> impl FnMut() -> f32 {
+        let mut raw = crate::xorshift(seed);
+        move || (raw() >> 11) as f32 / (1u64 << 53) as f32 * 2.0 - 1.0
+    }
+
+    /// The smallest height of a `level` triangle over any of its edges, as the sine of the
+    /// angle from that edge's great circle to the opposite camera.
+    fn smallest_height(level: u32) -> f32 {
+        let set = geometry::camera_set();
+        set.triangles[set.level_range(level)]
+            .iter()
+            .flat_map(|t| {
+                let [a, b, c] = t.v.map(|k| set.positions[k as usize]);
+                [(a, b, c), (b, c, a), (c, a, b)]
+                    .map(|(x, y, z)| x.cross(y).normalize().dot(z).abs())
+            })
+            .fold(f32::INFINITY, f32::min)
     }
 
     /// `probe`'s decoding of an edge code (render.wgsl): (e, extrapolated depth), in f32 as there.
@@ -1823,15 +1848,7 @@ mod tests {
             set.level_range(level).contains(&t),
             "level {level}: triangle {t}"
         );
-        let [v0, v1, v2] = cams.map(|k| set.positions[k as usize]);
-        let w = Vec3::new(
-            p.dot(v1.cross(v2)),
-            v0.dot(p.cross(v2)),
-            v0.dot(v1.cross(p)),
-        )
-        .max(Vec3::ZERO);
-        let sum = w.x + w.y + w.z;
-        let w = (if sum > 0.0 { w / sum } else { Vec3::X }).to_array();
+        let w = weights_like_shader(p, cams);
         let exact = set.locate(p, level);
         let weight_of = |cams: &[u32; 3], w: &[f32; 3], k: u32| {
             cams.iter()
@@ -1861,13 +1878,7 @@ mod tests {
         // midpoints of every level's edges, points just beside both, the octahedral map's fold
         // (z = 0), its axes and its corners (the poles).
         let set = geometry::camera_set();
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f32 / (1u64 << 53) as f32 * 2.0 - 1.0
-        };
+        let mut next = signed_uniform(0x2545_f491_4f6c_dd1d);
         let mut points: Vec<Vec3> = (0..20_000)
             .map(|_| Vec3::new(next(), next(), next()).normalize())
             .collect();
@@ -1902,14 +1913,7 @@ mod tests {
         // edge's cameras move by as much. Bound: 2 · reach / the smallest height of the
         // level's triangles.
         for level in 0..=3u32 {
-            let height = set.triangles[set.level_range(level)]
-                .iter()
-                .flat_map(|t| {
-                    let [a, b, c] = t.v.map(|k| set.positions[k as usize]);
-                    [(a, b, c), (b, c, a), (c, a, b)]
-                        .map(|(x, y, z)| x.cross(y).normalize().dot(z).abs())
-                })
-                .fold(f32::INFINITY, f32::min);
+            let height = smallest_height(level);
             let bound = 2.0 * reach / height;
             let (mut worst_w, mut worst_out) = (0.0f32, f32::NEG_INFINITY);
             for &p in &points {
@@ -1978,13 +1982,8 @@ mod tests {
         // and inside the camera sphere, at several focal lengths: where each pixel's ray enters
         // the camera sphere lies within `interior_block_angle` of where the centre ray does
         // (f64).
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut raw = crate::xorshift(0x9e37_79b9_7f4a_7c15);
+        let mut next = || (raw() >> 11) as f64 / (1u64 << 53) as f64;
         let entry = |o: glam::DVec3, d: glam::DVec3| -> Option<glam::DVec3> {
             let b = o.dot(d);
             let h = 1.0 - (o - b * d).length_squared();
@@ -2046,13 +2045,7 @@ mod tests {
         // at random, at the cameras and at edge midpoints; pixels at the full angle in 8
         // directions around them.
         let set = geometry::camera_set();
-        let mut state = 0x5851_f42d_4c95_7f2du64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f32 / (1u64 << 53) as f32 * 2.0 - 1.0
-        };
+        let mut next = signed_uniform(0x5851_f42d_4c95_7f2d);
         let mut centres: Vec<Vec3> = (0..4000)
             .map(|_| Vec3::new(next(), next(), next()).normalize())
             .collect();
@@ -2068,14 +2061,7 @@ mod tests {
         let angle = INTERIOR_BLOCK_REACH as f32;
         let reach = (geometry::DIRECTION_LOOKUP_REACH + INTERIOR_BLOCK_REACH).sin() as f32 + 1e-5;
         for level in 0..=3u32 {
-            let height = set.triangles[set.level_range(level)]
-                .iter()
-                .flat_map(|t| {
-                    let [a, b, c] = t.v.map(|k| set.positions[k as usize]);
-                    [(a, b, c), (b, c, a), (c, a, b)]
-                        .map(|(x, y, z)| x.cross(y).normalize().dot(z).abs())
-                })
-                .fold(f32::INFINITY, f32::min);
+            let height = smallest_height(level);
             let bound = 2.0 * reach / height;
             let (mut worst_w, mut worst_out) = (0.0f32, f32::NEG_INFINITY);
             for &c in &centres {

@@ -939,13 +939,8 @@ mod tests {
     #[test]
     fn pareto_front_matches_brute_force() {
         // Against the definition, on pseudo-random points with many ties.
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state % 16) as f64
-        };
+        let mut raw = crate::xorshift(0x9e37_79b9_7f4a_7c15);
+        let mut next = || (raw() % 16) as f64;
         for _ in 0..200 {
             let n = 12;
             let cost: Vec<f64> = (0..n).map(|_| next()).collect();
