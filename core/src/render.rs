@@ -306,7 +306,9 @@ struct Targets {
     color: wgpu::Buffer,
     depth: wgpu::Buffer,
     counters: wgpu::Buffer,
-    readback: wgpu::Buffer,
+    /// Where the results are copied to be mapped; `None` where `color`, `depth` and `counters`
+    /// are mapped themselves (a CPU adapter: `Gpu::maps_primary_buffers`).
+    readback: Option<wgpu::Buffer>,
     group: wgpu::BindGroup,
     /// Parameters and bind group of the pass that marches the flat quads the interior pass
     /// gave back.
@@ -381,6 +383,24 @@ const INTERIOR_BLOCK_REACH: f64 = geometry::DIRECTION_LOOKUP_REACH;
 /// (light-field units) and a focal length of `focal_px` pixels.
 fn interior_block_angle(eye: f64, focal_px: f64) -> f64 {
     (eye + 1.0) / focal_px
+}
+
+/// Whether the centres of every 2×2 block of pixels (`(2i, 2j)` to `(2i + 1, 2j + 1)`) of a
+/// `width`×`height` frame guided at `factor` lie in one cell between four coarse pixels, which
+/// the interior pass then loads once per block (render.wgsl `shade_interior_block`). Pixel `p`'s
+/// centre lies at `(p + 0.5 − width/2)/factor + coarse/2 − 0.5` coarse pixels (render.wgsl
+/// `coarse_position`); when `width` is `factor · coarse`, a cell boundary (an integer `n`)
+/// falls at `p = factor·n + factor/2 − 0.5`, which is odd minus a half when `factor` is a
+/// multiple of 4: between an odd pixel and the next even one, never inside a block, and half a
+/// fine pixel from both (a sixteenth of a cell or more up to factor 8, far above f32
+/// rounding). The same holds per row. For factors 2 and 4 no other size keeps every block in
+/// one cell with its centres off the cells' boundaries; for larger factors a few more would (a
+/// test checks the rule with the shader's f32 arithmetic).
+fn blocks_share_coarse_cells(width: u32, height: u32, factor: u32) -> bool {
+    factor >= 4
+        && factor.is_multiple_of(4)
+        && width.is_multiple_of(factor)
+        && height.is_multiple_of(factor)
 }
 
 /// [`Renderer::set_interior_blocks`] settings.
@@ -794,7 +814,9 @@ impl Renderer {
     }
 
     /// Forces the interior pass's 2×2 blocks on (`Some(true)`) or off (`Some(false)`) instead
-    /// of choosing them by [`INTERIOR_BLOCK_REACH`] (`None`, the default): for tests.
+    /// of choosing them by [`INTERIOR_BLOCK_REACH`] (`None`, the default): for tests. Forced on,
+    /// they are still used only where the frame's coarse grid allows them
+    /// ([`blocks_share_coarse_cells`]).
     #[doc(hidden)]
     pub fn set_interior_blocks(&self, blocks: Option<bool>) {
         let value = match blocks {
@@ -1009,7 +1031,16 @@ impl Renderer {
                 mapped_at_creation: false,
             })
         };
-        let out = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
+        // On a CPU adapter the results are mapped where the shaders wrote them: the copy to a
+        // staging buffer cost 0.2–0.3 ms of a 512² frame on lavapipe, about 1.5 % of a guided
+        // demo frame (BENCHMARKS.md).
+        let direct = self.gpu.maps_primary_buffers();
+        let mapped = if direct {
+            wgpu::BufferUsages::MAP_READ
+        } else {
+            wgpu::BufferUsages::empty()
+        };
+        let out = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | mapped;
         let uniform_usage = wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST;
         let params_size = std::mem::size_of::<RenderParams>() as u64;
         let uniform = make("render params", params_size, uniform_usage);
@@ -1018,11 +1049,13 @@ impl Renderer {
         let color = make("render colour", pixels * 4, cleared);
         let depth = make("render depth", pixels * 4, cleared);
         let counters = make("render counters", 16, out | wgpu::BufferUsages::COPY_DST);
-        let readback = make(
-            "render readback",
-            pixels * 8 + 16,
-            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        );
+        let readback = (!direct).then(|| {
+            make(
+                "render readback",
+                pixels * 8 + 16,
+                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            )
+        });
         let (columns, rows) = quad_grid(width, height);
         // Two lists (render.wgsl `tiles`).
         let tiles = make(
@@ -1314,14 +1347,15 @@ impl Renderer {
         let interior = tiled
             && methods == PIPELINE_DEFAULT
             && self.interior.load(std::sync::atomic::Ordering::Relaxed);
-        let blocks = match self
-            .interior_blocks
-            .load(std::sync::atomic::Ordering::Relaxed)
-        {
-            BLOCKS_OFF => false,
-            BLOCKS_ON => true,
-            _ => interior_block_angle(lf_eye.length(), basis.focal_px) <= INTERIOR_BLOCK_REACH,
-        };
+        let blocks = blocks_share_coarse_cells(view.width, view.height, factor)
+            && match self
+                .interior_blocks
+                .load(std::sync::atomic::Ordering::Relaxed)
+            {
+                BLOCKS_OFF => false,
+                BLOCKS_ON => true,
+                _ => interior_block_angle(lf_eye.length(), basis.focal_px) <= INTERIOR_BLOCK_REACH,
+            };
         if blocks {
             // 16 quads per workgroup: 4 invocations each (render.wgsl `cs_main`).
             fine.interior_group_quads = 16;
@@ -1456,14 +1490,15 @@ impl Renderer {
             );
             encoder = timer.split(gpu, encoder, "interior")?;
         }
-        encoder.copy_buffer_to_buffer(&targets.color, 0, &targets.readback, 0, pixels * 4);
-        encoder.copy_buffer_to_buffer(&targets.depth, 0, &targets.readback, pixels * 4, pixels * 4);
-        encoder.copy_buffer_to_buffer(&targets.counters, 0, &targets.readback, pixels * 8, 16);
-        gpu.queue.submit([encoder.finish()]);
         let split = (pixels * 4) as usize;
-        let (color, depth, counters) = gpu.map_read_with(&targets.readback, |bytes| {
-            let color = bytes[..split].to_vec();
-            let depth: Vec<f32> = bytes[split..2 * split]
+        if let Some(readback) = &targets.readback {
+            encoder.copy_buffer_to_buffer(&targets.color, 0, readback, 0, pixels * 4);
+            encoder.copy_buffer_to_buffer(&targets.depth, 0, readback, pixels * 4, pixels * 4);
+            encoder.copy_buffer_to_buffer(&targets.counters, 0, readback, pixels * 8, 16);
+        }
+        gpu.queue.submit([encoder.finish()]);
+        let read = |color: &[u8], depth: &[u8], counters: &[u8]| {
+            let depth: Vec<f32> = depth
                 .chunks_exact(4)
                 .map(|c| {
                     let z = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
@@ -1472,12 +1507,25 @@ impl Renderer {
                     if z <= 0.0 { f32::INFINITY } else { z }
                 })
                 .collect();
-            let counters: Vec<u32> = bytes[2 * split..2 * split + 16]
+            let counters: Vec<u32> = counters
                 .chunks_exact(4)
                 .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
                 .collect();
-            (color, depth, counters)
-        })?;
+            (color.to_vec(), depth, counters)
+        };
+        let (color, depth, counters) = match &targets.readback {
+            Some(readback) => gpu.map_read_with(readback, |bytes| {
+                read(
+                    &bytes[..split],
+                    &bytes[split..2 * split],
+                    &bytes[2 * split..2 * split + 16],
+                )
+            })?,
+            None => gpu.map_read_many(
+                &[&targets.color, &targets.depth, &targets.counters],
+                |bytes| read(bytes[0], bytes[1], bytes[2]),
+            )?,
+        };
         drop(guard);
         let render_ms = start.elapsed().as_secs_f64() * 1e3;
         timer.finish(view.width, view.height);
@@ -1973,6 +2021,64 @@ mod tests {
             let [x, _, _] = geometry::camera_frame(p);
             assert!(x[axis].abs() <= 1e-6, "{p}: axis {axis}, x {x}");
         }
+    }
+
+    #[test]
+    fn blocks_share_coarse_cells_where_the_rule_says() {
+        // render.wgsl `coarse_position` in f32, as the shader computes it.
+        let position = |p: u32, width: u32, factor: u32| -> f32 {
+            let coarse = width.div_ceil(factor);
+            (p as f32 + 0.5 - 0.5 * width as f32) / factor as f32 + 0.5 * coarse as f32 - 0.5
+        };
+        let mut conservative = 0;
+        for factor in 2..=12 {
+            for width in 4 * factor..=1100 {
+                // Pairs (2m, 2m + 1) inside the frame whose centres lie in different cells.
+                let straddling = (0..width / 2)
+                    .filter(|m| 2 * m + 1 < width)
+                    .filter(|m| {
+                        position(2 * m, width, factor).floor()
+                            != position(2 * m + 1, width, factor).floor()
+                    })
+                    .count();
+                // How close a centre comes to a cell boundary (in cells).
+                let margin = (0..width)
+                    .map(|p| {
+                        let c = position(p, width, factor);
+                        (c - c.round()).abs()
+                    })
+                    .fold(f32::INFINITY, f32::min);
+                if !blocks_share_coarse_cells(width, width, factor) {
+                    // Exact for factors up to 4: every size refused has a straddling block or
+                    // a centre on a boundary, where rounding decides its cell.
+                    let qualifies = straddling == 0 && margin > 1e-3;
+                    assert!(factor > 4 || !qualifies, "width {width}, factor {factor}");
+                    conservative += usize::from(qualifies);
+                    continue;
+                }
+                assert_eq!(straddling, 0, "width {width}, factor {factor}");
+                // Every centre at least half a fine pixel from a cell boundary (less 1e-4 of a
+                // cell for f32 rounding): a division done as a multiplication by the reciprocal,
+                // or any other rounding, cannot move a centre across one.
+                assert!(
+                    margin >= 0.5 / factor as f32 - 1e-4,
+                    "width {width}, factor {factor}: {margin}"
+                );
+            }
+        }
+        // The rule refuses frames whose blocks would straddle a cell: a width not a multiple of
+        // the factor, or a factor not a multiple of 4.
+        for (width, factor) in [(510, 4), (514, 4), (512, 2), (516, 6), (518, 8)] {
+            assert!(!blocks_share_coarse_cells(width, width, factor));
+            let straddling = (0..width / 2).any(|m| {
+                position(2 * m, width, factor).floor() != position(2 * m + 1, width, factor).floor()
+            });
+            assert!(straddling, "width {width}, factor {factor}");
+        }
+        eprintln!("sizes the rule refuses though they would do (factors 5–12): {conservative}");
+        // Both axes: a frame qualifies only when both sides do.
+        assert!(blocks_share_coarse_cells(512, 256, 4));
+        assert!(!blocks_share_coarse_cells(512, 510, 4));
     }
 
     #[test]

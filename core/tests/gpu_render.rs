@@ -1798,6 +1798,8 @@ fn interior_blocks_match_one_pixel_per_invocation() {
     // renderer uses blocks where that costs no more than the direction lookup's own reach
     // again. Forced on and off, at 512² (where they are on by themselves) and at 256² (where
     // they are not): the same frames but for a few pixels near the cameras' triangle edges.
+    // A block's pixels interpolate between the same four coarse depths, loaded once, as each
+    // pixel alone does.
     let renderer = own_renderer();
     let (_, asset) = baked_demo(162, 128);
     let field = renderer.upload(&asset).expect("upload");
@@ -1837,6 +1839,21 @@ fn interior_blocks_match_one_pixel_per_invocation() {
             automatic.color == expected.color && automatic.depth == expected.depth,
             "{}²: the automatic choice",
             view.width
+        );
+    }
+    // At 510² some blocks would straddle two coarse cells (render.rs
+    // `blocks_share_coarse_cells`): forced on, blocks are not used, and the frame is the one
+    // pixel per invocation renders.
+    for view in eval_views(&asset, 1, 35, 510) {
+        renderer.set_interior_blocks(Some(false));
+        let single = renderer.render(&field, &view, &options).expect("render");
+        renderer.set_interior_blocks(Some(true));
+        let blocks = renderer.render(&field, &view, &options);
+        renderer.set_interior_blocks(None);
+        let blocks = blocks.expect("render");
+        assert!(
+            blocks.color == single.color && blocks.depth == single.depth,
+            "510²: blocks where they do not fit"
         );
     }
 }

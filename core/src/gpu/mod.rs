@@ -62,6 +62,24 @@ pub struct Gpu {
     device_error: Arc<std::sync::Mutex<Option<String>>>,
 }
 
+/// Unmaps buffers when dropped ([`Gpu::map_read_many`]), so no path out, a failed wait
+/// included, leaves one mapped or pending (the next submission may not use it then); not those
+/// whose mapping failed, for unmapping an unmapped buffer is itself an error.
+struct Unmap<'a> {
+    buffers: &'a [&'a wgpu::Buffer],
+    failed: Vec<bool>,
+}
+
+impl Drop for Unmap<'_> {
+    fn drop(&mut self) {
+        for (buffer, failed) in self.buffers.iter().zip(&self.failed) {
+            if !failed {
+                buffer.unmap();
+            }
+        }
+    }
+}
+
 static SHARED: OnceLock<Result<Arc<Gpu>, String>> = OnceLock::new();
 
 fn backends_from_env() -> Result<(wgpu::Backends, String), GpuError> {
@@ -136,7 +154,13 @@ impl Gpu {
         let limits = adapter.limits();
         // Subgroup operations, where there are any, cut the marcher's counter atomics 8-fold
         // (`shaders::render_source`).
-        let wanted = wgpu::Features::FLOAT32_FILTERABLE | wgpu::Features::SUBGROUP;
+        // On a CPU adapter "device" memory is host memory: results are mapped where the shaders
+        // wrote them instead of copied to a staging buffer first (`maps_primary_buffers`). On a
+        // discrete GPU that would make the shaders write across the bus, so it is not asked for.
+        let mut wanted = wgpu::Features::FLOAT32_FILTERABLE | wgpu::Features::SUBGROUP;
+        if is_software {
+            wanted |= wgpu::Features::MAPPABLE_PRIMARY_BUFFERS;
+        }
         let features = adapter.features() & wanted;
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("lumigraph"),
@@ -193,6 +217,15 @@ impl Gpu {
                 ""
             }
         )
+    }
+
+    /// Whether buffers the shaders write can be mapped for reading directly (a CPU adapter
+    /// offering `MAPPABLE_PRIMARY_BUFFERS`): results are then read where they were written,
+    /// without a copy to a staging buffer.
+    pub fn maps_primary_buffers(&self) -> bool {
+        self.device
+            .features()
+            .contains(wgpu::Features::MAPPABLE_PRIMARY_BUFFERS)
     }
 
     /// Blocks until the submitted work is done.
@@ -252,22 +285,59 @@ impl Gpu {
         staging: &wgpu::Buffer,
         read: impl FnOnce(&[u8]) -> T,
     ) -> Result<T, GpuError> {
-        let slice = staging.slice(..);
+        self.map_read_many(&[staging], |bytes| read(bytes[0]))
+    }
+
+    /// Maps several `MAP_READ` buffers at once (one wait) and hands their bytes to `read`, in
+    /// order; every buffer is unmapped again afterwards, whatever happened.
+    ///
+    /// # Errors
+    /// [`GpuError::Operation`] when mapping fails.
+    pub fn map_read_many<T>(
+        &self,
+        buffers: &[&wgpu::Buffer],
+        read: impl FnOnce(&[&[u8]]) -> T,
+    ) -> Result<T, GpuError> {
         let (sender, receiver) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |result| {
-            let _ = sender.send(result);
-        });
+        for (index, buffer) in buffers.iter().enumerate() {
+            let sender = sender.clone();
+            buffer
+                .slice(..)
+                .map_async(wgpu::MapMode::Read, move |result| {
+                    let _ = sender.send((index, result));
+                });
+        }
+        drop(sender);
+        let mut guard = Unmap {
+            buffers,
+            failed: vec![false; buffers.len()],
+        };
         self.wait()?;
-        receiver
-            .recv()
-            .map_err(|e| GpuError::Operation(e.to_string()))?
-            .map_err(|e| GpuError::Operation(e.to_string()))?;
-        let value = read(
-            &slice
-                .get_mapped_range()
-                .map_err(|e| GpuError::Operation(e.to_string()))?,
-        );
-        staging.unmap();
+        let mut first_error = None;
+        for _ in buffers {
+            let (index, result) = receiver
+                .recv()
+                .map_err(|e| GpuError::Operation(e.to_string()))?;
+            if let Err(e) = result {
+                guard.failed[index] = true;
+                first_error.get_or_insert(GpuError::Operation(e.to_string()));
+            }
+        }
+        if let Some(e) = first_error {
+            return Err(e);
+        }
+        let views = buffers
+            .iter()
+            .map(|b| {
+                b.slice(..)
+                    .get_mapped_range()
+                    .map_err(|e| GpuError::Operation(e.to_string()))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let bytes: Vec<&[u8]> = views.iter().map(|v| &v[..]).collect();
+        let value = read(&bytes);
+        drop(bytes);
+        drop(views);
         Ok(value)
     }
 
