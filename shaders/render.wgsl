@@ -649,6 +649,11 @@ const INTERIOR_FETCHES: u32 = 3u * LAYER_SHADE_FETCHES;
 // no march, and marched them (one demo view at 512²: 792 of its 2536 quads had nine hits
 // around every pixel, 276 no pixel to march; eval, 6 views at 512², 4 interleaved runs, demo
 // 24.7 → 22.0 ms, bunny 20.9 → 19.2).
+// The coarse neighbourhood the tile pass reads per quad: 4×4, or 3×3 where every quad's pixels
+// have the same nearest coarse pixel (`quads_share_nearest_coarse` in render.rs), so that its
+// neighbourhood spans 3×3 at most (the 512² demo frame's tile pass 0.73 → 0.62 ms).
+override TILE_SPAN: i32 = 4;
+
 @compute @workgroup_size(8, 8, 1)
 fn cs_tiles(@builtin(global_invocation_id) gid: vec3<u32>) {
     let grid = frame_quads();
@@ -664,13 +669,13 @@ fn cs_tiles(@builtin(global_invocation_id) gid: vec3<u32>) {
     let hi = clamp(coarse_nearest(last_px) + 1, vec2<i32>(0), last);
     let size = hi - lo + 1;
     // At most 4×4 coarse pixels (a quad spans at most 1.5 coarse pixels for a coarse factor of
-    // 2 or more), read as 4×4 with coordinates clamped to the neighbourhood: constant loops,
-    // unrolled, so the depths stay in registers.
+    // 2 or more), read as TILE_SPAN × TILE_SPAN with coordinates clamped to the neighbourhood:
+    // constant loops, unrolled, so the depths stay in registers.
     var keep = false;
     var all_hit = true;
     var z: array<f32, 16>;
-    for (var j = 0; j < 4; j++) {
-        for (var i = 0; i < 4; i++) {
+    for (var j = 0; j < TILE_SPAN; j++) {
+        for (var i = 0; i < TILE_SPAN; i++) {
             let v = textureLoad(coarse, min(lo + vec2<i32>(i, j), hi), 0).x;
             // Not a far miss (−1, or 0 where a compacted coarse pass skipped the pixel): a hit
             // (> 0) or a near miss (≤ −2).
@@ -680,8 +685,8 @@ fn cs_tiles(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
     var bumpy = false;
-    for (var j = 0; j < 4; j++) {
-        for (var i = 1; i < 3; i++) {
+    for (var j = 0; j < TILE_SPAN; j++) {
+        for (var i = 1; i < TILE_SPAN - 1; i++) {
             let along_x = abs(z[j * 4 + i - 1] + z[j * 4 + i + 1] - 2.0 * z[j * 4 + i]);
             bumpy = bumpy | ((i + 1 < size.x) & (j < size.y) & (along_x > params.interior_curvature));
             let along_y = abs(z[(i - 1) * 4 + j] + z[(i + 1) * 4 + j] - 2.0 * z[i * 4 + j]);

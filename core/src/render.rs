@@ -403,6 +403,18 @@ fn blocks_share_coarse_cells(width: u32, height: u32, factor: u32) -> bool {
         && height.is_multiple_of(factor)
 }
 
+/// Whether all pixels of every 4×4 quad (render.wgsl `frame_quads`) of a `width`×`height` frame
+/// guided at `factor` have the same nearest coarse pixel (render.wgsl `coarse_nearest`): the tile
+/// pass then reads the 3×3 coarse pixels around each quad instead of 4×4 (render.wgsl
+/// `TILE_SPAN`). The same rule as [`blocks_share_coarse_cells`]: when `width` is
+/// `factor · coarse`, the fine pixels nearest to coarse pixel `n` are `factor·n` to
+/// `factor·n + factor − 1`, whole quads when `factor` is a multiple of 4, each centre at least
+/// half a fine pixel from the midpoint between two coarse pixels (tested with the shader's f32
+/// arithmetic).
+fn quads_share_nearest_coarse(width: u32, height: u32, factor: u32) -> bool {
+    blocks_share_coarse_cells(width, height, factor)
+}
+
 /// [`Renderer::set_interior_blocks`] settings.
 const BLOCKS_AUTOMATIC: u8 = 0;
 const BLOCKS_OFF: u8 = 1;
@@ -575,7 +587,9 @@ pub struct Renderer {
     pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 15],
     /// Tile compaction of guided passes (render.wgsl `cs_tiles`), on unless a test turns it
     /// off ([`Renderer::set_tile_compaction`]).
-    tiles_pipeline: wgpu::ComputePipeline,
+    /// Index 1 where the quads share their nearest coarse pixel ([`quads_share_nearest_coarse`]):
+    /// it reads 3×3 coarse pixels per quad, not 4×4.
+    tiles_pipelines: [wgpu::ComputePipeline; 2],
     compaction: std::sync::atomic::AtomicBool,
     /// Whether compacted guided passes send flat quads to the interior pass (on unless a test
     /// turns it off, [`Renderer::set_interior`]).
@@ -583,6 +597,9 @@ pub struct Renderer {
     /// Whether the interior pass shades 2×2 blocks: [`BLOCKS_AUTOMATIC`] (by
     /// [`INTERIOR_BLOCK_REACH`]) unless a test forces it ([`Renderer::set_interior_blocks`]).
     interior_blocks: std::sync::atomic::AtomicU8,
+    /// The tile pass reads 4×4 coarse pixels per quad even where 3×3 would do
+    /// ([`Renderer::set_wide_tile_reads`], for tests).
+    wide_tile_reads: std::sync::atomic::AtomicBool,
     /// Per-pass timing ([`PASS_TIMING_VARIABLE`] at creation, or
     /// [`Renderer::set_pass_timing`]).
     pass_timing: std::sync::atomic::AtomicBool,
@@ -744,21 +761,24 @@ impl Renderer {
         let hierarchy_buffer = uniform("icosphere hierarchy", bytemuck::cast_slice(&hierarchy));
         let lookup_view = direction_lookup_texture(&gpu);
         let max_px = DEFAULT_MAX_VIEW_PX.min(gpu.device.limits().max_texture_dimension_2d);
-        let tiles_pipeline = compute_pipeline(
-            device,
-            (&layout, &module),
-            ("render tiles", "cs_tiles"),
-            &[],
-        );
+        let tiles_pipelines = [4.0, 3.0].map(|span| {
+            compute_pipeline(
+                device,
+                (&layout, &module),
+                ("render tiles", "cs_tiles"),
+                &[("TILE_SPAN", span)],
+            )
+        });
         let renderer = Renderer {
             gpu,
             module,
             layout,
             pipelines: Default::default(),
-            tiles_pipeline,
+            tiles_pipelines,
             compaction: std::sync::atomic::AtomicBool::new(true),
             interior: std::sync::atomic::AtomicBool::new(true),
             interior_blocks: std::sync::atomic::AtomicU8::new(BLOCKS_AUTOMATIC),
+            wide_tile_reads: std::sync::atomic::AtomicBool::new(false),
             pass_timing: std::sync::atomic::AtomicBool::new(
                 std::env::var_os(PASS_TIMING_VARIABLE).is_some(),
             ),
@@ -826,6 +846,14 @@ impl Renderer {
         };
         self.interior_blocks
             .store(value, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// Makes the tile pass read 4×4 coarse pixels per quad even where the quads share their
+    /// nearest coarse pixel and 3×3 would do ([`quads_share_nearest_coarse`]): for tests.
+    #[doc(hidden)]
+    pub fn set_wide_tile_reads(&self, wide: bool) {
+        self.wide_tile_reads
+            .store(wide, std::sync::atomic::Ordering::Relaxed);
     }
 
     /// Turns per-pass timing on or off (see [`PASS_TIMING_VARIABLE`], which sets it when the
@@ -1163,15 +1191,15 @@ impl Renderer {
     }
 
     /// Records a quad listing (`cs_tiles`, one invocation per 4×4 quad of a `width` × `height`
-    /// pass, in 8×8 workgroups) for the pass whose bind group is `group`, leaving its indirect
-    /// dispatch sizes in `targets.tile_args`.
+    /// pass guided at `factor`, in 8×8 workgroups) for the pass whose bind group is `group`,
+    /// leaving its indirect dispatch sizes in `targets.tile_args`.
     fn list_tiles(
         &self,
         encoder: &mut wgpu::CommandEncoder,
         targets: &Targets,
         group: &wgpu::BindGroup,
         field_group: &wgpu::BindGroup,
-        (width, height): (u32, u32),
+        (width, height, factor): (u32, u32, u32),
     ) {
         let (columns, rows) = quad_grid(width, height);
         encoder.copy_buffer_to_buffer(
@@ -1184,7 +1212,12 @@ impl Renderer {
         record_pass(
             encoder,
             "render tiles",
-            &self.tiles_pipeline,
+            &self.tiles_pipelines[usize::from(
+                quads_share_nearest_coarse(width, height, factor)
+                    && !self
+                        .wide_tile_reads
+                        .load(std::sync::atomic::Ordering::Relaxed),
+            )],
             (group, field_group),
             Workgroups::Grid(columns.div_ceil(8), rows.div_ceil(8)),
         );
@@ -1389,7 +1422,13 @@ impl Renderer {
             let compact = tiled && i > 0;
             if compact {
                 encoder.clear_buffer(&level.depth, 0, None);
-                self.list_tiles(&mut encoder, targets, &level.group, &field.group, (cw, ch));
+                self.list_tiles(
+                    &mut encoder,
+                    targets,
+                    &level.group,
+                    &field.group,
+                    (cw, ch, PRE_FACTOR),
+                );
             }
             record_pass(
                 &mut encoder,
@@ -1438,7 +1477,7 @@ impl Renderer {
                 targets,
                 &targets.group,
                 &field.group,
-                (view.width, view.height),
+                (view.width, view.height, factor),
             );
             encoder = timer.split(gpu, encoder, "tiles")?;
         }
@@ -2024,7 +2063,7 @@ mod tests {
     }
 
     #[test]
-    fn blocks_share_coarse_cells_where_the_rule_says() {
+    fn coarse_alignment_holds_where_the_rules_say() {
         // render.wgsl `coarse_position` in f32, as the shader computes it.
         let position = |p: u32, width: u32, factor: u32| -> f32 {
             let coarse = width.div_ceil(factor);
@@ -2057,6 +2096,25 @@ mod tests {
                     continue;
                 }
                 assert_eq!(straddling, 0, "width {width}, factor {factor}");
+                // Quads: one nearest coarse pixel (`coarse_nearest`: WGSL's `round`, ties to
+                // even) for all four pixels of a quad's row, each centre at least half a fine
+                // pixel from the midpoint between two coarse pixels.
+                assert!(quads_share_nearest_coarse(width, width, factor));
+                for q in 0..width / 4 {
+                    let nearest = position(4 * q, width, factor).round_ties_even();
+                    for p in 4 * q..4 * q + 4 {
+                        let c = position(p, width, factor);
+                        assert_eq!(
+                            c.round_ties_even(),
+                            nearest,
+                            "width {width}, factor {factor}"
+                        );
+                        assert!(
+                            0.5 - (c - nearest).abs() >= 0.5 / factor as f32 - 1e-4,
+                            "width {width}, factor {factor}, pixel {p}"
+                        );
+                    }
+                }
                 // Every centre at least half a fine pixel from a cell boundary (less 1e-4 of a
                 // cell for f32 rounding): a division done as a multiplication by the reciprocal,
                 // or any other rounding, cannot move a centre across one.

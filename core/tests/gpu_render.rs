@@ -1858,6 +1858,39 @@ fn interior_blocks_match_one_pixel_per_invocation() {
     }
 }
 
+#[test]
+fn tile_pass_reads_three_by_three_where_quads_share_a_coarse_pixel() {
+    // Where every quad's pixels have one nearest coarse pixel (512², 256² and 384² at the
+    // default guide of 4, and the coarse passes guided at 4 by their pre-coarse pass), the tile
+    // pass reads the 3×3 coarse pixels around a quad instead of 4×4 with the fourth row and
+    // column clamped onto the third: the same quads are listed, so the frames are identical,
+    // bit for bit, with the same work counted.
+    let renderer = own_renderer();
+    let (_, asset) = baked_demo(162, 128);
+    let field = renderer.upload(&asset).expect("upload");
+    let mut views = eval_views(&asset, 2, 36, 512);
+    views.extend(eval_views(&asset, 1, 37, 384));
+    let options = RenderOptions::default();
+    for view in &views {
+        renderer.set_wide_tile_reads(true);
+        let wide = renderer.render(&field, view, &options);
+        renderer.set_wide_tile_reads(false);
+        let wide = wide.expect("render");
+        let narrow = renderer.render(&field, view, &options).expect("render");
+        assert!(
+            narrow.color == wide.color && narrow.depth == wide.depth,
+            "{}²: frames differ",
+            view.width
+        );
+        assert_eq!(
+            (narrow.stats.rays, narrow.stats.steps, narrow.stats.fetches),
+            (wide.stats.rays, wide.stats.steps, wide.stats.fetches),
+            "{}²",
+            view.width
+        );
+    }
+}
+
 /// Two thin plates side by side in the plane z = 0 with a vertical slit of width `gap` between
 /// them (x in ±gap/2).
 fn slit_plates(gap: f32) -> Mesh {

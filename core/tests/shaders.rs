@@ -267,45 +267,53 @@ impl FunctionState<'_, '_> {
 }
 
 /// The uniform-only branches of every pipeline the renderer builds from the marcher (METHODS
-/// 1–3 × ROLE 0–4, overrides fixed as constants the way the driver sees them).
+/// 1–3 × ROLE 0–4 × TILE_SPAN 3–4, overrides fixed as constants the way the driver sees them).
 fn uniform_branches(source: &str) -> Vec<String> {
     let mut found = Vec::new();
-    for methods in 1..=3 {
-        for role in 0..=4 {
-            let specialised = source
-                .replace(
-                    "override METHODS: u32 = 3u;",
-                    &format!("const METHODS: u32 = {methods}u;"),
-                )
-                .replace(
-                    "override ROLE: u32 = 0u;",
-                    &format!("const ROLE: u32 = {role}u;"),
-                );
-            assert_ne!(specialised, source, "override declarations not found");
-            let module = naga::front::wgsl::parse_str(&specialised).expect("parses");
-            for entry in &module.entry_points {
-                let mut analysis = UniformBranches {
-                    module: &module,
-                    privates: std::collections::HashMap::default(),
-                    changed: true,
-                    report: false,
-                    found: std::collections::BTreeSet::default(),
-                };
-                // Private globals: until what is stored in them stops changing, then report.
-                while analysis.changed {
-                    analysis.changed = false;
-                    let args = vec![Dependence::Varying; entry.function.arguments.len()];
-                    analysis.function(&entry.function, &args);
-                }
-                analysis.report = true;
+    for (methods, role, span) in (1..=3)
+        .flat_map(|m| (0..=4).map(move |r| (m, r)))
+        .flat_map(|(m, r)| [3, 4].map(|s| (m, r, s)))
+    {
+        let specialised = source
+            .replace(
+                "override METHODS: u32 = 3u;",
+                &format!("const METHODS: u32 = {methods}u;"),
+            )
+            .replace(
+                "override ROLE: u32 = 0u;",
+                &format!("const ROLE: u32 = {role}u;"),
+            )
+            .replace(
+                "override TILE_SPAN: i32 = 4;",
+                &format!("const TILE_SPAN: i32 = {span};"),
+            );
+        assert!(
+            !specialised.contains("override "),
+            "an override declaration left unspecialised"
+        );
+        let module = naga::front::wgsl::parse_str(&specialised).expect("parses");
+        for entry in &module.entry_points {
+            let mut analysis = UniformBranches {
+                module: &module,
+                privates: std::collections::HashMap::default(),
+                changed: true,
+                report: false,
+                found: std::collections::BTreeSet::default(),
+            };
+            // Private globals: until what is stored in them stops changing, then report.
+            while analysis.changed {
+                analysis.changed = false;
                 let args = vec![Dependence::Varying; entry.function.arguments.len()];
                 analysis.function(&entry.function, &args);
-                for f in analysis.found {
-                    found.push(format!(
-                        "{} (METHODS {methods}, ROLE {role}): {f}",
-                        entry.name
-                    ));
-                }
+            }
+            analysis.report = true;
+            let args = vec![Dependence::Varying; entry.function.arguments.len()];
+            analysis.function(&entry.function, &args);
+            for f in analysis.found {
+                found.push(format!(
+                    "{} (METHODS {methods}, ROLE {role}, TILE_SPAN {span}): {f}",
+                    entry.name
+                ));
             }
         }
     }
