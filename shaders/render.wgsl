@@ -51,6 +51,9 @@ struct RenderParams {
     // Quads per workgroup of the interior pass: 4, or 16 when it shades 2×2 blocks of pixels
     // (ROLE 4).
     interior_group_quads: u32,
+    // Guided passes: the step of the pass guiding this one, in this pass's steps (the coarse
+    // passes step 1.5 times longer than the frame's: `COARSE_STEP_SCALE` in render.rs).
+    guide_step_ratio: f32,
 }
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
@@ -886,8 +889,9 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
             }
             if near_misses > 0u {
                 // A neighbour passed close to a surface without finding it (a thin feature
-                // between the coarse samples, or an object's edge): march from a step before
-                // where it first came near (it sampled a step apart) to the end of the box.
+                // between the coarse samples, or an object's edge): march from one of its steps
+                // before where it first came near (it sampled that far apart) to the end of the
+                // box.
                 // Not only to where it last came near: this pixel can pass beside that surface
                 // and hit one behind it that no neighbour came near, which the cameras, seeing
                 // the first surface, do not show (cow, 12 views at 256²: 24.77 dB and 268
@@ -895,7 +899,7 @@ fn cs_main(@builtin(global_invocation_id) global_id: vec3<u32>, @builtin(workgro
                 // without). Past that, with longer steps (`FAR_STRIDE`): the same masked PSNR
                 // on the four fixtures; with (NEAR_PAST, FAR_STRIDE) = (1, 4) instead of (3, 2),
                 // the frame pass's lane-steps −6 % (one demo view at 512²).
-                lo = min(lo, near_min / z_rate - g_step);
+                lo = min(lo, near_min / z_rate - g_step * params.guide_step_ratio);
                 stride_from = max(hi, near_max / z_rate + NEAR_PAST * g_step);
                 hi = 1e30;
             }
