@@ -305,20 +305,23 @@ struct ShaderSetting {
     method: u32,
 }
 
+/// The bounding sphere's diameter in light-field units (radius `1/√2`, the camera sphere's 1):
+/// what steps and tolerances are fractions of.
+const BOUNDING_DIAMETER: f32 = std::f32::consts::SQRT_2;
+
 /// The march's step limit for `step` (light-field units): the bounding sphere's diameter in
 /// steps, plus two.
 fn max_steps_for(step: f32) -> u32 {
-    (std::f32::consts::SQRT_2 / step).ceil() as u32 + 2
+    (BOUNDING_DIAMETER / step).ceil() as u32 + 2
 }
 
 impl ShaderSetting {
     fn of(resolved: &ResolvedOptions) -> Self {
-        let diameter_lf = std::f32::consts::SQRT_2;
-        let step = resolved.step * diameter_lf;
+        let step = resolved.step * BOUNDING_DIAMETER;
         ShaderSetting {
             level: resolved.level,
             step,
-            tolerance: resolved.tolerance * diameter_lf,
+            tolerance: resolved.tolerance * BOUNDING_DIAMETER,
             max_steps: max_steps_for(step),
             method: u32::from(resolved.method != Method::Fixed),
         }
@@ -1847,6 +1850,31 @@ mod tests {
         move || (raw() >> 11) as f32 / (1u64 << 53) as f32 * 2.0 - 1.0
     }
 
+    /// `count` random unit directions drawn from `next` (uniform in [−1, 1] per axis).
+    fn random_directions(next: &mut impl FnMut() -> f32, count: usize) -> Vec<Vec3> {
+        (0..count)
+            .map(|_| Vec3::new(next(), next(), next()).normalize())
+            .collect()
+    }
+
+    /// Every icosphere triangle's cameras and edge midpoints (all levels), triangle by
+    /// triangle: where a lookup or a triangle's weights can go wrong.
+    fn vertices_and_edge_midpoints() -> Vec<Vec3> {
+        let set = geometry::camera_set();
+        set.triangles
+            .iter()
+            .flat_map(|t| {
+                let [a, b, c] = t.v.map(|k| set.positions[k as usize]);
+                [
+                    a,
+                    (a + b).normalize(),
+                    (b + c).normalize(),
+                    (c + a).normalize(),
+                ]
+            })
+            .collect()
+    }
+
     /// The smallest height of a `level` triangle over any of its edges, as the sine of the
     /// angle from that edge's great circle to the opposite camera.
     fn smallest_height(level: u32) -> f32 {
@@ -1999,24 +2027,13 @@ mod tests {
         // Random directions, and the places a lookup can go wrong: the cameras (vertices), the
         // midpoints of every level's edges, points just beside both, the octahedral map's fold
         // (z = 0), its axes and its corners (the poles).
-        let set = geometry::camera_set();
         let mut next = signed_uniform(0x2545_f491_4f6c_dd1d);
-        let mut points: Vec<Vec3> = (0..20_000)
-            .map(|_| Vec3::new(next(), next(), next()).normalize())
-            .collect();
-        for t in &set.triangles {
-            let [a, b, c] = t.v.map(|k| set.positions[k as usize]);
-            for q in [
-                a,
-                (a + b).normalize(),
-                (b + c).normalize(),
-                (c + a).normalize(),
-            ] {
-                points.push(q);
-                for _ in 0..4 {
-                    let jitter = Vec3::new(next(), next(), next()) * 3e-3;
-                    points.push((q + jitter).normalize());
-                }
+        let mut points = random_directions(&mut next, 20_000);
+        for q in vertices_and_edge_midpoints() {
+            points.push(q);
+            for _ in 0..4 {
+                let jitter = Vec3::new(next(), next(), next()) * 3e-3;
+                points.push((q + jitter).normalize());
             }
         }
         for k in 0..2000 {
@@ -2243,20 +2260,9 @@ mod tests {
         // over the triangle's height, twice (as in the lookup's own test), per level. Centres
         // at random, at the cameras and at edge midpoints; pixels at the full angle in 8
         // directions around them.
-        let set = geometry::camera_set();
         let mut next = signed_uniform(0x5851_f42d_4c95_7f2d);
-        let mut centres: Vec<Vec3> = (0..4000)
-            .map(|_| Vec3::new(next(), next(), next()).normalize())
-            .collect();
-        for t in &set.triangles {
-            let [a, b, c] = t.v.map(|k| set.positions[k as usize]);
-            centres.extend([
-                a,
-                (a + b).normalize(),
-                (b + c).normalize(),
-                (c + a).normalize(),
-            ]);
-        }
+        let mut centres = random_directions(&mut next, 4000);
+        centres.extend(vertices_and_edge_midpoints());
         let angle = INTERIOR_BLOCK_REACH as f32;
         let reach = (geometry::DIRECTION_LOOKUP_REACH + INTERIOR_BLOCK_REACH).sin() as f32 + 1e-5;
         for level in 0..=3u32 {

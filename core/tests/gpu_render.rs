@@ -1806,13 +1806,17 @@ fn interior_blocks_match_one_pixel_per_invocation() {
     let mut views = eval_views(&asset, 2, 33, 512);
     views.extend(eval_views(&asset, 2, 34, 256));
     let options = RenderOptions::default();
-    for view in &views {
+    // The frame with blocks forced off, then forced on.
+    let single_and_blocks = |view: &View| {
         renderer.set_interior_blocks(Some(false));
         let single = renderer.render(&field, view, &options).expect("render");
         renderer.set_interior_blocks(Some(true));
         let blocks = renderer.render(&field, view, &options);
         renderer.set_interior_blocks(None);
-        let blocks = blocks.expect("render");
+        (single, blocks.expect("render"))
+    };
+    for view in &views {
+        let (single, blocks) = single_and_blocks(view);
         let automatic = renderer.render(&field, view, &options).expect("render");
         let pixels = single.color.len() / 4;
         let differing = (0..pixels)
@@ -1845,12 +1849,7 @@ fn interior_blocks_match_one_pixel_per_invocation() {
     // `blocks_share_coarse_cells`): forced on, blocks are not used, and the frame is the one
     // pixel per invocation renders.
     for view in eval_views(&asset, 1, 35, 510) {
-        renderer.set_interior_blocks(Some(false));
-        let single = renderer.render(&field, &view, &options).expect("render");
-        renderer.set_interior_blocks(Some(true));
-        let blocks = renderer.render(&field, &view, &options);
-        renderer.set_interior_blocks(None);
-        let blocks = blocks.expect("render");
+        let (single, blocks) = single_and_blocks(&view);
         assert!(
             blocks.color == single.color && blocks.depth == single.depth,
             "510²: blocks where they do not fit"
