@@ -19,13 +19,13 @@ use serde::{Deserialize, Serialize};
 use tokio::io::AsyncWriteExt as _;
 
 use super::assets::{AssetSummary, LoadedAsset, load_file, validate_id};
-use super::error::{AppError, ErrorBody, ErrorKind};
-use super::frames::{
-    ColorFormat, DepthFormat, Encoding, Knobs, Plan, encode_blocking, encode_color, encode_depth,
-    goal_calibration, lod_ladder,
+use super::codecs::{
+    ColorFormat, DepthFormat, Encoding, encode_blocking, encode_color, encode_depth,
 };
+use super::error::{AppError, ErrorBody, ErrorKind};
 use super::jobs::{JobState, JobStatus};
-use super::{AppState, random_id};
+use super::render_pool::{Knobs, Plan, goal_calibration, lod_ladder};
+use super::state::{AppState, random_id};
 
 /// Counts error responses by kind for `/metrics`.
 pub async fn count_errors(State(state): State<AppState>, request: Request, next: Next) -> Response {
@@ -279,12 +279,30 @@ pub async fn upload_asset(
         .into_response())
 }
 
+/// A view (DESIGN §3), documented here because the core type carries no schema.
+#[derive(utoipa::ToSchema)]
+#[allow(dead_code)]
+pub struct ViewSchema {
+    /// Eye position `[x, y, z]`, world units.
+    pub eye: [f64; 3],
+    /// Point looked at.
+    pub target: [f64; 3],
+    /// Up direction (default `[0, 1, 0]`); not zero, not parallel to `target - eye`.
+    pub up: Option<[f64; 3]>,
+    /// Vertical field of view in degrees, in (0, 180).
+    pub yfov_deg: f64,
+    /// Width in pixels, 1..=max_px.
+    pub width: u32,
+    /// Height in pixels, 1..=max_px.
+    pub height: u32,
+}
+
 /// Body of `POST /v1/assets/{id}/render`.
 #[derive(Debug, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RenderRequest {
     /// The view (DESIGN §3), in the asset's world coordinates.
-    #[schema(value_type = super::openapi::ViewSchema)]
+    #[schema(value_type = ViewSchema)]
     pub view: View,
     /// Cameras: 12, 42, 162, 642 (or level 0-3); default all of the asset's.
     pub lod: Option<u32>,
