@@ -51,6 +51,24 @@ fn demo_asset() -> &'static PathBuf {
     })
 }
 
+/// Bakes a small demo asset without calibration (12 cameras, 32 px) to `name`.
+fn bake_uncalibrated(name: &str) -> PathBuf {
+    let out = path(name);
+    let o = lumigraph(&[
+        "bake",
+        "--demo",
+        "-o",
+        s(&out),
+        "--cameras",
+        "12",
+        "--resolution",
+        "32",
+        "--no-calibrate",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    out
+}
+
 fn write(name: &str, contents: &[u8]) -> PathBuf {
     let p = path(name);
     std::fs::write(&p, contents).expect("write");
@@ -688,19 +706,7 @@ fn calibrated_goals_pick_settings_and_report_predictions() {
         "cannot be used",
     );
     // An asset baked without calibration says how to get one.
-    let plain = path("plain.lfa");
-    let o = lumigraph(&[
-        "bake",
-        "--demo",
-        "-o",
-        s(&plain),
-        "--cameras",
-        "12",
-        "--resolution",
-        "32",
-        "--no-calibrate",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let plain = bake_uncalibrated("plain.lfa");
     assert_fails(
         &[
             "render",
@@ -809,19 +815,7 @@ fn auto_lod_chooses_per_view_and_reports_predicted_beside_measured() {
         "--auto-lod",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let plain = path("plain_lod.lfa");
-    let o = lumigraph(&[
-        "bake",
-        "--demo",
-        "-o",
-        s(&plain),
-        "--cameras",
-        "12",
-        "--resolution",
-        "32",
-        "--no-calibrate",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let plain = bake_uncalibrated("plain_lod.lfa");
     assert_fails(
         &[
             "render",
