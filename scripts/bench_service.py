@@ -138,9 +138,6 @@ def start_server(assets: Path, port: int, log: Path) -> subprocess.Popen[bytes]:
     binary = Path(os.environ.get("LUMIGRAPH_BIN") or ROOT / "target" / "release" / "lumigraph")
     env = dict(os.environ)
     env.pop("LUMIGRAPH_TOKEN", None)
-    if not env.get("XDG_RUNTIME_DIR") or not os.path.isdir(env["XDG_RUNTIME_DIR"]):
-        env["XDG_RUNTIME_DIR"] = tempfile.mkdtemp(prefix="lumigraph-xdg-")
-        os.chmod(env["XDG_RUNTIME_DIR"], 0o700)
     proc = subprocess.Popen([str(binary), "serve", "--assets", str(assets), "--addr",
                              f"127.0.0.1:{port}"], stdout=log.open("wb"),
                             stderr=subprocess.STDOUT, env=env)
