@@ -9,8 +9,8 @@ bake: 162 cameras, 256 px maps), then over `/v1/stream`:
   repeat), and frames per second per client;
 - bytes and encode ms per 512x512 frame for each codec (png, jpeg q90, webp lossless).
 
-Run with the e2e venv: `.venv-e2e/bin/python scripts/bench_service.py [--out out/bench_service.md]`
-(scripts/test_service_e2e.sh creates it). Writes a markdown report and prints it.
+Run by scripts/bench_all.sh (with a venv of httpx, websockets and pillow), or alone:
+`PY scripts/bench_service.py [--out out/bench_service.md]`. Writes a markdown report and prints it.
 """
 
 from __future__ import annotations
