@@ -18,21 +18,18 @@ FIXTURE_FILES = ("mesh/bunny00.off", "mesh/cow.off", "mesh/spot.ply")
 
 
 def fixtures_dir() -> Path:
-    """$LUMIGRAPH_FIXTURES or <repo>/fixtures, fetched with the shared script when incomplete."""
+    """$LUMIGRAPH_FIXTURES or <repo>/fixtures, filled by scripts/fixtures.sh when incomplete."""
     folder = Path(os.environ.get("LUMIGRAPH_FIXTURES") or ROOT / "fixtures")
     if all((folder / f).is_file() for f in FIXTURE_FILES):
         return folder
-    script = Path(
-        os.environ.get("LUMIGRAPH_FETCH_FIXTURES")
-        or ROOT.parent / "shared" / "data" / "fetch-dev-fixtures.sh"
-    )
+    script = ROOT / "scripts" / "fixtures.sh"
     result = subprocess.run(
         ["bash", str(script), str(folder)], capture_output=True, text=True, check=False
     )
     if result.returncode != 0 or not all((folder / f).is_file() for f in FIXTURE_FILES):
         pytest.fail(
             f"cannot fetch the dev fixtures with {script} into {folder} "
-            f"(needs apt-get after apt-get update, and pip):\n{result.stdout}\n{result.stderr}"
+            f"(needs apt-get and pip with registry access):\n{result.stdout}\n{result.stderr}"
         )
     return folder
 

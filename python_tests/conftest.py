@@ -1,8 +1,8 @@
 """Shared fixtures of the Python binding tests.
 
 GPU work is kept small (12-42 cameras, maps <= 128 px, views <= 128 px) so that the suite stays
-fast on Mesa lavapipe (CPU). The real-mesh fixtures come from ../shared/data/fetch-dev-fixtures.sh
-into $LUMIGRAPH_FIXTURES or ./fixtures, fetched on first use like the Rust tests do.
+fast on Mesa lavapipe (CPU). The real-mesh fixtures come from scripts/fixtures.sh into
+$LUMIGRAPH_FIXTURES or ./fixtures, fetched on first use like the Rust tests do.
 """
 
 from __future__ import annotations

@@ -4,9 +4,7 @@
 cargo build --release --locked -q -p lumigraph_server
 LG=target/release/lumigraph
 FIX=${LUMIGRAPH_FIXTURES:-fixtures}
-if [ ! -f "$FIX/mesh/bunny00.off" ]; then
-  bash "${LUMIGRAPH_FETCH_FIXTURES:-../shared/data/fetch-dev-fixtures.sh}" "$FIX"
-fi
+bash scripts/fixtures.sh "$FIX" >/dev/null
 declare -A MESH=([bunny]="$FIX/mesh/bunny00.off" [cow]="$FIX/mesh/cow.off" [spot]="$FIX/mesh/spot.ply" [demo]="")
 # scene_asset SCENE [BAKE_FLAGS...]: bakes SCENE (162 cameras × 256 px, plus BAKE_FLAGS) into
 # $OUT/SCENE.lfa unless it is there, and sets ASSET to it and REF to `eval`'s source flags.

@@ -9,8 +9,8 @@ bake: 162 cameras, 256 px maps), then over `/v1/stream`:
   repeat), and frames per second per client;
 - bytes and encode ms per 512x512 frame for each codec (png, jpeg q90, webp lossless).
 
-Run with the e2e venv: `.venv-e2e/bin/python scripts/bench_service.py [--out out/bench_service.md]`
-(scripts/test_service_e2e.sh creates it). Writes a markdown report and prints it.
+Run by scripts/bench_all.sh (with a venv of httpx, websockets and pillow), or alone:
+`PY scripts/bench_service.py [--out out/bench_service.md]`. Writes a markdown report and prints it.
 """
 
 from __future__ import annotations
@@ -138,9 +138,6 @@ def start_server(assets: Path, port: int, log: Path) -> subprocess.Popen[bytes]:
     binary = Path(os.environ.get("LUMIGRAPH_BIN") or ROOT / "target" / "release" / "lumigraph")
     env = dict(os.environ)
     env.pop("LUMIGRAPH_TOKEN", None)
-    if not env.get("XDG_RUNTIME_DIR") or not os.path.isdir(env["XDG_RUNTIME_DIR"]):
-        env["XDG_RUNTIME_DIR"] = tempfile.mkdtemp(prefix="lumigraph-xdg-")
-        os.chmod(env["XDG_RUNTIME_DIR"], 0o700)
     proc = subprocess.Popen([str(binary), "serve", "--assets", str(assets), "--addr",
                              f"127.0.0.1:{port}"], stdout=log.open("wb"),
                             stderr=subprocess.STDOUT, env=env)

@@ -1,15 +1,14 @@
 #!/usr/bin/env bash
-# Installs what lumigraph needs at run time on a fresh Debian/Ubuntu machine: Mesa's software
-# Vulkan driver (lavapipe), so rendering works without a GPU. Idempotent; quiet when done already.
-set -euo pipefail
+# Sourced by the other scripts: installs what lumigraph needs at run time on a fresh
+# Debian/Ubuntu machine, Mesa's software Vulkan driver (lavapipe), so rendering works without a
+# GPU, and gives the shell a private runtime directory when it has none (lumigraph makes one
+# itself, but test binaries run many threads, where setting the environment is not safe).
+# Idempotent; quiet when done already.
+source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
 if ! ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1 && ! ls /etc/vulkan/icd.d/*.json >/dev/null 2>&1; then
-  SUDO=""
-  if [ "$(id -u)" != 0 ]; then SUDO="sudo"; fi
   echo "setup: installing mesa-vulkan-drivers libvulkan1 (software Vulkan for CPU-only machines)" >&2
-  $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq mesa-vulkan-drivers libvulkan1 >/dev/null
+  apt_install mesa-vulkan-drivers libvulkan1
 fi
-# Silence Mesa's "XDG_RUNTIME_DIR is invalid or not set" on every start.
 if [ -z "${XDG_RUNTIME_DIR:-}" ] || [ ! -d "${XDG_RUNTIME_DIR}" ]; then
   export XDG_RUNTIME_DIR="${TMPDIR:-/tmp}/lumigraph-xdg-$(id -u)"
   mkdir -p -m 700 "$XDG_RUNTIME_DIR"

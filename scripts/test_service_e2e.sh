@@ -9,38 +9,14 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$PWD
 source scripts/setup.sh
-SUDO=""
-if [ "$(id -u)" != 0 ]; then SUDO="sudo"; fi
-PYTHON=${PYTHON:-python3}
-if ! "$PYTHON" -c 'import sys; assert sys.version_info >= (3, 10)' 2>/dev/null; then
-  echo "test_service_e2e: need Python >= 3.10 as \$PYTHON" >&2
-  exit 1
-fi
-apt_install() {
-  $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "$@" >/dev/null
-}
-if ! "$PYTHON" -c 'import ensurepip, venv' 2>/dev/null; then
-  echo "== apt-get install python3-venv"
-  apt_install python3-venv
-fi
 CHROMIUM=${LUMIGRAPH_CHROMIUM:-/usr/bin/chromium}
 if [ ! -x "$CHROMIUM" ]; then
-  echo "== apt-get install chromium"
   apt_install chromium
 fi
-
 VENV=$ROOT/.venv-e2e
+make_venv "$VENV" 10
 PACKAGES="pytest pytest-timeout httpx websockets playwright pillow"
-if [ ! -x "$VENV/bin/python" ]; then
-  echo "== creating $VENV"
-  "$PYTHON" -m venv "$VENV"
-fi
-if [ "$(cat "$VENV/.packages" 2>/dev/null || true)" != "$PACKAGES" ]; then
-  echo "== pip install $PACKAGES"
-  "$VENV/bin/python" -m pip install -q --disable-pip-version-check $PACKAGES
-  echo "$PACKAGES" >"$VENV/.packages"
-fi
+pip_install_once "$VENV" "$PACKAGES" $PACKAGES
 
 # LUMIGRAPH_PROFILE=dev (scripts/test.sh) reuses the binary `cargo test` just built.
 if [ "${LUMIGRAPH_PROFILE:-release}" = dev ]; then PROFILE_DIR=debug; PROFILE_FLAG=""; else PROFILE_DIR=release; PROFILE_FLAG=--release; fi
@@ -55,13 +31,6 @@ else
 fi
 export LUMIGRAPH_BIN=$CARGO_TARGET_DIR/$PROFILE_DIR/lumigraph
 
-# wgpu/Mesa want a private runtime dir.
-if [ -z "${XDG_RUNTIME_DIR:-}" ] || [ ! -d "$XDG_RUNTIME_DIR" ]; then
-  XDG_RUNTIME_DIR=$(mktemp -d)
-  chmod 700 "$XDG_RUNTIME_DIR"
-  export XDG_RUNTIME_DIR
-  trap 'rm -rf "$XDG_RUNTIME_DIR"' EXIT
-fi
 export LUMIGRAPH_CHROMIUM=$CHROMIUM
 
 echo "== pytest python_tests/service"

@@ -40,6 +40,8 @@ use pyo3::prelude::*;
 /// The native module. Everything public is re-exported by `lumigraph/__init__.py`.
 #[pymodule]
 fn _lumigraph(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    // On import, before the module starts any thread: keeps Mesa quiet without XDG_RUNTIME_DIR.
+    lumigraph_core::gpu::ensure_runtime_dir();
     let py = m.py();
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("LumigraphError", py.get_type::<errors::LumigraphError>())?;

@@ -56,6 +56,8 @@ fn keep_freed_memory() {}
 
 fn main() -> std::process::ExitCode {
     keep_freed_memory();
+    // Before any thread starts: it may set XDG_RUNTIME_DIR, which keeps Mesa quiet.
+    lumigraph_core::gpu::ensure_runtime_dir();
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()

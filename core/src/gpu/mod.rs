@@ -5,7 +5,8 @@
 //! a GPU it is the GPU. `LUMIGRAPH_BACKEND` (vulkan | gl | metal | dx12 | auto) restricts the
 //! backend.
 
-use std::sync::{Arc, OnceLock};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Once, OnceLock};
 
 /// Errors while creating the device or talking to it.
 #[derive(Debug, thiserror::Error)]
@@ -82,6 +83,78 @@ impl Drop for Unmap<'_> {
 
 static SHARED: OnceLock<Result<Arc<Gpu>, String>> = OnceLock::new();
 
+/// Gives the process a private runtime directory when `XDG_RUNTIME_DIR` is unset, relative or
+/// not a directory, so that nothing but lumigraph speaks on stderr: Mesa's device-select Vulkan
+/// layer looks for a Wayland compositor while it lists adapters, and without a usable runtime
+/// directory libwayland prints "error: XDG_RUNTIME_DIR is invalid or not set in the environment."
+/// twice (no instance flag or backend choice avoids it: wgpu enables `VK_KHR_wayland_surface`
+/// wherever the driver offers it, and that is what makes the layer look).
+///
+/// The directory is `<temp dir>/lumigraph-xdg-<uid>`, created with mode 700; one that exists is
+/// used only when it is a directory (not a link) owned by this user and closed to others, else
+/// the environment is left as it is. Runs at most once per process. The `lumigraph` binary and
+/// the Python module call it before any thread starts; [`Gpu::new`] calls it too, for every
+/// other caller.
+pub fn ensure_runtime_dir() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        let usable = std::env::var_os("XDG_RUNTIME_DIR")
+            .map(PathBuf::from)
+            .is_some_and(|dir| dir.is_absolute() && dir.is_dir());
+        if usable {
+            return;
+        }
+        match private_runtime_dir() {
+            Ok(dir) => set_runtime_dir(&dir),
+            Err(error) => tracing::debug!("no private runtime directory: {error}"),
+        }
+    });
+}
+
+/// Creates (or checks) `<temp dir>/lumigraph-xdg-<uid>`: see [`ensure_runtime_dir`].
+#[cfg(unix)]
+fn private_runtime_dir() -> std::io::Result<PathBuf> {
+    use std::os::unix::fs::{DirBuilderExt, MetadataExt};
+    let uid = rustix::process::geteuid().as_raw();
+    let dir = std::env::temp_dir().join(format!("lumigraph-xdg-{uid}"));
+    if !dir.is_absolute() {
+        return Err(std::io::Error::other(format!(
+            "{} is not an absolute path",
+            dir.display()
+        )));
+    }
+    match std::fs::DirBuilder::new().mode(0o700).create(&dir) {
+        Ok(()) => {}
+        Err(error) if error.kind() == std::io::ErrorKind::AlreadyExists => {}
+        Err(error) => return Err(error),
+    }
+    // Made now or by an earlier run, or by someone else: trusted only if ours and private.
+    let meta = std::fs::symlink_metadata(&dir)?;
+    if !meta.is_dir() || meta.uid() != uid || meta.mode() & 0o077 != 0 {
+        return Err(std::io::Error::other(format!(
+            "{} is not a private directory of this user",
+            dir.display()
+        )));
+    }
+    Ok(dir)
+}
+
+#[cfg(not(unix))]
+fn private_runtime_dir() -> std::io::Result<PathBuf> {
+    Err(std::io::ErrorKind::Unsupported.into())
+}
+
+#[allow(unsafe_code)]
+fn set_runtime_dir(dir: &Path) {
+    // SAFETY: `set_var` is unsound only while another thread reads or writes the environment
+    // (libc's `getenv` included). This runs at most once per process (the `Once` in
+    // `ensure_runtime_dir`): first thing in the `lumigraph` binary's `main` and in the Python
+    // module's initialisation, before any thread of ours exists; otherwise in `Gpu::new` before
+    // the process's first GPU instance, where the caller must not touch the environment from
+    // another thread at the same moment (the reason the fronts call it early).
+    unsafe { std::env::set_var("XDG_RUNTIME_DIR", dir) };
+}
+
 fn backends_from_env() -> Result<(wgpu::Backends, String), GpuError> {
     let value = std::env::var("LUMIGRAPH_BACKEND").unwrap_or_else(|_| "auto".to_owned());
     let backends = match value.to_ascii_lowercase().as_str() {
@@ -114,6 +187,7 @@ impl Gpu {
     /// [`GpuError::BadBackend`], [`GpuError::NoAdapter`] (the message names the package to
     /// install), [`GpuError::Device`].
     pub fn new() -> Result<Gpu, GpuError> {
+        ensure_runtime_dir();
         let (backends, backend_name) = backends_from_env()?;
         // `auto` tries the native backends first (Vulkan/Metal/DX12: lavapipe on CPU-only Linux)
         // and falls back to GL only when none has an adapter.

@@ -1,5 +1,5 @@
-//! Helpers shared by integration tests: the real-data dev fixtures, fetched from pinned registry
-//! packages by `shared/data/fetch-dev-fixtures.sh`.
+//! Helpers shared by integration tests: the real-mesh dev fixtures, fetched from pinned registry
+//! packages by `scripts/fixtures.sh`.
 #![allow(dead_code)] // Each test binary uses its own subset.
 
 use std::path::{Path, PathBuf};
@@ -11,13 +11,7 @@ use std::sync::Mutex;
 static FETCH: Mutex<()> = Mutex::new(());
 
 /// The files the fetch script leaves (and checks the SHA-256 of); all present = complete.
-pub const FIXTURE_FILES: [&str; 5] = [
-    "mesh/bunny00.off",
-    "mesh/cow.off",
-    "mesh/spot.ply",
-    "volume/mni_t1.nii.gz",
-    "lightfield/GUVExperim1/Lightfield_GUVExperim1.tif",
-];
+pub const FIXTURE_FILES: [&str; 3] = ["mesh/bunny00.off", "mesh/cow.off", "mesh/spot.ply"];
 
 /// Written once every file is there, so later calls need no lock.
 const COMPLETE_MARKER: &str = ".fetch-complete";
@@ -26,11 +20,11 @@ const COMPLETE_MARKER: &str = ".fetch-complete";
 ///
 /// `$LUMIGRAPH_FIXTURES` if set, else `<workspace root>/fixtures` (workspace root =
 /// `CARGO_MANIFEST_DIR/..`; `/fixtures` is git-ignored). Unless every file of
-/// [`FIXTURE_FILES`] is there (e.g. `mesh/bunny00.off` is missing), runs the fetch script into
-/// it — `$LUMIGRAPH_FETCH_FIXTURES`, else `<workspace root>/../shared/data/fetch-dev-fixtures.sh`
-/// — holding the lock file `<dir>/.fetch.lock`, so that parallel tests and test binaries fetch
-/// once and never see a half-fetched folder. Panics with the script's output if it fails (it
-/// needs apt-get, after `apt-get update`, and pip with registry access; about 10 s, 12 MB).
+/// [`FIXTURE_FILES`] is there (e.g. `mesh/bunny00.off` is missing), runs
+/// `<workspace root>/scripts/fixtures.sh` into it holding the lock file `<dir>/.fetch.lock`, so
+/// that parallel tests and test binaries fetch once and never see a half-fetched folder. Panics
+/// with the script's output if it fails (it needs apt-get and pip with registry access; about
+/// 10 s, 4 MB).
 pub fn fixtures_dir() -> PathBuf {
     let workspace_root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let dir = std::env::var_os("LUMIGRAPH_FIXTURES")
@@ -51,10 +45,7 @@ pub fn fixtures_dir() -> PathBuf {
     lock.lock().expect("lock the fixtures lock file");
     let complete = |dir: &Path| FIXTURE_FILES.iter().all(|f| dir.join(f).is_file());
     if !complete(&dir) {
-        let script = std::env::var_os("LUMIGRAPH_FETCH_FIXTURES").map_or_else(
-            || workspace_root.join("../shared/data/fetch-dev-fixtures.sh"),
-            PathBuf::from,
-        );
+        let script = workspace_root.join("scripts/fixtures.sh");
         let output = Command::new("bash")
             .arg(&script)
             .arg(&dir)
@@ -62,7 +53,7 @@ pub fn fixtures_dir() -> PathBuf {
             .unwrap_or_else(|e| panic!("cannot run {}: {e}", script.display()));
         assert!(
             output.status.success() && complete(&dir),
-            "{} {} failed ({}):\n{}\n{}\n(it needs apt-get, after `apt-get update`, and pip with registry access)",
+            "{} {} failed ({}):\n{}\n{}\n(it needs apt-get and pip with registry access)",
             script.display(),
             dir.display(),
             output.status,

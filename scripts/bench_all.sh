@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# Regenerates every table of BENCHMARKS.md (release build, real-mesh fixtures + the demo), one
+# script after another, each into its own folder under OUT_DIR:
+#   bash scripts/bench_all.sh [OUT_DIR]   (default out/bench; about 30 min on 2-core lavapipe)
+# Run it on an otherwise idle machine: the timings are only as steady as the host.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+OUT=${1:-out/bench}
+mkdir -p "$OUT"
+step() {
+  echo "== $1 → $2"
+}
+step "quality and speed at 512² (scripts/bench.sh)" "$OUT/quality/tables.md: 'Quality', 'Speed at 512×512'"
+bash scripts/bench.sh "$OUT/quality"
+step "trade-off sweep (scripts/bench_tradeoff.sh)" "$OUT/tradeoff/tables.md and SCENE/pareto.png: 'Speed against accuracy'"
+bash scripts/bench_tradeoff.sh "$OUT/tradeoff"
+step "coarse-to-fine guide (scripts/bench_guide.sh, 8 runs)" "$OUT/guide/tables.md: 'Coarse-to-fine guide'"
+RUNS=${RUNS:-8} bash scripts/bench_guide.sh "$OUT/guide"
+step "automatic LOD (scripts/bench_lod.sh)" "$OUT/lod/tables.md: 'Automatic LOD'"
+bash scripts/bench_lod.sh "$OUT/lod"
+step "scenes (scripts/bench_scene.sh)" "$OUT/scene/times.txt: 'Scenes'"
+mkdir -p "$OUT/scene"
+bash scripts/bench_scene.sh "$OUT/scene" 2>&1 | tee "$OUT/scene/times.txt"
+step "render service (scripts/bench_service.py)" "$OUT/service.md: 'Render service streaming'"
+source scripts/common.sh
+make_venv .venv-bench 10
+pip_install_once .venv-bench "httpx websockets pillow" httpx websockets pillow
+.venv-bench/bin/python scripts/bench_service.py --out "$OUT/service.md"
+echo "== done: tables in $OUT"

@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# Fetches the real-mesh test fixtures into DIR (default: fixtures/ in the repository root), taken
+# out of pinned registry packages so that the bytes never change:
+#   mesh/bunny00.off  Stanford bunny, closed, 75k triangles  (Debian libcgal-demo 5.5.1-2, CGAL data)
+#   mesh/cow.off      cow, 5.8k triangles                     (same package)
+#   mesh/spot.ply     Spot the cow, 5.9k triangles, closed    (PyPI robust-laplacian 1.1.0 sdist, MIT)
+# Every file's SHA-256 is checked before it is moved into DIR (one rename per file), and
+# DIR/.fetch-complete is written last: a run that finds the files there and intact only writes the
+# marker. Needs apt-get download (the package lists are refreshed when the pinned version is not in
+# them), pip (a temporary virtual environment when $PIP does not work), tar, dpkg-deb, sha256sum.
+# About 10 s and 4 MB.
+set -euo pipefail
+ROOT=$(cd "$(dirname "$0")/.." && pwd)
+source "$ROOT/scripts/common.sh"
+DIR=${1:-$ROOT/fixtures}
+SUMS='ab651cb04955c161efaeb079035a1e5e1f0e0d1f816a2df67beaea68f393ff2b  mesh/bunny00.off
+1c5a25c3047fc6b14dd0c962d3562b1796671422ab4634f9d46f9f23814cd54a  mesh/cow.off
+2d24cc184dec9a03c32281312f7d2e44f70b51180d982dc0a81899e77efc275a  mesh/spot.ply'
+CGAL_DEB=libcgal-demo=5.5.1-2
+SPOT_SDIST='robust-laplacian==1.1.0 --hash=sha256:1db9eeb1a7aa340c3da902b125d2f58c7138feda206a72c2402dd25e702290d2'
+
+mkdir -p "$DIR"
+if (cd "$DIR" && sha256sum -c --quiet --status <<<"$SUMS") 2>/dev/null; then
+  touch "$DIR/.fetch-complete"
+  echo "fixtures ready in $DIR"
+  exit 0
+fi
+rm -f "$DIR/.fetch-complete"
+# Staged inside DIR, so that moving a checked file in is a rename on the same file system.
+STAGE=$(mktemp -d "$DIR/.stage.XXXXXX")
+trap 'rm -rf "$STAGE"' EXIT
+mkdir -p "$STAGE/mesh"
+
+# bunny and cow: CGAL's demo data, a tarball inside the Debian package.
+chmod 755 "$STAGE"  # apt-get download runs as the _apt user where it can
+if ! (cd "$STAGE" && apt-get download -q "$CGAL_DEB" >"$STAGE/apt.log" 2>&1); then
+  as_root apt-get update -qq
+  (cd "$STAGE" && apt-get download -q "$CGAL_DEB" >"$STAGE/apt.log" 2>&1) || { cat "$STAGE/apt.log" >&2; exit 1; }
+fi
+dpkg-deb --fsys-tarfile "$STAGE"/libcgal-demo_*.deb | tar -xO ./usr/share/doc/libcgal-dev/data.tar.gz \
+  | tar -xz -C "$STAGE" data/meshes/bunny00.off data/meshes/cow.off
+mv "$STAGE"/data/meshes/bunny00.off "$STAGE"/data/meshes/cow.off "$STAGE/mesh/"
+
+# spot: a test asset of geometry-central, vendored in the robust-laplacian source distribution
+# (its hash pinned, so pip refuses any other bytes).
+PIP=${PIP:-python3 -m pip}
+if ! $PIP --version >/dev/null 2>&1; then
+  make_venv "$STAGE/venv" 8 >&2
+  PIP="$STAGE/venv/bin/python -m pip"
+fi
+echo "$SPOT_SDIST" >"$STAGE/requirements.txt"
+$PIP download -q --disable-pip-version-check --no-deps --no-binary robust-laplacian --require-hashes \
+  -r "$STAGE/requirements.txt" -d "$STAGE"
+tar -xzf "$STAGE"/robust_laplacian-1.1.0.tar.gz -C "$STAGE" \
+  robust_laplacian-1.1.0/deps/geometry-central/test/assets/spot.ply
+mv "$STAGE"/robust_laplacian-1.1.0/deps/geometry-central/test/assets/spot.ply "$STAGE/mesh/"
+
+(cd "$STAGE" && sha256sum -c --quiet <<<"$SUMS")
+mkdir -p "$DIR/mesh"
+while read -r _ file; do
+  mv -f "$STAGE/$file" "$DIR/$file"
+done <<<"$SUMS"
+touch "$DIR/.fetch-complete"
+echo "fixtures ready in $DIR"
