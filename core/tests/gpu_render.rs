@@ -1293,7 +1293,7 @@ fn visible_box_holds_the_surface_and_little_more() {
     let center = DVec3::from(frame.center);
     let cube_lo = (DVec3::splat(-0.5) - center) / scale;
     let cube_hi = (DVec3::splat(0.5) - center) / scale;
-    // Margin of render.rs for 64-px, 16-bit maps; 1e-4 for f32 rounding of the sampled faces.
+    // Margin of render/upload.rs for 64-px, 16-bit maps; 1e-4 for f32 rounding of the sampled faces.
     let margin = 8.0 / 64.0 + 2.0 / 65535.0 + 0.01;
     let [lo, hi] = field.visible_box.map(|v| DVec3::from(v.map(f64::from)));
     for axis in 0..3 {

@@ -36,7 +36,7 @@ struct RenderParams {
     // so a miss that passed close to a surface is marked near, with where it first did: its
     // depth output is −2 − z for that z-depth (−1 for a miss far from every surface).
     near_scale: f32,
-    // Box around every surface point the maps hold (see `visible_box` in render.rs).
+    // Box around every surface point the maps hold (see `VisibleBox` in render/upload.rs).
     box_min: vec3<f32>,
     // Non-zero in a compacted guided pass: workgroup w renders the 4×4 quads `tiles[4w..4w + 4]`
     // (see `cs_tiles`) instead of the w-th 8×8 tile of the frame; 2 in the pass that marches the

@@ -293,8 +293,8 @@ impl Renderer {
     }
 
     /// The modes this renderer was built with.
-    pub fn switches(&self) -> &Switches {
-        &self.switches
+    pub fn switches(&self) -> Switches {
+        self.switches
     }
 
     /// The device.
