@@ -365,11 +365,11 @@ fn uniform_branches(source: &str) -> Vec<String> {
     {
         let specialised = source
             .replace(
-                "override METHODS: u32 = 3u;",
+                "override METHODS: u32 = METHODS_BOTH;",
                 &format!("const METHODS: u32 = {methods}u;"),
             )
             .replace(
-                "override ROLE: u32 = 0u;",
+                "override ROLE: u32 = ROLE_PLAIN;",
                 &format!("const ROLE: u32 = {role}u;"),
             )
             .replace(
