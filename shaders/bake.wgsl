@@ -9,7 +9,7 @@ struct BakeParams {
 }
 
 // Camera k: position on the unit sphere and its local frame (z = -position: the recorded hemisphere's pole).
-struct Camera {
+struct BakeCamera {
     position: vec4<f32>,
     x: vec4<f32>,
     y: vec4<f32>,
@@ -24,7 +24,7 @@ struct BvhNode {
 }
 
 @group(0) @binding(0) var<uniform> params: BakeParams;
-@group(0) @binding(1) var<storage, read> cameras: array<Camera>;
+@group(0) @binding(1) var<storage, read> cameras: array<BakeCamera>;
 @group(0) @binding(2) var<storage, read_write> out_color: array<u32>;
 @group(0) @binding(3) var<storage, read_write> out_depth: array<f32>;
 
@@ -134,7 +134,7 @@ struct MapRay {
     chord: f32,
 }
 
-fn map_ray(cam: Camera, uv: vec2<f32>) -> MapRay {
+fn map_ray(cam: BakeCamera, uv: vec2<f32>) -> MapRay {
     let q = dot(uv, uv);
     let rz = (1.0 - q) / (1.0 + q);
     let r = vec3<f32>(uv * (1.0 + rz), rz);
@@ -188,7 +188,7 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
 const EDGE_ITERATIONS: u32 = 6u;
 
 // Normalized depth of camera `cam`'s first hit through map point uv, or −1 where it hits nothing.
-fn covered_depth(cam: Camera, uv: vec2<f32>) -> f32 {
+fn covered_depth(cam: BakeCamera, uv: vec2<f32>) -> f32 {
     let ray = map_ray(cam, uv);
     if ray.chord <= 0.0 {
         return -1.0;

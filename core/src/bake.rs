@@ -131,7 +131,8 @@ struct BakeParams {
 }
 const _: () = assert!(std::mem::size_of::<BakeParams>() == 48);
 
-/// One camera as the shaders read it (`struct Camera`): position and local frame, 64 bytes.
+/// One camera as the shaders read it (bake.wgsl `struct BakeCamera`): position and local frame,
+/// 64 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(crate) struct GpuCamera {

@@ -570,7 +570,7 @@ pub fn camera_frame(p: Vec3) -> [Vec3; 3] {
 
 /// The world axis (0 = x, 1 = y, 2 = z) that [`camera_frame`] crosses with the camera's `z`
 /// at position `p`: the one least aligned with it, ties broken in f64 as there. The marcher
-/// derives each frame from the position and this index (render.wgsl `camera`), so a tie
+/// derives each frame from the position and this index (shared/lightfield.wgsl `camera`), so a tie
 /// that f32 would break otherwise cannot give it another frame. 0 for a zero or non-finite
 /// `p`.
 #[must_use]

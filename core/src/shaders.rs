@@ -1,11 +1,6 @@
 //! WGSL sources, embedded at build time from `shaders/`. Each pipeline's module is its file with
 //! the shared code it needs prepended (WGSL has no includes).
 
-/// Mesh layout and shading shared by baking and the reference rasterizer.
-pub const MESH_SHARED: &str = include_str!("../../shaders/shared/mesh.wgsl");
-/// Light-field sampling helpers shared by the marchers.
-pub const LIGHTFIELD_SHARED: &str = include_str!("../../shaders/shared/lightfield.wgsl");
-
 /// The bake ray tracer (compute).
 pub const BAKE: &str = concat!(
     include_str!("../../shaders/shared/mesh.wgsl"),
@@ -16,18 +11,26 @@ pub const REFERENCE: &str = concat!(
     include_str!("../../shaders/shared/mesh.wgsl"),
     include_str!("../../shaders/reference.wgsl")
 );
-/// The light-field marcher (compute), without its generated constants (see [`render_source`]).
-pub const RENDER: &str = concat!(
-    include_str!("../../shaders/shared/lightfield.wgsl"),
-    include_str!("../../shaders/render.wgsl")
-);
 
-/// The marcher's full source: [`RENDER`] plus constants from [`crate::geometry`] (the camera
-/// set's sizes, for the uniform arrays, and the direction lookup's), and `count_work`, which adds
-/// an invocation's work to the frame's counters: with `subgroups` (the device has
+/// The marcher's files, by stage, in the order [`render_source`] joins them after the light-field
+/// helpers (`shaders/shared/lightfield.wgsl`) (docs/marcher.md).
+pub const RENDER_FILES: [(&str, &str); 6] = [
+    ("params", include_str!("../../shaders/render/params.wgsl")),
+    ("probe", include_str!("../../shaders/render/probe.wgsl")),
+    ("march", include_str!("../../shaders/render/march.wgsl")),
+    ("shade", include_str!("../../shaders/render/shade.wgsl")),
+    ("tiles", include_str!("../../shaders/render/tiles.wgsl")),
+    ("main", include_str!("../../shaders/render/main.wgsl")),
+];
+
+/// The marcher's full source: a generated preamble, then the light-field helpers and
+/// [`RENDER_FILES`]. The preamble holds the
+/// camera set's sizes (for the uniform arrays) and the direction lookup's from
+/// [`crate::geometry`], the constants Rust and WGSL share from [`crate::render`] (edge codes,
+/// bounding radius, method, role and tiling codes), and `count_work`, which adds an
+/// invocation's work to the frame's counters: with `subgroups` (the device has
 /// `wgpu::Features::SUBGROUP`), summed over the subgroup first, one atomic add per subgroup
-/// instead of one per invocation (on lavapipe, invocations on both cores adding to the same
-/// counters cost about 0.6 ms of an 18 ms 512² frame).
+/// instead of one per invocation on both cores.
 pub fn render_source(subgroups: bool) -> String {
     use crate::geometry::{DIRECTION_LOOKUP_SIZE, MAX_LEVEL};
     let set = crate::geometry::camera_set();
@@ -37,12 +40,16 @@ pub fn render_source(subgroups: bool) -> String {
         set.positions.len(),
         set.triangles.len()
     );
+    out.push_str(&crate::render::wgsl_constants());
     out.push_str(if subgroups {
         COUNT_WORK_SUBGROUPS
     } else {
         COUNT_WORK_ATOMICS
     });
-    out.push_str(RENDER);
+    out.push_str(include_str!("../../shaders/shared/lightfield.wgsl"));
+    for (_, source) in RENDER_FILES {
+        out.push_str(source);
+    }
     out
 }
 

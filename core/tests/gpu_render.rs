@@ -14,7 +14,9 @@ use lumigraph_core::gpu::Gpu;
 use lumigraph_core::mesh::{Mesh, demo_mesh};
 use lumigraph_core::metrics;
 use lumigraph_core::reference::ReferenceRenderer;
-use lumigraph_core::render::{Method, RenderOptions, Renderer};
+use lumigraph_core::render::{
+    GpuLightField, InteriorBlocks, Method, RenderOptions, Renderer, Switches,
+};
 use lumigraph_core::shading::Shading;
 use lumigraph_core::view::View;
 
@@ -130,10 +132,20 @@ fn bake_sized(mesh: &Mesh, cameras: u32, resolution: u32) -> AssetFile {
     )
 }
 
-/// A renderer of its own, for a test that switches one of its hidden modes (the shared one
-/// serves tests running in parallel).
-fn own_renderer() -> Renderer {
-    Renderer::new(Gpu::shared().expect("a GPU adapter"))
+/// The default switches, without per-pass timing whatever the environment says.
+fn default_switches() -> Switches {
+    Switches {
+        pass_timing: false,
+        ..Switches::default()
+    }
+}
+
+/// A renderer of its own built with `switches` from [`default_switches`], with `asset` uploaded
+/// to it.
+fn switched(switches: Switches, asset: &AssetFile) -> (Renderer, GpuLightField) {
+    let renderer = Renderer::with_switches(Gpu::shared().expect("a GPU adapter"), switches);
+    let field = renderer.upload(asset).expect("upload");
+    (renderer, field)
 }
 
 /// The built-in demo mesh and its light field ([`bake_sized`]).
@@ -1281,7 +1293,7 @@ fn visible_box_holds_the_surface_and_little_more() {
     let center = DVec3::from(frame.center);
     let cube_lo = (DVec3::splat(-0.5) - center) / scale;
     let cube_hi = (DVec3::splat(0.5) - center) / scale;
-    // Margin of render.rs for 64-px, 16-bit maps; 1e-4 for f32 rounding of the sampled faces.
+    // Margin of render/upload.rs for 64-px, 16-bit maps; 1e-4 for f32 rounding of the sampled faces.
     let margin = 8.0 / 64.0 + 2.0 / 65535.0 + 0.01;
     let [lo, hi] = field.visible_box.map(|v| DVec3::from(v.map(f64::from)));
     for axis in 0..3 {
@@ -1658,10 +1670,19 @@ fn tile_compaction_and_pass_timing_change_no_pixel() {
     // Exact equality: compaction changes which workgroups run, never what a pixel computes.
     // (With the interior pass off: it comes with compaction and does change pixels, within
     // the bounds `interior_pass_matches_marching` checks.)
-    let renderer = own_renderer();
-    renderer.set_interior(false);
     let (_, asset) = baked_demo(42, 96);
-    let field = renderer.upload(&asset).expect("upload");
+    let marching = Switches {
+        interior: false,
+        ..default_switches()
+    };
+    let (full_renderer, full_field) = switched(
+        Switches {
+            tile_compaction: false,
+            ..marching
+        },
+        &asset,
+    );
+    let (renderer, field) = switched(marching, &asset);
     let r = asset.header().frame.radius;
     let center = asset.header().frame.center;
     // Random orbits, a far view (a few tiles), a near one filling the frame, a non-multiple
@@ -1694,13 +1715,10 @@ fn tile_compaction_and_pass_timing_change_no_pixel() {
                 guide: Some(guide),
                 ..Default::default()
             };
-            renderer.set_tile_compaction(false);
-            let full = renderer.render(&field, view, &options);
-            renderer.set_tile_compaction(true);
-            let (full, compact) = (
-                full.expect("render"),
-                renderer.render(&field, view, &options).expect("render"),
-            );
+            let full = full_renderer
+                .render(&full_field, view, &options)
+                .expect("render");
+            let compact = renderer.render(&field, view, &options).expect("render");
             let hits = compact.depth.iter().filter(|z| z.is_finite()).count();
             assert!(hits > 0, "guide {guide}: nothing hit");
             assert!(
@@ -1713,15 +1731,19 @@ fn tile_compaction_and_pass_timing_change_no_pixel() {
     }
     // Per-pass timing submits and waits after every pass: same pixels and counters.
     let options = RenderOptions::default();
-    renderer.set_pass_timing(true);
-    let timed = renderer.render(&field, &views[0], &options);
-    renderer.set_pass_timing(false);
-    let (timed, plain) = (
-        timed.expect("render"),
-        renderer
-            .render(&field, &views[0], &options)
-            .expect("render"),
+    let (timed_renderer, timed_field) = switched(
+        Switches {
+            pass_timing: true,
+            ..marching
+        },
+        &asset,
     );
+    let timed = timed_renderer
+        .render(&timed_field, &views[0], &options)
+        .expect("render");
+    let plain = renderer
+        .render(&field, &views[0], &options)
+        .expect("render");
     assert!(timed.color == plain.color && timed.depth == plain.depth);
     assert_eq!(
         (timed.stats.rays, timed.stats.steps, timed.stats.fetches),
@@ -1734,18 +1756,24 @@ fn interior_pass_matches_marching() {
     // The interior pass shades the flat quads of a guided frame (every coarse pixel around them
     // hit, no large second difference of their depths) at depths interpolated between the
     // coarse pass's, instead of marching them. Same frames with it on and off.
-    let renderer = own_renderer();
     let (mesh, asset) = baked_demo(162, 128);
-    let field = renderer.upload(&asset).expect("upload");
+    let (marching, marching_field) = switched(
+        Switches {
+            interior: false,
+            ..default_switches()
+        },
+        &asset,
+    );
+    let (renderer, field) = switched(default_switches(), &asset);
     let gpu_mesh = ctx().reference.upload(&mesh).expect("upload mesh");
     let r = asset.header().frame.radius;
     let views = eval_views(&asset, 4, 21, 256);
     let (mut marched_q, mut interior_q) = (Vec::new(), Vec::new());
     for view in &views {
         let options = RenderOptions::default();
-        renderer.set_interior(false);
-        let marched = renderer.render(&field, view, &options).expect("render");
-        renderer.set_interior(true);
+        let marched = marching
+            .render(&marching_field, view, &options)
+            .expect("render");
         let interior = renderer.render(&field, view, &options).expect("render");
         let truth = ctx()
             .reference
@@ -1794,26 +1822,37 @@ fn interior_pass_matches_marching() {
 #[test]
 fn interior_blocks_match_one_pixel_per_invocation() {
     // The interior pass in 2×2 blocks shades each block's pixels with the cameras of the
-    // triangle met by the ray through its centre (render.wgsl `shade_interior_block`); the
+    // triangle met by the ray through its centre (render/shade.wgsl `shade_interior_block`); the
     // renderer uses blocks where that costs no more than the direction lookup's own reach
     // again. Forced on and off, at 512² (where they are on by themselves) and at 256² (where
     // they are not): the same frames but for a few pixels near the cameras' triangle edges.
     // A block's pixels interpolate between the same four coarse depths, loaded once, as each
     // pixel alone does.
-    let renderer = own_renderer();
     let (_, asset) = baked_demo(162, 128);
-    let field = renderer.upload(&asset).expect("upload");
+    let blocks_forced = |blocks| {
+        switched(
+            Switches {
+                interior_blocks: blocks,
+                ..default_switches()
+            },
+            &asset,
+        )
+    };
+    let (single_renderer, single_field) = blocks_forced(InteriorBlocks::Off);
+    let (blocks_renderer, blocks_field) = blocks_forced(InteriorBlocks::On);
+    let (renderer, field) = switched(default_switches(), &asset);
     let mut views = eval_views(&asset, 2, 33, 512);
     views.extend(eval_views(&asset, 2, 34, 256));
     let options = RenderOptions::default();
     // The frame with blocks forced off, then forced on.
     let single_and_blocks = |view: &View| {
-        renderer.set_interior_blocks(Some(false));
-        let single = renderer.render(&field, view, &options).expect("render");
-        renderer.set_interior_blocks(Some(true));
-        let blocks = renderer.render(&field, view, &options);
-        renderer.set_interior_blocks(None);
-        (single, blocks.expect("render"))
+        let single = single_renderer
+            .render(&single_field, view, &options)
+            .expect("render");
+        let blocks = blocks_renderer
+            .render(&blocks_field, view, &options)
+            .expect("render");
+        (single, blocks)
     };
     for view in &views {
         let (single, blocks) = single_and_blocks(view);
@@ -1845,7 +1884,7 @@ fn interior_blocks_match_one_pixel_per_invocation() {
             view.width
         );
     }
-    // At 510² some blocks would straddle two coarse cells (render.rs
+    // At 510² some blocks would straddle two coarse cells (render/guide.rs
     // `blocks_share_coarse_cells`): forced on, blocks are not used, and the frame is the one
     // pixel per invocation renders.
     for view in eval_views(&asset, 1, 35, 510) {
@@ -1864,17 +1903,22 @@ fn tile_pass_reads_three_by_three_where_quads_share_a_coarse_pixel() {
     // pass reads the 3×3 coarse pixels around a quad instead of 4×4 with the fourth row and
     // column clamped onto the third: the same quads are listed, so the frames are identical,
     // bit for bit, with the same work counted.
-    let renderer = own_renderer();
     let (_, asset) = baked_demo(162, 128);
-    let field = renderer.upload(&asset).expect("upload");
+    let (wide_renderer, wide_field) = switched(
+        Switches {
+            wide_tile_reads: true,
+            ..default_switches()
+        },
+        &asset,
+    );
+    let (renderer, field) = switched(default_switches(), &asset);
     let mut views = eval_views(&asset, 2, 36, 512);
     views.extend(eval_views(&asset, 1, 37, 384));
     let options = RenderOptions::default();
     for view in &views {
-        renderer.set_wide_tile_reads(true);
-        let wide = renderer.render(&field, view, &options);
-        renderer.set_wide_tile_reads(false);
-        let wide = wide.expect("render");
+        let wide = wide_renderer
+            .render(&wide_field, view, &options)
+            .expect("render");
         let narrow = renderer.render(&field, view, &options).expect("render");
         assert!(
             narrow.color == wide.color && narrow.depth == wide.depth,
@@ -1912,23 +1956,26 @@ fn interior_pass_gives_back_a_slit_the_coarse_pass_stepped_over() {
     // plate at the same depth, so its tiles are flat and interpolation would close it. No
     // camera agrees with a point in the slit (they see through it), so those tiles are given
     // back and marched: the slit stays open.
-    let renderer = own_renderer();
     let asset = bake_sized(&slit_plates(0.03), 162, 384);
-    let field = renderer.upload(&asset).expect("upload");
     let view = View::look_at([0.0, 0.0, 2.6], [0.0, 0.0, 0.0], 40.0, 256, 256);
     let options = RenderOptions {
         guide: Some(8),
         ..Default::default()
     };
-    renderer.set_interior(false);
-    let marched = renderer.render(&field, &view, &options).expect("render");
-    renderer.set_interior(true);
-    let interior = renderer.render(&field, &view, &options).expect("render");
+    let render_with = |switches: Switches| {
+        let (renderer, field) = switched(switches, &asset);
+        renderer.render(&field, &view, &options).expect("render")
+    };
+    let marched = render_with(Switches {
+        interior: false,
+        ..default_switches()
+    });
+    let interior = render_with(default_switches());
     // In 2×2 blocks the interior pass gives back what any pixel of a block cannot shade.
-    renderer.set_interior_blocks(Some(true));
-    let blocks = renderer.render(&field, &view, &options);
-    renderer.set_interior_blocks(None);
-    let blocks = blocks.expect("render");
+    let blocks = render_with(Switches {
+        interior_blocks: InteriorBlocks::On,
+        ..default_switches()
+    });
     let row = |frame: &Frame, y: u32| -> String {
         (112..144)
             .map(|x| {
@@ -1964,4 +2011,100 @@ fn interior_pass_gives_back_a_slit_the_coarse_pass_stepped_over() {
     assert_eq!(open_interior, open_marched);
     assert_eq!(open(&blocks), open_marched, "blocks");
     assert!(blocks.stats.steps < marched.stats.steps);
+}
+
+/// The analytic box's z-depth per pixel of `view` along the rays through the pixels' centres
+/// moved by `jitter` pixels (x right, y down), in f64: `None` where the ray misses.
+fn box_truth(view: &View, (lo, hi): (DVec3, DVec3), jitter: [f64; 2]) -> Vec<Option<f64>> {
+    let b = view.basis(8192).expect("view");
+    let (w, h) = (view.width, view.height);
+    (0..h)
+        .flat_map(|i| (0..w).map(move |j| (i, j)))
+        .map(|(i, j)| {
+            let x = (f64::from(j) + 0.5 + jitter[0] - f64::from(w) / 2.0) / b.focal_px;
+            let y = -(f64::from(i) + 0.5 + jitter[1] - f64::from(h) / 2.0) / b.focal_px;
+            let d = (x * b.right + y * b.true_up + b.forward).normalize();
+            ray_box(b.eye, d, lo, hi).map(|t| t * d.dot(b.forward))
+        })
+        .collect()
+}
+
+/// Coverage mismatches of `frame` against `truth`, and the median |z − z_true| / r over the
+/// pixels both cover.
+fn against_truth(frame: &Frame, truth: &[Option<f64>], r: f64) -> (usize, f64) {
+    let mut errors = Vec::new();
+    let mut mismatches = 0;
+    for (z, t) in frame.depth.iter().zip(truth) {
+        match (t, z.is_finite()) {
+            (Some(t), true) => errors.push((f64::from(*z) - t).abs() / r),
+            (None, false) => {}
+            _ => mismatches += 1,
+        }
+    }
+    errors.sort_by(f64::total_cmp);
+    (
+        mismatches,
+        errors.get(errors.len() / 2).copied().unwrap_or(0.0),
+    )
+}
+
+#[test]
+fn jittered_render_samples_the_shifted_rays() {
+    // Zero jitter is `render_blend`, bit for bit. Jittered by half a pixel right and up (a
+    // guided frame, so the coarse passes move with it), the frame matches the analytic cube
+    // along the shifted rays: coverage within the silhouette pixels the marcher itself gets
+    // wrong, depths within its usual error; against the unshifted rays it is off by the shift.
+    let (_mesh, _asset, field) = unit_cube(162, 128);
+    let view = cube_view(256);
+    let options = RenderOptions::default();
+    let renderer = &ctx().renderer;
+    let plain = renderer
+        .render_blend(&field, &view, &options, &options, 0.0)
+        .expect("render");
+    let zero = renderer
+        .render_jittered(&field, &view, &options, &options, 0.0, [0.0, 0.0])
+        .expect("render");
+    assert!(plain.color == zero.color && plain.depth == zero.depth);
+    let jitter = [0.5, -0.5];
+    let moved = renderer
+        .render_jittered(&field, &view, &options, &options, 0.0, jitter)
+        .expect("render");
+    let r = 3f64.sqrt() / 2.0;
+    let (mismatch_moved, median_moved) = against_truth(
+        &moved,
+        &box_truth(&view, unit_box(), jitter.map(f64::from)),
+        r,
+    );
+    let (mismatch_still, median_still) =
+        against_truth(&moved, &box_truth(&view, unit_box(), [0.0, 0.0]), r);
+    let (mismatch_plain, median_plain) =
+        against_truth(&plain, &box_truth(&view, unit_box(), [0.0, 0.0]), r);
+    eprintln!(
+        "jittered vs shifted rays: {mismatch_moved} px, median {median_moved:.2e} r; vs \
+         unshifted: {mismatch_still} px, {median_still:.2e} r; unjittered: {mismatch_plain} px, \
+         {median_plain:.2e} r"
+    );
+    // The jittered frame is as good against the shifted rays as the plain one against its own
+    // (coverage within 50 % + 10 px, median depth within 50 % + 1e-5 r: both are the marcher's
+    // own error), and at least twice as good as against the unshifted rays (half a pixel moves
+    // every silhouette pixel's coverage and every face's depth by its slope).
+    assert!(
+        mismatch_moved as f64 <= 1.5 * mismatch_plain as f64 + 10.0,
+        "{mismatch_moved} vs {mismatch_plain}"
+    );
+    assert!(median_moved <= 1.5 * median_plain + 1e-5);
+    assert!(2 * mismatch_moved < mismatch_still);
+    assert!(2.0 * median_moved < median_still);
+    // Out of range or not finite: a clear error.
+    for bad in [
+        [0.6, 0.0],
+        [0.0, -0.51],
+        [f32::NAN, 0.0],
+        [0.0, f32::INFINITY],
+    ] {
+        let err = renderer
+            .render_jittered(&field, &view, &options, &options, 0.0, bad)
+            .expect_err("bad jitter");
+        assert!(err.to_string().contains("jitter"), "{bad:?}: {err}");
+    }
 }

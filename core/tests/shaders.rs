@@ -23,21 +23,110 @@ fn every_shader_validates_with_naga() {
 
 #[test]
 fn every_shader_file_is_embedded() {
-    // A new .wgsl file must be added to `shaders::all()` (or be shared code included by one).
+    // A new .wgsl file must be added to `shaders::all()` (or be shared code included by one);
+    // the marcher's stages to `shaders::RENDER_FILES`.
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shaders");
-    for entry in std::fs::read_dir(&dir).expect("shaders dir") {
-        let path = entry.expect("entry").path();
-        if path.extension().is_some_and(|e| e == "wgsl") {
-            let stem = path
-                .file_stem()
-                .and_then(|s| s.to_str())
-                .unwrap_or_default()
-                .to_owned();
+    let stems = |dir: &std::path::Path| -> Vec<String> {
+        std::fs::read_dir(dir)
+            .expect("shaders dir")
+            .map(|entry| entry.expect("entry").path())
+            .filter(|path| path.extension().is_some_and(|e| e == "wgsl"))
+            .filter_map(|path| path.file_stem()?.to_str().map(str::to_owned))
+            .collect()
+    };
+    for stem in stems(&dir) {
+        assert!(
+            lumigraph_core::shaders::all()
+                .iter()
+                .any(|(n, _)| *n == stem),
+            "{stem}.wgsl is not in shaders::all()"
+        );
+    }
+    let stages = stems(&dir.join("render"));
+    assert_eq!(stages.len(), lumigraph_core::shaders::RENDER_FILES.len());
+    for stem in stages {
+        assert!(
+            lumigraph_core::shaders::RENDER_FILES
+                .iter()
+                .any(|(n, _)| *n == stem),
+            "render/{stem}.wgsl is not in shaders::RENDER_FILES"
+        );
+    }
+    assert!(
+        !dir.join("render.wgsl").exists(),
+        "the marcher is split by stage"
+    );
+}
+
+#[test]
+fn render_params_match_the_rust_layout() {
+    // Every member of the WGSL `RenderParams`, in order, has the name and byte offset of the
+    // Rust struct's member, and the struct's size matches: a field added, moved or retyped on
+    // one side only fails here, without a GPU.
+    let source = lumigraph_core::shaders::render_source(false);
+    let module = naga::front::wgsl::parse_str(&source).expect("parses");
+    let members = module
+        .types
+        .iter()
+        .find_map(|(_, ty)| match &ty.inner {
+            naga::TypeInner::Struct { members, span }
+                if ty.name.as_deref() == Some("RenderParams") =>
+            {
+                Some((members.clone(), *span))
+            }
+            _ => None,
+        })
+        .expect("a RenderParams struct");
+    let (members, span) = members;
+    let wgsl: Vec<(String, usize)> = members
+        .iter()
+        .map(|m| (m.name.clone().unwrap_or_default(), m.offset as usize))
+        .collect();
+    let rust: Vec<(String, usize)> = lumigraph_core::render::render_params_layout()
+        .into_iter()
+        .map(|(name, offset)| (name.to_owned(), offset))
+        .collect();
+    assert_eq!(wgsl, rust);
+    assert_eq!(span, 192);
+}
+
+#[test]
+fn marcher_constants_are_generated_once() {
+    // The constants Rust and WGSL share come from the generated preamble only: no stage file
+    // defines one of them again, and the stage files hold none of the values by hand.
+    let source = lumigraph_core::shaders::render_source(false);
+    let generated: Vec<&str> = source
+        .lines()
+        .filter_map(|line| line.strip_prefix("const "))
+        .filter_map(|rest| rest.split(':').next())
+        .collect();
+    for name in [
+        "EDGE_BASE",
+        "EDGE_CODES",
+        "EDGE_E_LEVELS",
+        "BOUNDING_RADIUS",
+        "METHOD_FIXED",
+        "ROLE_COARSE",
+        "TILED_GIVEN_BACK",
+    ] {
+        assert_eq!(
+            generated.iter().filter(|n| **n == name).count(),
+            1,
+            "{name} is defined once"
+        );
+    }
+    for (stage, text) in lumigraph_core::shaders::RENDER_FILES {
+        for literal in [
+            "57343u",
+            "8192u",
+            "0.70710678",
+            "511u",
+            "ROLE == 1u",
+            "ROLE == 3u",
+        ] {
             assert!(
-                lumigraph_core::shaders::all()
-                    .iter()
-                    .any(|(n, _)| *n == stem),
-                "{stem}.wgsl is not in shaders::all()"
+                !text.contains(literal),
+                "render/{stage}.wgsl holds {literal}"
             );
         }
     }
@@ -276,11 +365,11 @@ fn uniform_branches(source: &str) -> Vec<String> {
     {
         let specialised = source
             .replace(
-                "override METHODS: u32 = 3u;",
+                "override METHODS: u32 = METHODS_BOTH;",
                 &format!("const METHODS: u32 = {methods}u;"),
             )
             .replace(
-                "override ROLE: u32 = 0u;",
+                "override ROLE: u32 = ROLE_PLAIN;",
                 &format!("const ROLE: u32 = {role}u;"),
             )
             .replace(

@@ -1,4 +1,4 @@
-// Spherical light-field data shared by the marchers: cameras, the icosphere triangle hierarchy and the triangle lookup of seed 000 §2.
+// Spherical light-field data for the marcher: cameras, the icosphere triangle hierarchy and the triangle lookup of seed 000 §2.
 
 // A camera's position on the unit sphere and its frame (z = −position: the pole of the
 // hemisphere it records).
@@ -12,9 +12,8 @@ struct Camera {
 // Camera k, its frame derived from its position as `geometry::camera_frame` derives it: z the
 // unit vector towards the centre, x = normalize(a × z) for the world axis a that rule picks
 // (its index in `cameras[k].w`, chosen on the CPU in f64, so f32 cannot break a tie otherwise),
-// y = z × x. Derived, not loaded: on lavapipe every per-pixel load of a uniform array is a
-// gather, and the nine floats of a frame cost more to gather than to compute (a 512² demo
-// frame 0.2–0.6 ms faster); the frame differs from the CPU's f64 one by f32 rounding (below
+// y = z × x. Derived, not loaded: the nine floats of a frame cost more to gather than to
+// compute (docs/marcher.md); the frame differs from the CPU's f64 one by f32 rounding (below
 // 1e-6, tests).
 fn camera(k: u32) -> Camera {
     let p = cameras[k];
@@ -38,12 +37,11 @@ struct Located {
 // `direction_lookup` holds, for each texel of an octahedral map of directions, the level-MAX_LEVEL
 // triangle holding the texel's centre (`CameraSet::direction_lookup`, built by the CPU geometry);
 // its ancestor at `level` is found by index. One texel load instead of a descent of the
-// hierarchy, which read three edge normals per level: buffer and texture loads are what a lookup
-// costs on lavapipe (a 512² frame 0.7–1.6 ms faster on the bunny and the demo). A direction within
+// hierarchy, which read three edge normals per level: loads are what a lookup costs on lavapipe
+// (docs/marcher.md). A direction within
 // DIRECTION_LOOKUP_REACH (0.0042 rad) of a triangle's edge may get the neighbour across it: its
 // weights, clamped to that edge, are then off by about that distance over the triangle's height
-// (measured over 60 000 directions, vertices and edges among them: at most 0.012 at level 2,
-// 0.026 at level 3; `shader_lookup_finds_the_triangle_within_its_reach` in render.rs).
+// (`shader_lookup_finds_the_triangle_within_its_reach` in render/upload.rs bounds it).
 fn locate(p: vec3<f32>, level: u32) -> Located {
     let q = p / max(abs(p.x) + abs(p.y) + abs(p.z), 1e-30);
     // The lower hemisphere is folded out into the corners of the square.

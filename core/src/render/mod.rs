@@ -1,0 +1,700 @@
+//! Rendering new views from a spherical light field on the GPU (seed 000 §2, DESIGN §4).
+//!
+//! [`Renderer`] holds the compute pipeline (built once); [`GpuLightField`] holds one asset's
+//! colour and depth maps as 2D texture arrays plus its cameras and triangle hierarchy; a render
+//! fills a [`Frame`] with colour, z-depth in world units and stats.
+//!
+//! Two methods: [`Method::Fixed`] is the seed's fixed-step search with bilinear depth (the
+//! baseline); [`Method::Default`] marches coarse steps with an edge-aware depth lookup and
+//! accepts a bisection-refined crossing only where a camera's estimate is continuous across it.
+
+mod gpu_data;
+mod guide;
+mod options;
+mod passes;
+mod targets;
+mod upload;
+
+#[doc(hidden)]
+pub use gpu_data::render_params_layout;
+pub(crate) use gpu_data::wgsl_constants;
+pub use options::{
+    DEFAULT_FIXED_STEP, DEFAULT_GUIDE, DEFAULT_REFINED_STEP, InteriorBlocks, MAX_GUIDE, MIN_STEP,
+    Method, RenderError, RenderOptions, ResolvedOptions, Switches, UploadOptions,
+};
+pub use passes::PASS_TIMING_VARIABLE;
+
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use glam::DVec3;
+
+use crate::frame::{Frame, FrameStats};
+use crate::geometry;
+use crate::gpu::{Gpu, GpuError};
+use crate::view::{DEFAULT_MAX_VIEW_PX, View, ViewError};
+
+use gpu_data::*;
+use guide::*;
+use passes::*;
+use targets::*;
+use upload::direction_lookup_texture;
+
+/// One asset on the GPU. Cheap to share (`Arc`) between threads.
+pub struct GpuLightField {
+    /// World units per light-field unit.
+    pub scale: f64,
+    /// Bounding-sphere centre, world units.
+    pub center: DVec3,
+    /// Bounding radius, world units.
+    pub radius: f64,
+    /// Icosphere level baked.
+    pub max_level: u32,
+    /// Map resolution.
+    pub resolution: u32,
+    /// Bytes of texture memory used.
+    pub gpu_bytes: u64,
+    /// Axis-aligned box (light-field units) holding every surface point any camera saw, grown
+    /// by the maps' texel footprint: the default marcher clips rays to it (empty when nothing
+    /// was seen).
+    pub visible_box: [[f32; 3]; 2],
+    group: wgpu::BindGroup,
+}
+
+/// The light-field render pipeline; one per process, shared by threads.
+pub struct Renderer {
+    gpu: Arc<Gpu>,
+    module: wgpu::ShaderModule,
+    layout: wgpu::PipelineLayout,
+    /// Specialised pipelines, built on first use: index `5 · (methods − 1) + role` (see
+    /// [`Renderer::pipeline`]).
+    pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 15],
+    /// The tile pass (shaders/render/tiles.wgsl `cs_tiles`); index 1 where the quads share their
+    /// nearest coarse pixel ([`quads_share_nearest_coarse`]): it reads 3×3 coarse pixels per
+    /// quad, not 4×4.
+    tiles_pipelines: [wgpu::ComputePipeline; 2],
+    switches: Switches,
+    frame_layout: wgpu::BindGroupLayout,
+    field_layout: wgpu::BindGroupLayout,
+    linear: wgpu::Sampler,
+    camera_buffer: wgpu::Buffer,
+    hierarchy_buffer: wgpu::Buffer,
+    /// [`geometry::CameraSet::direction_lookup`] (`locate` in the marcher).
+    lookup_view: wgpu::TextureView,
+    /// Reusable targets; the lock also serializes frames on the one queue.
+    targets: Mutex<Option<Targets>>,
+    max_px: u32,
+}
+
+fn buffer_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+fn texture_entry(binding: u32, filterable: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable },
+            view_dimension: wgpu::TextureViewDimension::D2Array,
+            multisampled: false,
+        },
+        count: None,
+    }
+}
+
+impl Renderer {
+    /// Builds the pipeline and uploads the icosphere cameras and hierarchy.
+    pub fn new(gpu: Arc<Gpu>) -> Renderer {
+        Renderer::with_switches(gpu, Switches::default())
+    }
+
+    /// [`Renderer::new`] with its modes given: for tests that compare a part of the marcher
+    /// switched off with the whole.
+    pub fn with_switches(gpu: Arc<Gpu>, switches: Switches) -> Renderer {
+        let device = &gpu.device;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("render"),
+            source: wgpu::ShaderSource::Wgsl(
+                crate::shaders::render_source(device.features().contains(wgpu::Features::SUBGROUP))
+                    .into(),
+            ),
+        });
+        let storage = wgpu::BufferBindingType::Storage { read_only: false };
+        let frame_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("render frame"),
+            entries: &[
+                buffer_entry(0, wgpu::BufferBindingType::Uniform),
+                buffer_entry(1, storage),
+                buffer_entry(2, storage),
+                buffer_entry(3, storage),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 4,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                buffer_entry(5, storage),
+                buffer_entry(6, storage),
+            ],
+        });
+        let field_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("light field"),
+            entries: &[
+                buffer_entry(0, wgpu::BufferBindingType::Uniform),
+                buffer_entry(1, wgpu::BufferBindingType::Uniform),
+                texture_entry(2, true),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 3,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Uint,
+                        view_dimension: wgpu::TextureViewDimension::D2Array,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 4,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 5,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Uint,
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+            ],
+        });
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("render"),
+            bind_group_layouts: &[Some(&frame_layout), Some(&field_layout)],
+            immediate_size: 0,
+        });
+        let sampler = |label, filter| {
+            device.create_sampler(&wgpu::SamplerDescriptor {
+                label: Some(label),
+                address_mode_u: wgpu::AddressMode::ClampToEdge,
+                address_mode_v: wgpu::AddressMode::ClampToEdge,
+                mag_filter: filter,
+                min_filter: filter,
+                ..Default::default()
+            })
+        };
+        let linear = sampler("light-field linear", wgpu::FilterMode::Linear);
+        let set = geometry::camera_set();
+        // Each camera's position and the axis its frame is built from (shared/lightfield.wgsl `camera`).
+        let cameras: Vec<[f32; 4]> = set
+            .positions
+            .iter()
+            .map(|p| [p.x, p.y, p.z, geometry::camera_frame_axis(*p) as f32])
+            .collect();
+        let hierarchy: Vec<[u32; 4]> = set
+            .triangles
+            .iter()
+            .map(|t| [t.v[0], t.v[1], t.v[2], t.first_child])
+            .collect();
+        // Uniform buffers (docs/marcher.md says why). The largest, the hierarchy, is 27 KiB (the
+        // cameras 10 KiB): within every Vulkan, Metal and DX12 device's 64 KiB; a smaller limit
+        // fails pipeline creation with a GPU error at the first frame, so say which limit it is
+        // here.
+        let largest = std::mem::size_of_val(cameras.as_slice())
+            .max(std::mem::size_of_val(hierarchy.as_slice())) as u64;
+        let limit = gpu.device.limits().max_uniform_buffer_binding_size;
+        if largest > limit {
+            tracing::error!(
+                "the marcher needs {largest}-byte uniform buffers; this device allows {limit}"
+            );
+        }
+        let uniform = |label, contents: &[u8]| {
+            use wgpu::util::DeviceExt;
+            gpu.device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some(label),
+                    contents,
+                    usage: wgpu::BufferUsages::UNIFORM,
+                })
+        };
+        let camera_buffer = uniform("icosphere cameras", bytemuck::cast_slice(&cameras));
+        let hierarchy_buffer = uniform("icosphere hierarchy", bytemuck::cast_slice(&hierarchy));
+        let lookup_view = direction_lookup_texture(&gpu);
+        let max_px = DEFAULT_MAX_VIEW_PX.min(gpu.device.limits().max_texture_dimension_2d);
+        let tiles_pipelines = [4.0, 3.0].map(|span| {
+            compute_pipeline(
+                device,
+                (&layout, &module),
+                ("render tiles", "cs_tiles"),
+                &[("TILE_SPAN", span)],
+            )
+        });
+        let renderer = Renderer {
+            gpu,
+            module,
+            layout,
+            pipelines: Default::default(),
+            tiles_pipelines,
+            switches,
+            frame_layout,
+            field_layout,
+            linear,
+            camera_buffer,
+            hierarchy_buffer,
+            lookup_view,
+            targets: Mutex::new(None),
+            max_px,
+        };
+        // The default method's guided pipelines serve most frames: build them now, not in the
+        // first frame.
+        for role in [
+            Role::Guided,
+            Role::Interior,
+            Role::Coarse,
+            Role::InteriorBlocks,
+        ] {
+            renderer.pipeline(MethodSet::Default, role);
+        }
+        renderer
+    }
+
+    /// The marcher specialised for `methods` and `role`, built on first use: each pass runs a
+    /// pipeline holding only the code it can take (docs/marcher.md).
+    fn pipeline(&self, methods: MethodSet, role: Role) -> &wgpu::ComputePipeline {
+        let index = (5 * (methods.code() - 1) + role.code()) as usize;
+        self.pipelines[index].get_or_init(|| {
+            compute_pipeline(
+                &self.gpu.device,
+                (&self.layout, &self.module),
+                ("render", "cs_main"),
+                &[
+                    ("METHODS", f64::from(methods.code())),
+                    ("ROLE", f64::from(role.code())),
+                ],
+            )
+        })
+    }
+
+    /// The modes this renderer was built with.
+    pub fn switches(&self) -> Switches {
+        self.switches
+    }
+
+    /// The device.
+    pub fn gpu(&self) -> &Arc<Gpu> {
+        &self.gpu
+    }
+
+    /// Renders `view` (world coordinates) from `field`.
+    ///
+    /// # Errors
+    /// [`RenderError::View`] / [`RenderError::Option`] for bad input, [`RenderError::Gpu`].
+    pub fn render(
+        &self,
+        field: &GpuLightField,
+        view: &View,
+        options: &RenderOptions,
+    ) -> Result<Frame, RenderError> {
+        self.render_blend(field, view, options, options, 0.0)
+    }
+
+    /// Renders `view` with a dithered cross-fade between two settings in one pass: a pixel
+    /// whose 4×4 ordered-dither threshold `(rank + ½) / 16` is below `weight` renders with `b`,
+    /// every other pixel with `a` (automatic LOD's transition, [`crate::lod`]). `weight` 0 is
+    /// [`Renderer::render`] with `a`; 1 is with `b`.
+    ///
+    /// # Errors
+    /// As [`Renderer::render`]; [`RenderError::Option`] for a weight outside [0, 1].
+    pub fn render_blend(
+        &self,
+        field: &GpuLightField,
+        view: &View,
+        a: &RenderOptions,
+        b: &RenderOptions,
+        weight: f32,
+    ) -> Result<Frame, RenderError> {
+        self.render_jittered(field, view, a, b, weight, [0.0, 0.0])
+    }
+
+    /// [`Renderer::render_blend`] with every sample moved by `jitter` pixels: pixel (i, j)
+    /// samples the image at column `j + 0.5 + jitter[0]`, row `i + 0.5 + jitter[1]` (DESIGN §3
+    /// otherwise), the coarse passes of a guided frame by the same amount, so that a still
+    /// frame can be refined from several sub-pixel samples. `[0, 0]` is
+    /// [`Renderer::render_blend`].
+    ///
+    /// # Errors
+    /// As [`Renderer::render_blend`]; [`RenderError::Option`] for a jitter component that is
+    /// not finite or lies outside [−0.5, 0.5].
+    pub fn render_jittered(
+        &self,
+        field: &GpuLightField,
+        view: &View,
+        a: &RenderOptions,
+        b: &RenderOptions,
+        weight: f32,
+        jitter: [f32; 2],
+    ) -> Result<Frame, RenderError> {
+        let basis = view.basis(self.max_px)?;
+        if !(weight.is_finite() && (0.0..=1.0).contains(&weight)) {
+            return Err(RenderError::Option(format!(
+                "blend weight {weight} must be in [0, 1]"
+            )));
+        }
+        if !jitter
+            .iter()
+            .all(|c| c.is_finite() && (-0.5..=0.5).contains(c))
+        {
+            return Err(RenderError::Option(format!(
+                "jitter {jitter:?} must be finite and in [-0.5, 0.5] pixels"
+            )));
+        }
+        let resolved_a = a.resolve(field.max_level)?;
+        let first = ShaderSetting::of(&resolved_a);
+        let second = ShaderSetting::of(&b.resolve(field.max_level)?);
+        let start = Instant::now();
+        let lf_eye = (basis.eye - field.center) / field.scale;
+        if !lf_eye.is_finite() {
+            return Err(RenderError::View(ViewError::NotFinite("eye")));
+        }
+        let params = RenderParams {
+            eye: lf_eye.as_vec3().to_array(),
+            width: view.width,
+            right: basis.right.as_vec3().to_array(),
+            height: view.height,
+            up: basis.true_up.as_vec3().to_array(),
+            focal_px: basis.focal_px as f32,
+            forward: basis.forward.as_vec3().to_array(),
+            level: first.level,
+            step: first.step,
+            tolerance: first.tolerance,
+            max_steps: first.max_steps,
+            method: method_code(first.method),
+            resolution: field.resolution as f32,
+            depth_scale: field.scale as f32,
+            edge_gap: EDGE_GAP,
+            refine_iterations: REFINE_ITERATIONS,
+            front_mass: FRONT_MASS,
+            blend: weight,
+            coarse_factor: 0,
+            near_scale: 0.0,
+            box_min: field.visible_box[0],
+            tiled: Tiling::Grid.code(),
+            box_max: field.visible_box[1],
+            interior_curvature: 0.0,
+            level_b: second.level,
+            step_b: second.step,
+            tolerance_b: second.tolerance,
+            max_steps_b: second.max_steps,
+            method_b: method_code(second.method),
+            coarse_width: 0,
+            coarse_height: 0,
+            row_stride: view.width,
+            interior_group_quads: 4,
+            guide_step_ratio: 1.0,
+            jitter,
+        };
+        // Coarse-to-fine (`guide`, the first setting's): a coarse pass renders every
+        // guide-th pixel per axis, and its depths bound each pixel's march (docs/marcher.md).
+        let methods = MethodSet::of(first.method, second.method);
+        let guided = methods == MethodSet::Default;
+        let factor = resolved_a.guide;
+        let coarse = coarse_size(view.width, view.height, factor).filter(|_| guided);
+        let pixels = u64::from(view.width) * u64::from(view.height);
+        let mut guard = self
+            .targets
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if guard
+            .as_ref()
+            .is_none_or(|t| (t.width, t.height) != (view.width, view.height))
+        {
+            *guard = Some(self.targets_for(view.width, view.height));
+        }
+        let Some(targets) = guard.as_ref() else {
+            return Err(GpuError::Operation("render targets missing".to_owned()).into());
+        };
+        let gpu = &self.gpu;
+        let mut fine = params;
+        // The coarse passes, coarsest first, with their sizes, focal lengths and jitters (the
+        // frame's, in their pixels): the frame's coarse pass is guided in turn by a pre-coarse
+        // pass PRE_FACTOR times coarser.
+        let mut levels: Vec<(&CoarseLevel, (u32, u32), f32, [f32; 2])> = Vec::new();
+        if let Some((cw, ch)) = coarse {
+            let focal = params.focal_px / factor as f32;
+            let coarse_jitter = jitter.map(|c| c / factor as f32);
+            if let Some(pre) = coarse_size(cw, ch, PRE_FACTOR) {
+                let pre_jitter = jitter.map(|c| c / (factor * PRE_FACTOR) as f32);
+                levels.push((&targets.pre, pre, focal / PRE_FACTOR as f32, pre_jitter));
+            }
+            levels.push((&targets.coarse, (cw, ch), focal, coarse_jitter));
+            fine.coarse_factor = factor;
+            fine.coarse_width = cw;
+            fine.coarse_height = ch;
+            fine.guide_step_ratio = COARSE_STEP_SCALE;
+        }
+        // A guided pass is compacted: `cs_tiles` lists the 4×4 quads with some pixel to march
+        // and the pass runs one workgroup per four listed quads; the rest of its output stays cleared
+        // (a miss). Lavapipe would run every instruction for a skipped pixel anyway. The frame's
+        // pass and a coarse pass guided by a pre-coarse one are compacted alike.
+        let (columns, rows) = tile_grid(view.width, view.height);
+        let (quad_columns, quad_rows) = quad_grid(view.width, view.height);
+        let tiled = coarse.is_some()
+            && (u64::from(quad_columns) * u64::from(quad_rows)).div_ceil(4) <= u64::from(MAX_TILES)
+            && self.switches.tile_compaction;
+        let tiling = if tiled { Tiling::Listed } else { Tiling::Grid };
+        for (i, &(level, (w, h), focal, jitter)) in levels.iter().enumerate() {
+            let mut level_params = RenderParams {
+                width: w,
+                height: h,
+                focal_px: focal,
+                near_scale: GUIDE_REACH / focal,
+                refine_iterations: COARSE_REFINE_ITERATIONS,
+                step: params.step * COARSE_STEP_SCALE,
+                max_steps: max_steps_for(params.step * COARSE_STEP_SCALE),
+                step_b: params.step_b * COARSE_STEP_SCALE,
+                max_steps_b: max_steps_for(params.step_b * COARSE_STEP_SCALE),
+                row_stride: coarse_stride(w),
+                jitter,
+                ..params
+            };
+            if let Some(&(_, (gw, gh), _, _)) = i.checked_sub(1).and_then(|g| levels.get(g)) {
+                level_params.coarse_factor = PRE_FACTOR;
+                level_params.coarse_width = gw;
+                level_params.coarse_height = gh;
+                level_params.tiled = tiling.code();
+            }
+            gpu.queue
+                .write_buffer(&level.uniform, 0, bytemuck::bytes_of(&level_params));
+        }
+        fine.tiled = tiling.code();
+        // Flat quads skip the march (default method only: the fixed baseline marches every
+        // pixel it renders).
+        let interior = tiled && methods == MethodSet::Default && self.switches.interior;
+        let blocks = blocks_share_coarse_cells(view.width, view.height, factor)
+            && match self.switches.interior_blocks {
+                InteriorBlocks::Off => false,
+                InteriorBlocks::On => true,
+                InteriorBlocks::Automatic => {
+                    interior_block_angle(lf_eye.length(), basis.focal_px) <= INTERIOR_BLOCK_REACH
+                }
+            };
+        if blocks {
+            // 16 quads per workgroup: 4 invocations each (shaders/render/main.wgsl `cs_main`).
+            fine.interior_group_quads = 16;
+        }
+        if interior {
+            fine.interior_curvature =
+                INTERIOR_CURVATURE * first.tolerance.min(second.tolerance) * field.scale as f32;
+        }
+        if interior {
+            let given_back = RenderParams {
+                tiled: Tiling::GivenBack.code(),
+                ..fine
+            };
+            gpu.queue.write_buffer(
+                &targets.given_back_uniform,
+                0,
+                bytemuck::bytes_of(&given_back),
+            );
+        }
+        gpu.queue
+            .write_buffer(&targets.uniform, 0, bytemuck::bytes_of(&fine));
+        gpu.queue
+            .write_buffer(&targets.counters, 0, &[0u8; COUNTERS_SIZE as usize]);
+        let mut encoder = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("render"),
+            });
+        let mut timer = PassTimer::new(self.switches.pass_timing);
+        encoder = timer.split(gpu, encoder, "uploads")?;
+        for (i, &(level, (cw, ch), _, _)) in levels.iter().enumerate() {
+            // Every coarse pass marks near misses; all but the coarsest are guided, and
+            // compacted with the frame (the pixels it skips read as far misses, cleared to 0).
+            let (level_columns, level_rows) = tile_grid(cw, ch);
+            let compact = tiled && i > 0;
+            if compact {
+                encoder.clear_buffer(&level.depth, 0, None);
+                self.list_tiles(
+                    &mut encoder,
+                    targets,
+                    &level.group,
+                    &field.group,
+                    (cw, ch, PRE_FACTOR),
+                );
+            }
+            record_pass(
+                &mut encoder,
+                "render coarse",
+                self.pipeline(methods, Role::Coarse),
+                (&level.group, &field.group),
+                if compact {
+                    Workgroups::Indirect(&targets.tile_args, 0)
+                } else {
+                    Workgroups::Grid(level_columns, level_rows)
+                },
+            );
+            encoder.copy_buffer_to_texture(
+                wgpu::TexelCopyBufferInfo {
+                    buffer: &level.depth,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(8 * coarse_stride(cw)),
+                        rows_per_image: Some(ch),
+                    },
+                },
+                wgpu::TexelCopyTextureInfo {
+                    texture: &level.texture,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::All,
+                },
+                wgpu::Extent3d {
+                    width: cw,
+                    height: ch,
+                    depth_or_array_layers: 1,
+                },
+            );
+            let name = if i + 1 < levels.len() {
+                "pre-coarse"
+            } else {
+                "coarse"
+            };
+            encoder = timer.split(gpu, encoder, name)?;
+        }
+        if tiled {
+            encoder.clear_buffer(&targets.color, 0, Some(pixels * 4));
+            encoder.clear_buffer(&targets.depth, 0, Some(pixels * 4));
+            self.list_tiles(
+                &mut encoder,
+                targets,
+                &targets.group,
+                &field.group,
+                (view.width, view.height, factor),
+            );
+            encoder = timer.split(gpu, encoder, "tiles")?;
+        }
+        let role = if coarse.is_some() {
+            Role::Guided
+        } else {
+            Role::Plain
+        };
+        record_pass(
+            &mut encoder,
+            "render",
+            self.pipeline(methods, role),
+            (&targets.group, &field.group),
+            if tiled {
+                Workgroups::Indirect(&targets.tile_args, 0)
+            } else {
+                Workgroups::Grid(columns, rows)
+            },
+        );
+        encoder = timer.split(gpu, encoder, "frame")?;
+        if interior {
+            record_pass(
+                &mut encoder,
+                "render interior",
+                self.pipeline(
+                    methods,
+                    if blocks {
+                        Role::InteriorBlocks
+                    } else {
+                        Role::Interior
+                    },
+                ),
+                (&targets.group, &field.group),
+                Workgroups::Indirect(&targets.tile_args, INTERIOR_ARGS),
+            );
+            encoder.copy_buffer_to_buffer(
+                &targets.tile_dispatch,
+                GIVEN_BACK_ARGS,
+                &targets.tile_args,
+                GIVEN_BACK_ARGS,
+                12,
+            );
+            record_pass(
+                &mut encoder,
+                "render given back",
+                self.pipeline(methods, Role::Guided),
+                (&targets.given_back_group, &field.group),
+                Workgroups::Indirect(&targets.tile_args, GIVEN_BACK_ARGS),
+            );
+            encoder = timer.split(gpu, encoder, "interior")?;
+        }
+        let split = (pixels * 4) as usize;
+        if let Some(readback) = &targets.readback {
+            encoder.copy_buffer_to_buffer(&targets.color, 0, readback, 0, pixels * 4);
+            encoder.copy_buffer_to_buffer(&targets.depth, 0, readback, pixels * 4, pixels * 4);
+            encoder.copy_buffer_to_buffer(
+                &targets.counters,
+                0,
+                readback,
+                pixels * 8,
+                COUNTERS_SIZE,
+            );
+        }
+        gpu.queue.submit([encoder.finish()]);
+        let read = |color: &[u8], depth: &[u8], counters: &[u8]| {
+            let depth: Vec<f32> = depth
+                .chunks_exact(4)
+                .map(|c| {
+                    let z = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+                    // Misses: −1 where marched, 0 where a compacted pass cleared (a hit has
+                    // z > 0).
+                    if z <= 0.0 { f32::INFINITY } else { z }
+                })
+                .collect();
+            let counters: Vec<u32> = counters
+                .chunks_exact(4)
+                .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect();
+            (color.to_vec(), depth, counters)
+        };
+        let (color, depth, counters) = match &targets.readback {
+            Some(readback) => gpu.map_read_with(readback, |bytes| {
+                read(
+                    &bytes[..split],
+                    &bytes[split..2 * split],
+                    &bytes[2 * split..2 * split + COUNTERS_SIZE as usize],
+                )
+            })?,
+            None => gpu.map_read_many(
+                &[&targets.color, &targets.depth, &targets.counters],
+                |bytes| read(bytes[0], bytes[1], bytes[2]),
+            )?,
+        };
+        drop(guard);
+        let render_ms = start.elapsed().as_secs_f64() * 1e3;
+        timer.finish(view.width, view.height);
+        Ok(Frame {
+            width: view.width,
+            height: view.height,
+            color,
+            depth,
+            stats: FrameStats {
+                render_ms,
+                rays: u64::from(counters[2]),
+                steps: u64::from(counters[1]),
+                fetches: u64::from(counters[0]),
+            },
+        })
+    }
+}

@@ -1,0 +1,226 @@
+//! The public options of a render: method, quality knobs and their resolution, errors.
+
+use serde::{Deserialize, Serialize};
+
+use crate::asset::AssetError;
+use crate::geometry::{self, CAMERA_COUNTS};
+use crate::gpu::GpuError;
+use crate::view::ViewError;
+
+/// Default step of the fixed method, in units of the bounding-sphere diameter (64 steps across).
+pub const DEFAULT_FIXED_STEP: f32 = 1.0 / 64.0;
+/// Default coarse step of the default method, in bounding-sphere diameters (32 steps across).
+pub const DEFAULT_REFINED_STEP: f32 = 1.0 / 32.0;
+/// Smallest step accepted (bounds the work per pixel: at most 1/step samples).
+pub const MIN_STEP: f32 = 1.0 / 4096.0;
+
+/// Errors while rendering.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum RenderError {
+    /// The view is invalid.
+    #[error(transparent)]
+    View(#[from] ViewError),
+    /// A quality option is out of range.
+    #[error("{0}")]
+    Option(String),
+    /// The asset cannot be used.
+    #[error(transparent)]
+    Asset(#[from] AssetError),
+    /// The device failed.
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+}
+
+/// Marching method.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Seed 000's fixed-step search with bilinear depth (baseline).
+    Fixed,
+    /// Edge-aware depth, coarse steps, bisection-refined crossings accepted where a camera agrees.
+    #[default]
+    Default,
+}
+
+impl std::str::FromStr for Method {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "fixed" => Ok(Method::Fixed),
+            "default" => Ok(Method::Default),
+            _ => Err(format!("unknown method `{s}`: use fixed or default")),
+        }
+    }
+}
+
+impl std::fmt::Display for Method {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Method::Fixed => "fixed",
+            Method::Default => "default",
+        })
+    }
+}
+
+/// Quality knobs of a render; `None` means the method's default.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RenderOptions {
+    /// Cameras to use: 12, 42, 162 or 642 (at most the asset's count), or a level 0–3.
+    pub lod: Option<u32>,
+    /// Step in bounding-sphere diameters.
+    pub step: Option<f32>,
+    /// Tolerance in bounding-sphere diameters (default: step / 2, seed 000 §3.1).
+    pub tolerance: Option<f32>,
+    /// Marching method.
+    pub method: Method,
+    /// Coarse-to-fine guidance, default method only: first render every `guide`-th pixel per
+    /// axis (2–16), and let their hits bound each pixel's march. A pixel whose 3×3 coarse
+    /// neighbours all missed far from any surface is skipped (and a 4×4 quad of such pixels
+    /// is never dispatched); where one passed close to a surface (a thin feature between the
+    /// samples), the pixel marches from a step before where that neighbour first came close.
+    /// Flat 4×4 quads (every coarse neighbour hit, a smooth depth between them) are shaded at
+    /// depths interpolated between the coarse hits, without marching, unless no camera agrees
+    /// there. The coarse pass is guided the same way by one 4×
+    /// coarser, when that has at least 4 pixels a side. 0: off; `None`: [`DEFAULT_GUIDE`] for
+    /// the default method, off for the fixed baseline.
+    pub guide: Option<u32>,
+}
+
+/// Largest coarse-to-fine factor ([`RenderOptions::guide`]).
+pub const MAX_GUIDE: u32 = 16;
+/// Coarse-to-fine factor of the default method when none is given: a fraction of the unguided
+/// time at equal masked PSNR (BENCHMARKS.md).
+pub const DEFAULT_GUIDE: u32 = 4;
+
+/// Options of [`Renderer::upload_with`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct UploadOptions {
+    /// Depth precision to render with: `None` = as stored, `Some(8)` requantizes 16-bit depth.
+    pub depth_bits: Option<u8>,
+}
+
+/// The resolved settings a render used.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct ResolvedOptions {
+    /// Icosphere level.
+    pub level: u32,
+    /// Cameras.
+    pub cameras: u32,
+    /// Step in bounding-sphere diameters.
+    pub step: f32,
+    /// Tolerance in bounding-sphere diameters.
+    pub tolerance: f32,
+    /// Method.
+    pub method: Method,
+    /// Coarse-to-fine factor (0 = off).
+    pub guide: u32,
+}
+
+impl RenderOptions {
+    /// Resolves defaults and checks ranges against an asset with `max_level`.
+    ///
+    /// # Errors
+    /// [`RenderError::Option`] naming the bad knob.
+    pub fn resolve(&self, max_level: u32) -> Result<ResolvedOptions, RenderError> {
+        let level = match self.lod {
+            None => max_level,
+            Some(l) if l <= 3 => l,
+            Some(n) => geometry::level_for_camera_count(n).ok_or_else(|| {
+                RenderError::Option(format!(
+                    "lod {n} is not a camera count (12, 42, 162, 642) or a level 0-3"
+                ))
+            })?,
+        };
+        if level > max_level {
+            return Err(RenderError::Option(format!(
+                "lod {} cameras exceeds the asset's {} cameras",
+                CAMERA_COUNTS[level as usize], CAMERA_COUNTS[max_level as usize]
+            )));
+        }
+        let default_step = if self.method == Method::Fixed {
+            DEFAULT_FIXED_STEP
+        } else {
+            DEFAULT_REFINED_STEP
+        };
+        let step = self.step.unwrap_or(default_step);
+        if !step.is_finite() || !(MIN_STEP..=1.0).contains(&step) {
+            return Err(RenderError::Option(format!(
+                "step {step} must be finite and in [{MIN_STEP}, 1] bounding diameters"
+            )));
+        }
+        let tolerance = self.tolerance.unwrap_or(step / 2.0);
+        if !(tolerance.is_finite() && tolerance > 0.0 && tolerance <= 1.0) {
+            return Err(RenderError::Option(format!(
+                "tolerance {tolerance} must be finite and in (0, 1] bounding diameters"
+            )));
+        }
+        let guide = self.guide.unwrap_or(match self.method {
+            Method::Fixed => 0,
+            Method::Default => DEFAULT_GUIDE,
+        });
+        if guide != 0 && !(2..=MAX_GUIDE).contains(&guide) {
+            return Err(RenderError::Option(format!(
+                "guide {guide}: use 0 (off) or a coarse factor 2 to {MAX_GUIDE}"
+            )));
+        }
+        if guide != 0 && self.method == Method::Fixed {
+            return Err(RenderError::Option(
+                "guide applies to the default method, not the fixed baseline".to_owned(),
+            ));
+        }
+        Ok(ResolvedOptions {
+            level,
+            cameras: CAMERA_COUNTS[level as usize],
+            step,
+            tolerance,
+            method: self.method,
+            guide,
+        })
+    }
+}
+
+/// Modes of a [`super::Renderer`], fixed at construction ([`super::Renderer::with_switches`]).
+/// The defaults serve every product path; tests switch parts of the marcher off to check that
+/// they change no pixel, or what they change (docs/marcher.md).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Switches {
+    /// Guided passes march only the 4×4 quads the tile pass lists (on by default).
+    pub tile_compaction: bool,
+    /// Compacted guided frames send flat quads to the interior pass instead of marching them
+    /// (on by default).
+    pub interior: bool,
+    /// Whether the interior pass shades 2×2 blocks of pixels per invocation.
+    pub interior_blocks: InteriorBlocks,
+    /// The tile pass reads 4×4 coarse pixels per quad even where 3×3 would do (off by default).
+    pub wide_tile_reads: bool,
+    /// Times every frame's passes and logs them (default: whether
+    /// [`super::PASS_TIMING_VARIABLE`] is set when the switches are made).
+    pub pass_timing: bool,
+}
+
+impl Default for Switches {
+    fn default() -> Self {
+        Switches {
+            tile_compaction: true,
+            interior: true,
+            interior_blocks: InteriorBlocks::Automatic,
+            wide_tile_reads: false,
+            pass_timing: std::env::var_os(super::PASS_TIMING_VARIABLE).is_some(),
+        }
+    }
+}
+
+/// [`Switches::interior_blocks`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum InteriorBlocks {
+    /// Where a block's pixels cannot lie further from its centre ray's triangle than the
+    /// direction lookup's reach, and the frame's coarse grid keeps every block in one cell.
+    #[default]
+    Automatic,
+    /// Never.
+    Off,
+    /// Wherever the frame's coarse grid keeps every block in one cell.
+    On,
+}

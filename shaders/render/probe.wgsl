@@ -1,0 +1,96 @@
+// Probing one camera: where a point projects into its map and what its depth says there.
+//
+// From the generated preamble: EDGE_BASE, EDGE_CODES, EDGE_E_LEVELS, EDGE_DEPTH_LEVELS,
+// EDGE_DEPTH_BITS, EDGE_DEPTH_STEP (render/upload.rs `edge_codes`).
+
+// One camera's view of a point x: where it projects and what its depth map says there.
+struct Probe {
+    // f = |x − p| − D·chord: < 0 in front of the surface the camera sees, > 0 behind it.
+    f: f32,
+    // Continuous texel coordinates of the projection.
+    tc: vec2<f32>,
+    // Bilinear weights of the 2×2 footprint restricted to the chosen layer's hit texels (not
+    // normalized): the colour's.
+    layer_weights: vec4<f32>,
+}
+
+fn project(cam: Camera, x: vec3<f32>) -> vec4<f32> {
+    let q = x - cam.position;
+    let len = length(q);
+    let qz = dot(q, cam.z);
+    // uv = r.xy / (1 + r.z) for the unit direction r = q / |q|, with one division.
+    let uv = vec2<f32>(dot(q, cam.x), dot(q, cam.y)) / max(len + qz, 1e-6 * max(len, 1e-12));
+    let tc = (uv + 1.0) * 0.5 * params.resolution;
+    // (texel x, texel y, |x − p|, chord 2·r_z)
+    return vec4<f32>(tc, len, 2.0 * qz / max(len, 1e-12));
+}
+
+// Edge codes: a no-hit texel beside the silhouette has footprint code
+// EDGE_BASE + (e level << EDGE_DEPTH_BITS | depth level) (`edge_codes` in render/upload.rs): the
+// silhouette passes e = (e level + 0.5) / EDGE_E_LEVELS texel from its hit neighbours' centres,
+// and depth level · EDGE_DEPTH_STEP extends the surface from them through the silhouette to its
+// centre.
+
+// Depth at a projection. `edge_aware` splits the 2×2 footprint at its largest depth gap (above
+// `edge_gap`) and keeps the front layer where it holds enough of the bilinear weight, else the
+// back one, so no lookup ever returns a depth interpolated between a surface and what lies behind
+// its silhouette (DESIGN §4). Edge texels place the silhouette between texel centres where the
+// bake found it, and extend the front layer's depth to it (docs/marcher.md).
+fn probe(cam: Camera, k: u32, x: vec3<f32>, edge_aware: bool) -> Probe {
+    let pr = project(cam, x);
+    let tc = pr.xy;
+    // The whole 2×2 footprint in one load: texel (x, y) of `footprints` holds the 16-bit depth
+    // codes of texels (x, y), (x+1, y), (x, y+1), (x+1, y+1): one load, not four or a gather.
+    let n = i32(params.resolution);
+    let base = clamp(vec2<i32>(floor(tc - 0.5)), vec2<i32>(0), vec2<i32>(n - 1));
+    let codes = textureLoad(footprints, base, k, 0);
+    // Edge texels (no hit, beside the silhouette) read as no hit (1) for the split.
+    let rel = codes - vec4<u32>(EDGE_BASE);
+    let edge = rel < vec4<u32>(EDGE_CODES);
+    let d = select(vec4<f32>(codes) * (1.0 / 65535.0), vec4<f32>(1.0), edge);
+    let fr = fract(tc - 0.5);
+    let bw = vec4<f32>((1.0 - fr.x) * (1.0 - fr.y), fr.x * (1.0 - fr.y), (1.0 - fr.x) * fr.y, fr.x * fr.y);
+    // Written as selects, without `if`: an `if` costs its body on lavapipe (docs/marcher.md).
+    let lo = min(min(d.x, d.y), min(d.z, d.w));
+    let hi = max(max(d.x, d.y), max(d.z, d.w));
+    let split = edge_aware & (hi - lo > params.edge_gap);
+    let front = d <= vec4<f32>(0.5 * (lo + hi));
+    // The front layer's share of the footprint: a front texel counts 1, a back one 0, an edge
+    // texel sigma = 1 − (1 − front_mass) / e, so that between it and a front texel the share
+    // falls to `front_mass` exactly at the silhouette, e of the way from the front texel.
+    // The interior pass (flat quads, no silhouette near the eye's ray) reads edge texels as plain
+    // no hit: the same pixels, in less time.
+    let edges = edge & vec4<bool>(!interior_role());
+    let sigma = vec4<f32>(1.0) - ((1.0 - params.front_mass) * f32(EDGE_E_LEVELS)) / (vec4<f32>(rel >> vec4<u32>(EDGE_DEPTH_BITS)) + 0.5);
+    let share = select(select(vec4<f32>(0.0), sigma, edges), vec4<f32>(1.0), front);
+    let chosen = dot(bw, share) >= params.front_mass;
+    // Colour from the chosen layer's hits (`layer_color` normalizes); depth in the front layer
+    // from its hits and edge texels, whose extrapolated depths make the surface recede to the
+    // silhouette's depth. Unsplit: the whole footprint.
+    let layer = select(!front, front, chosen);
+    let color_weights = select(bw, bw * vec4<f32>(layer), split);
+    let kept = select(vec4<f32>(0.0), bw, layer | (edges & vec4<bool>(chosen)));
+    let layer_d = select(d, vec4<f32>(rel & vec4<u32>(EDGE_DEPTH_LEVELS - 1u)) * EDGE_DEPTH_STEP, edges & vec4<bool>(chosen));
+    let depth = select(dot(bw, d), dot(kept, layer_d) / max(kept.x + kept.y + kept.z + kept.w, 1e-12), split);
+    return Probe(pr.z - depth * pr.w, tc, color_weights);
+}
+
+// Colour of camera k at texel coordinates tc from the footprint texels with the given weights,
+// normalized by their sum (four loads: a bilinear sample would mix colours across a silhouette;
+// docs/marcher.md).
+fn layer_color(k: u32, tc: vec2<f32>, bw: vec4<f32>) -> vec4<f32> {
+    let n = i32(params.resolution);
+    let base = vec2<i32>(floor(tc - 0.5));
+    let i0 = clamp(base, vec2<i32>(0), vec2<i32>(n - 1));
+    let i1 = clamp(base + 1, vec2<i32>(0), vec2<i32>(n - 1));
+    let sum = bw.x * textureLoad(color_maps, vec2<i32>(i0.x, i0.y), k, 0)
+        + bw.y * textureLoad(color_maps, vec2<i32>(i1.x, i0.y), k, 0)
+        + bw.z * textureLoad(color_maps, vec2<i32>(i0.x, i1.y), k, 0)
+        + bw.w * textureLoad(color_maps, vec2<i32>(i1.x, i1.y), k, 0);
+    return sum / max(bw.x + bw.y + bw.z + bw.w, 1e-12);
+}
+
+// The fixed baseline's colour: one bilinear sample.
+fn bilinear_color(k: u32, tc: vec2<f32>) -> vec4<f32> {
+    return textureSampleLevel(color_maps, linear_sampler, tc / params.resolution, k, 0.0);
+}
