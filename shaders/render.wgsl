@@ -54,6 +54,8 @@ struct RenderParams {
     // Guided passes: the step of the pass guiding this one, in this pass's steps (the coarse
     // passes step 1.5 times longer than the frame's: `COARSE_STEP_SCALE` in render.rs).
     guide_step_ratio: f32,
+    // Sub-pixel shift of every ray, in this pass's pixels (0 but for still-frame refinement).
+    jitter: vec2<f32>,
 }
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
@@ -615,10 +617,11 @@ fn give_back(slot: u32) {
 }
 
 // The eye ray through point p of the image (in pixels from its top-left corner: pixel (i, j)
-// has its centre at (i + 0.5, j + 0.5)), unit.
+// has its centre at (i + 0.5, j + 0.5)), moved by the pass's jitter, unit.
 fn pixel_ray(p: vec2<f32>) -> vec3<f32> {
-    let px = (p.x - 0.5 * f32(params.width)) / params.focal_px;
-    let py = -(p.y - 0.5 * f32(params.height)) / params.focal_px;
+    let q = p + params.jitter;
+    let px = (q.x - 0.5 * f32(params.width)) / params.focal_px;
+    let py = -(q.y - 0.5 * f32(params.height)) / params.focal_px;
     return normalize(px * params.right + py * params.up + params.forward);
 }
 

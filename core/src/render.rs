@@ -291,7 +291,7 @@ struct RenderParams {
     row_stride: u32,
     interior_group_quads: u32,
     guide_step_ratio: f32,
-    _pad: [u32; 2],
+    jitter: [f32; 2],
 }
 const _: () = assert!(std::mem::size_of::<RenderParams>() == 192);
 
@@ -1289,10 +1289,37 @@ impl Renderer {
         b: &RenderOptions,
         weight: f32,
     ) -> Result<Frame, RenderError> {
+        self.render_jittered(field, view, a, b, weight, [0.0; 2])
+    }
+
+    /// [`Renderer::render_blend`] with every pixel's ray moved by `jitter` pixels: pixel (i, j)
+    /// samples column `j + 0.5 + jitter[0]`, row `i + 0.5 + jitter[1]` (coarse passes move by
+    /// the same amount of the frame's pixels), for sub-pixel sampling ([`crate::refine`]).
+    ///
+    /// # Errors
+    /// As [`Renderer::render_blend`]; [`RenderError::Option`] for a jitter component that is not
+    /// finite or outside [-0.5, 0.5].
+    pub fn render_jittered(
+        &self,
+        field: &GpuLightField,
+        view: &View,
+        a: &RenderOptions,
+        b: &RenderOptions,
+        weight: f32,
+        jitter: [f32; 2],
+    ) -> Result<Frame, RenderError> {
         let basis = view.basis(self.max_px)?;
         if !(weight.is_finite() && (0.0..=1.0).contains(&weight)) {
             return Err(RenderError::Option(format!(
                 "blend weight {weight} must be in [0, 1]"
+            )));
+        }
+        if !jitter
+            .iter()
+            .all(|j| j.is_finite() && (-0.5..=0.5).contains(j))
+        {
+            return Err(RenderError::Option(format!(
+                "jitter {jitter:?} must be finite and in [-0.5, 0.5] pixels"
             )));
         }
         let resolved_a = a.resolve(field.max_level)?;
@@ -1338,7 +1365,7 @@ impl Renderer {
             row_stride: view.width,
             interior_group_quads: 4,
             guide_step_ratio: 1.0,
-            _pad: [0; 2],
+            jitter,
         };
         // Coarse-to-fine (`guide`, the first setting's): a coarse pass renders every
         // guide-th pixel per axis, and its depths bound each pixel's march (render.wgsl).
@@ -1401,6 +1428,8 @@ impl Renderer {
                 step_b: params.step_b * COARSE_STEP_SCALE,
                 max_steps_b: max_steps_for(params.step_b * COARSE_STEP_SCALE),
                 row_stride: coarse_stride(w),
+                // The same image-plane shift, in this pass's pixels.
+                jitter: params.jitter.map(|j| j * focal / params.focal_px),
                 ..params
             };
             if let Some(&(_, (gw, gh), _)) = i.checked_sub(1).and_then(|g| levels.get(g)) {
