@@ -354,7 +354,7 @@ impl ReferenceRenderer {
     ) -> Result<Frame, ReferenceError> {
         let max_px = DEFAULT_MAX_VIEW_PX.min(self.gpu.device.limits().max_texture_dimension_2d);
         view.basis(max_px)?;
-        let scale = |side: u32| side.checked_mul(factor).unwrap_or(u32::MAX);
+        let scale = |side: u32| side.saturating_mul(factor);
         let large_view = View {
             width: scale(view.width),
             height: scale(view.height),

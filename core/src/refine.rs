@@ -321,9 +321,9 @@ fn resolve_pixel(scratch: &mut Scratch, total: usize) -> Resolved {
         scratch.deviations.extend(hits[s..e].iter().map(deviation));
         let mad = median_f32(&mut scratch.deviations);
         let limit = COLOR_OUTLIER_STEPS + 3.0 * mad;
-        for i in s..e {
-            if deviation(&hits[i]) > limit {
-                scratch.keep[i] = false;
+        for (h, keep) in hits[s..e].iter().zip(&mut scratch.keep[s..e]) {
+            if deviation(h) > limit {
+                *keep = false;
             }
         }
     }
@@ -336,8 +336,8 @@ fn resolve_pixel(scratch: &mut Scratch, total: usize) -> Resolved {
             continue;
         }
         kept += 1;
-        for c in 0..3 {
-            sum[c] += u32::from(h.rgb[c]);
+        for (acc, &c) in sum.iter_mut().zip(&h.rgb) {
+            *acc += u32::from(c);
         }
         if (ls..le).contains(&i) && nearest.is_none_or(|b| h.offset < b.offset) {
             nearest = Some(*h);

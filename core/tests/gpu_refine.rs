@@ -53,30 +53,11 @@ fn ctx() -> &'static Ctx {
     })
 }
 
-#[derive(Debug)]
-enum TestError {
-    Render(RenderError),
-    Refine(RefineError),
-}
-
-impl From<RenderError> for TestError {
-    fn from(e: RenderError) -> Self {
-        TestError::Render(e)
-    }
-}
-
-impl From<RefineError> for TestError {
-    fn from(e: RefineError) -> Self {
-        TestError::Refine(e)
-    }
-}
-
-fn refined(view: &View, options: &RenderOptions, samples: u32) -> Result<Frame, TestError> {
+fn refined(view: &View, options: &RenderOptions, samples: u32) -> anyhow::Result<Frame> {
     let c = ctx();
     refine::refine(samples, |jitter| {
-        c.renderer
-            .render_jittered(&c.field, view, options, options, 0.0, jitter)
-            .map_err(TestError::from)
+        Ok(c.renderer
+            .render_jittered(&c.field, view, options, options, 0.0, jitter)?)
     })
 }
 
@@ -112,10 +93,11 @@ fn one_sample_is_the_plain_render() {
             .render_jittered(&c.field, view, &options, &options, 0.0, bad);
         assert!(matches!(out, Err(RenderError::Option(_))), "{bad:?}");
     }
-    assert!(matches!(
-        refined(view, &options, 0),
-        Err(TestError::Refine(RefineError::Samples(0)))
-    ));
+    let error = refined(view, &options, 0).expect_err("0 samples");
+    assert_eq!(
+        error.downcast_ref::<RefineError>(),
+        Some(&RefineError::Samples(0))
+    );
 }
 
 #[test]
