@@ -22,6 +22,8 @@
 //! - [`metrics`] implements DESIGN §3's metrics (cross-checked against scikit-image);
 //!   [`tradeoff`] sweeps every quality knob and measures its cost and error.
 //! - [`lod`] chooses cameras and step from an object's projected size under a quality floor.
+//! - [`refine`] accumulates jittered sub-pixel samples of a resting view into an anti-aliased
+//!   still, rejecting stray samples.
 //! - [`scene`] composites light-field instances and meshes, each with its own transform, by depth.
 
 pub mod asset;
@@ -35,6 +37,7 @@ pub mod lod;
 pub mod mesh;
 pub mod metrics;
 pub mod reference;
+pub mod refine;
 pub mod render;
 pub mod scene;
 pub mod shaders;

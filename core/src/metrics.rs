@@ -10,8 +10,8 @@
 //! - [`mae`] = `np.mean(np.abs(a_rgb.astype(float) - b_rgb))`.
 //!
 //! [`compare`] bundles them for a test frame against a reference frame, together with the coverage
-//! masks (union, intersection, mismatch count) and [`depth_errors`] over the intersection of the
-//! masks. [`mean_comparison`] averages per-view comparisons into per-scene numbers.
+//! masks (union, intersection, mismatch count), [`depth_errors`] over the intersection of the
+//! masks and [`wrong_surface_px`], the pixels whose depth puts them on another surface. [`mean_comparison`] averages per-view comparisons into per-scene numbers.
 //!
 //! Non-finite numbers (a PSNR of `+inf`, depth statistics of `NaN` when nothing overlaps) are part
 //! of the results. JSON has no literal for them, so the serde representation writes them as the
@@ -29,6 +29,10 @@ pub const SSIM_WIN_SIZE: usize = 7;
 /// reproduced exactly (`+inf`) still gives a finite mean. 100 dB is an MSE of 6.5e-6, far below
 /// one 8-bit step on any frame size we render; nothing of interest is lost by the cap.
 pub const PSNR_CAP_DB: f64 = 100.0;
+
+/// A pixel covered in both frames is on a wrong surface when its z-depth differs from the
+/// reference's by more than this fraction of the reference z-depth ([`wrong_surface_px`]).
+pub const WRONG_SURFACE_FRACTION: f64 = 0.01;
 
 /// Peak value of 8-bit colour, scikit-image's `data_range`.
 const DATA_RANGE: f64 = 255.0;
@@ -118,6 +122,10 @@ pub struct Comparison {
     pub intersection_px: u64,
     /// Depth error over the intersection of the coverage masks.
     pub depth: DepthErrorStats,
+    /// Pixels covered in both frames whose z-depth is off by more than
+    /// [`WRONG_SURFACE_FRACTION`] of the reference's: another surface than the true one.
+    #[serde(default)]
+    pub wrong_surface_px: u64,
 }
 
 /// Per-scene numbers: the average of per-view [`Comparison`]s (see [`mean_comparison`]).
@@ -152,6 +160,9 @@ pub struct MeanComparison {
     pub intersection_px: f64,
     /// Mean depth-error statistics.
     pub depth: MeanDepthErrors,
+    /// Mean count of wrong-surface pixels.
+    #[serde(default, with = "nonfinite_f64")]
+    pub wrong_surface_px: f64,
 }
 
 /// Depth-error statistics averaged over views.
@@ -422,6 +433,27 @@ pub fn depth_errors(test: &[f32], reference: &[f32]) -> Result<DepthErrorStats, 
     Ok(error_stats(&mut errors))
 }
 
+/// Pixels where both depths are finite and the test depth differs from the reference depth by
+/// more than [`WRONG_SURFACE_FRACTION`] of the reference depth (computed in f64).
+pub fn wrong_surface_px(test: &[f32], reference: &[f32]) -> Result<u64, MetricsError> {
+    if test.len() != reference.len() {
+        return Err(MetricsError::BufferLength {
+            buffer: "reference depth",
+            expected: test.len(),
+            actual: reference.len(),
+        });
+    }
+    let wrong = test
+        .iter()
+        .zip(reference)
+        .filter(|(t, r)| t.is_finite() && r.is_finite())
+        .filter(|&(&t, &r)| {
+            (f64::from(t) - f64::from(r)).abs() > WRONG_SURFACE_FRACTION * f64::from(r).abs()
+        })
+        .count();
+    Ok(wrong as u64)
+}
+
 /// Count, median, mean, max and 95th percentile of `errors` (all finite); sorts `errors`.
 fn error_stats(errors: &mut [f64]) -> DepthErrorStats {
     let n = errors.len();
@@ -517,6 +549,7 @@ pub fn compare(test: &Frame, reference: &Frame) -> Result<Comparison, MetricsErr
         union_px,
         intersection_px,
         depth: depth_errors(&test.depth, &reference.depth)?,
+        wrong_surface_px: wrong_surface_px(&test.depth, &reference.depth)?,
     })
 }
 
@@ -595,6 +628,7 @@ pub fn mean_comparison(views: &[Comparison]) -> Option<MeanComparison> {
             max: mean_of(with_depth().map(|d| d.max)),
             p95: mean_of(with_depth().map(|d| d.p95)),
         },
+        wrong_surface_px: mean_of(views.iter().map(|c| c.wrong_surface_px as f64)),
     })
 }
 
@@ -1236,6 +1270,7 @@ mod tests {
                 max: depth_mean,
                 p95: depth_mean,
             },
+            wrong_surface_px: union_px / 10,
         }
     }
 
@@ -1295,6 +1330,31 @@ mod tests {
             )
             .is_err()
         );
+    }
+
+    #[test]
+    fn wrong_surface_pixels_are_off_by_more_than_one_percent() {
+        let inf = f32::INFINITY;
+        let reference = [10.0, 10.0, 10.0, 10.0, inf, 10.0, 200.0];
+        // Within 1 %, just beyond it, far behind, in front, uncovered in one frame or the other.
+        let test = [10.09, 10.11, 14.0, 9.0, 3.0, inf, 197.9];
+        assert_eq!(wrong_surface_px(&test, &reference), Ok(4));
+        assert_eq!(wrong_surface_px(&reference, &reference), Ok(0));
+        assert!(wrong_surface_px(&test[..3], &reference).is_err());
+        let mut a = disc(12, 10, 6, 5, 3, None);
+        let b = a.clone();
+        a.depth[5 * 12 + 6] *= 1.5;
+        let c = compare(&a, &b).unwrap();
+        assert_eq!(c.wrong_surface_px, 1);
+        assert_eq!(compare(&b, &b).unwrap().wrong_surface_px, 0);
+        let views = [
+            comparison(30.0, 100, 90, 0.1),
+            comparison(40.0, 300, 290, 0.1),
+        ];
+        let m = mean_comparison(&views).unwrap();
+        assert_eq!(m.wrong_surface_px, 20.0);
+        let json = serde_json::to_value(&c).unwrap();
+        assert_eq!(json["wrong_surface_px"], 1);
     }
 
     proptest! {

@@ -333,3 +333,75 @@ impl ReferenceRenderer {
         })
     }
 }
+
+impl ReferenceRenderer {
+    /// The supersampled reference that refined stills ([`crate::refine`]) are measured against:
+    /// `view` rasterized at `factor` times its width and height (the same field of view, so
+    /// `factor`² sub-pixel samples on a regular grid per pixel) and box-filtered back. Colour is
+    /// the mean RGBA of the samples (misses transparent black, so alpha is the covered fraction);
+    /// a pixel is covered where at least half its samples hit, with the depth of the hit nearest
+    /// its centre (an odd `factor` has a sample at the centre). Stats are the large render's.
+    ///
+    /// # Errors
+    /// As [`ReferenceRenderer::render`]; [`ViewError::BadSize`] when `factor` is 0 or makes the
+    /// large view exceed the size cap.
+    pub fn render_supersampled(
+        &self,
+        mesh: &GpuMesh,
+        view: &View,
+        shading: &Shading,
+        factor: u32,
+    ) -> Result<Frame, ReferenceError> {
+        let max_px = DEFAULT_MAX_VIEW_PX.min(self.gpu.device.limits().max_texture_dimension_2d);
+        view.basis(max_px)?;
+        let scale = |side: u32| side.saturating_mul(factor);
+        let large_view = View {
+            width: scale(view.width),
+            height: scale(view.height),
+            ..view.clone()
+        };
+        let large = self.render(mesh, &large_view, shading)?;
+        let (w, h, k) = (view.width as usize, view.height as usize, factor as usize);
+        let large_width = w * k;
+        let samples = k * k;
+        // Squared distance of sub-sample (a, b) from the pixel centre, in sub-samples (× 4).
+        let offset = |a: usize| (2 * a + 1).abs_diff(k);
+        let mut color = Vec::with_capacity(w * h * 4);
+        let mut depth = Vec::with_capacity(w * h);
+        for y in 0..h {
+            for x in 0..w {
+                let mut sum = [0_usize; 4];
+                let mut hits = 0;
+                let mut nearest: Option<(usize, f32)> = None;
+                for b in 0..k {
+                    for a in 0..k {
+                        let i = (y * k + b) * large_width + x * k + a;
+                        for (s, &c) in sum.iter_mut().zip(&large.color[4 * i..4 * i + 4]) {
+                            *s += usize::from(c);
+                        }
+                        let z = large.depth[i];
+                        if z.is_finite() {
+                            hits += 1;
+                            let d = offset(a).pow(2) + offset(b).pow(2);
+                            if nearest.is_none_or(|(best, _)| d < best) {
+                                nearest = Some((d, z));
+                            }
+                        }
+                    }
+                }
+                color.extend(sum.map(|s| ((s + samples / 2) / samples) as u8));
+                depth.push(match nearest {
+                    Some((_, z)) if 2 * hits >= samples => z,
+                    _ => f32::INFINITY,
+                });
+            }
+        }
+        Ok(Frame {
+            width: view.width,
+            height: view.height,
+            color,
+            depth,
+            stats: large.stats,
+        })
+    }
+}
