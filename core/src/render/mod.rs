@@ -34,10 +34,19 @@ use crate::geometry;
 use crate::gpu::{Gpu, GpuError};
 use crate::view::{DEFAULT_MAX_VIEW_PX, View, ViewError};
 
-use gpu_data::*;
-use guide::*;
-use passes::*;
-use targets::*;
+use gpu_data::{
+    EDGE_GAP, FRONT_MASS, MethodSet, REFINE_ITERATIONS, RenderParams, Role, ShaderSetting, Tiling,
+    max_steps_for, method_code,
+};
+use guide::{
+    COARSE_REFINE_ITERATIONS, COARSE_STEP_SCALE, GUIDE_REACH, INTERIOR_BLOCK_REACH,
+    INTERIOR_CURVATURE, PRE_FACTOR, blocks_share_coarse_cells, coarse_size, interior_block_angle,
+};
+use passes::{PassTimer, Workgroups, compute_pipeline, record_pass};
+use targets::{
+    COUNTERS_SIZE, CoarseLevel, GIVEN_BACK_ARGS, INTERIOR_ARGS, MAX_TILES, Targets, coarse_stride,
+    quad_grid, tile_grid,
+};
 use upload::direction_lookup_texture;
 
 /// One asset on the GPU. Cheap to share (`Arc`) between threads.
@@ -60,6 +69,10 @@ pub struct GpuLightField {
     pub visible_box: [[f32; 3]; 2],
     group: wgpu::BindGroup,
 }
+
+/// One coarse pass of a guided frame: its buffers, size, focal length (pixels) and jitter (its
+/// pixels).
+type CoarsePass<'a> = (&'a CoarseLevel, (u32, u32), f32, [f32; 2]);
 
 /// The light-field render pipeline; one per process, shared by threads.
 pub struct Renderer {
@@ -435,7 +448,7 @@ impl Renderer {
         // The coarse passes, coarsest first, with their sizes, focal lengths and jitters (the
         // frame's, in their pixels): the frame's coarse pass is guided in turn by a pre-coarse
         // pass PRE_FACTOR times coarser.
-        let mut levels: Vec<(&CoarseLevel, (u32, u32), f32, [f32; 2])> = Vec::new();
+        let mut levels: Vec<CoarsePass> = Vec::new();
         if let Some((cw, ch)) = coarse {
             let focal = params.focal_px / factor as f32;
             let coarse_jitter = jitter.map(|c| c / factor as f32);
