@@ -74,6 +74,20 @@ impl Default for BakeOptions {
 }
 
 impl BakeOptions {
+    /// The options an asset was baked with, as its provenance records them; defaults for what
+    /// it lacks or cannot be read (assets written before a field existed), the recorded
+    /// shading kept whenever it parses, so a reference render shades as the bake did.
+    pub fn of(header: &crate::asset::AssetHeader) -> BakeOptions {
+        let recorded = &header.provenance.bake_options;
+        serde_json::from_value(recorded.clone()).unwrap_or_else(|_| BakeOptions {
+            shading: recorded
+                .get("shading")
+                .and_then(|v| serde_json::from_value(v.clone()).ok())
+                .unwrap_or_default(),
+            ..BakeOptions::default()
+        })
+    }
+
     /// Checks every option.
     ///
     /// # Errors

@@ -21,11 +21,14 @@
 //!   embedded at build time ([`shaders`]).
 //! - [`metrics`] implements DESIGN §3's metrics (cross-checked against scikit-image);
 //!   [`tradeoff`] sweeps every quality knob and measures its cost and error.
+//! - [`calibration`] measures a scene's error against cost at bake time and serves goals
+//!   (target PSNR, time budget) from it.
 //! - [`lod`] chooses cameras and step from an object's projected size under a quality floor.
 //! - [`scene`] composites light-field instances and meshes, each with its own transform, by depth.
 
 pub mod asset;
 pub mod bake;
+pub mod calibration;
 pub mod frame;
 mod fsutil;
 pub mod geometry;

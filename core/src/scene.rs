@@ -325,7 +325,7 @@ impl Scene {
             )));
         }
         // Asset index → its calibration (read once per asset, for automatic LOD).
-        let mut calibrations: HashMap<usize, Option<crate::tradeoff::Calibration>> = HashMap::new();
+        let mut calibrations: HashMap<usize, Option<crate::calibration::Calibration>> = HashMap::new();
         let mut field_index: HashMap<PathBuf, usize> = HashMap::new();
         let mut mesh_index: HashMap<PathBuf, usize> = HashMap::new();
         let mut fields = Vec::new();
@@ -359,7 +359,7 @@ impl Scene {
                         // A malformed calibration only matters to objects asking for LOD.
                         calibrations.insert(
                             fields.len() - 1,
-                            crate::tradeoff::Calibration::from_quality(
+                            crate::calibration::Calibration::from_quality(
                                 file.header().quality.as_ref(),
                             )
                             .ok()

@@ -6,11 +6,11 @@ use std::sync::{Arc, Mutex};
 
 use lumigraph_core::asset::{AssetFile, Provenance};
 use lumigraph_core::bake::BakeOptions;
+use lumigraph_core::calibration::{self, Calibration, Choice, Goal};
 use lumigraph_core::frame::Frame;
 use lumigraph_core::lod::{Ladder, LodError, LodPolicy};
 use lumigraph_core::render::{GpuLightField, Method, RenderOptions};
 use lumigraph_core::shading::Shading;
-use lumigraph_core::tradeoff::{self, Calibration, Choice, Goal};
 use lumigraph_core::view::View;
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
@@ -590,11 +590,7 @@ impl PyLightField {
             .basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX)
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
         let f = &self.asset.header().frame;
-        let d = ladder.decide(lumigraph_core::lod::projected_diameter_px(
-            &basis,
-            f.center.into(),
-            f.radius,
-        ));
+        let d = ladder.decide(basis.projected_diameter_px(f.center.into(), f.radius));
         let out = PyDict::new(py);
         out.set_item("projected_px", d.projected_px)?;
         out.set_item("cameras", d.level.cameras)?;
@@ -685,7 +681,7 @@ pub fn bake(
         let bytes = if calibrate {
             let renderer = engines::renderer().map_err(|e| errors::gpu_for_render(&e))?;
             let reference = engines::reference().map_err(|e| errors::gpu_for_render(&e))?;
-            tradeoff::bake_calibrated(
+            calibration::bake_calibrated(
                 baker,
                 renderer,
                 reference,
@@ -695,7 +691,7 @@ pub fn bake(
                 &mut report,
             )
             .map_err(|e| match e {
-                tradeoff::TradeoffError::Bake(e) => errors::bake(&e),
+                calibration::CalibrationError::Bake(e) => errors::bake(&e),
                 other => errors::BakeError::new_err(format!("calibration failed: {other}")),
             })?
             .bytes

@@ -1098,7 +1098,7 @@ async fn websocket_goals_choose_full_quality_settings() {
         let gpu = gpu();
         let renderer = lumigraph_core::render::Renderer::new(gpu.clone());
         let reference = lumigraph_core::reference::ReferenceRenderer::new(gpu.clone());
-        lumigraph_core::tradeoff::bake_calibrated(
+        lumigraph_core::calibration::bake_calibrated(
             &Baker::new(gpu),
             &renderer,
             &reference,

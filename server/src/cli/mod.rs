@@ -12,6 +12,7 @@ use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use lumigraph_core::asset::{AssetFile, Provenance};
 use lumigraph_core::bake::{BakeOptions, Baker, sha256_hex};
+use lumigraph_core::calibration::{self, Calibration, Choice, Goal};
 use lumigraph_core::frame::Frame;
 use lumigraph_core::gpu::Gpu;
 use lumigraph_core::lod::{Ladder, Level, LodDecision, LodPolicy};
@@ -21,7 +22,7 @@ use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::{Method, RenderOptions, Renderer};
 use lumigraph_core::scene::Scene;
 use lumigraph_core::shading::Shading;
-use lumigraph_core::tradeoff::{self, Calibration, Choice, Goal, Grid, SweepInputs};
+use lumigraph_core::tradeoff::{self, Grid, SweepInputs};
 use lumigraph_core::view::{View, random_orbit_views};
 
 mod plot;
@@ -554,7 +555,7 @@ fn bake(args: &BakeArgs) -> Result<()> {
     Ok(())
 }
 
-/// Bakes in memory, measures the scene's calibration (tradeoff::Calibration) and writes the
+/// Bakes in memory, measures the scene's calibration (calibration::Calibration) and writes the
 /// asset with it in the quality report, atomically.
 fn bake_calibrated(
     args: &BakeArgs,
@@ -567,7 +568,7 @@ fn bake_calibrated(
 ) -> Result<()> {
     let renderer = Renderer::new(gpu.clone());
     let reference = ReferenceRenderer::new(gpu.clone());
-    let baked = tradeoff::bake_calibrated(
+    let baked = calibration::bake_calibrated(
         baker,
         &renderer,
         &reference,

@@ -4,11 +4,11 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use lumigraph_core::calibration::{Calibration, CalibrationError, Goal};
 use lumigraph_core::frame::Frame;
 use lumigraph_core::image_io;
 use lumigraph_core::lod::{Ladder, LodDecision, LodError, LodPolicy};
 use lumigraph_core::render::{Method, RenderOptions, Renderer};
-use lumigraph_core::tradeoff::{Calibration, Goal, TradeoffError};
 use lumigraph_core::view::View;
 use serde::{Deserialize, Serialize};
 use tokio::sync::Semaphore;
@@ -122,7 +122,7 @@ pub fn goal_calibration(
     knobs: &Knobs,
     asset: &LoadedAsset,
 ) -> Result<Option<(Goal, Arc<Calibration>)>, AppError> {
-    let invalid = |e: TradeoffError| AppError::Invalid(e.to_string());
+    let invalid = |e: CalibrationError| AppError::Invalid(e.to_string());
     let Some(goal) = Goal::from_pair(target_psnr, budget_ms).map_err(invalid)? else {
         return Ok(None);
     };

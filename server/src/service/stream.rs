@@ -28,8 +28,8 @@ use super::error::AppError;
 use super::frames::{
     ColorFormat, Encoding, Knobs, Plan, encode_blocking, encode_color, goal_calibration, lod_ladder,
 };
+use lumigraph_core::calibration::{Calibration, Goal};
 use lumigraph_core::lod::Ladder;
-use lumigraph_core::tradeoff::{Calibration, Goal};
 
 /// Version of the stream protocol, sent in `hello`.
 pub const PROTOCOL_VERSION: u32 = 1;
