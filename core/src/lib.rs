@@ -24,6 +24,8 @@
 //! - [`calibration`] measures a scene's error against cost at bake time and serves goals
 //!   (target PSNR, time budget) from it.
 //! - [`lod`] chooses cameras and step from an object's projected size under a quality floor.
+//! - [`quality`] is the one quality request every front speaks (knobs, a goal or automatic LOD):
+//!   it plans against an asset and renders a view, returning the frame and the decision.
 //! - [`scene`] composites light-field instances and meshes, each with its own transform, by depth.
 
 pub mod asset;
@@ -37,6 +39,7 @@ pub mod image_io;
 pub mod lod;
 pub mod mesh;
 pub mod metrics;
+pub mod quality;
 pub mod reference;
 pub mod render;
 pub mod scene;
