@@ -283,6 +283,7 @@ impl Quality {
 
     /// The quality of frames while a stream's view moves: the knobs and automatic LOD apply;
     /// a goal does not (it is chosen for resting frames, whose size it predicts for).
+    #[must_use]
     pub fn for_motion(&self) -> Quality {
         Quality {
             target_psnr: None,
@@ -550,7 +551,7 @@ mod tests {
         }
     }
 
-    fn error(json: serde_json::Value) -> String {
+    fn error(json: &serde_json::Value) -> String {
         match parse(json.clone()).and_then(|q| q.validate()) {
             Ok(()) => panic!("{json} was accepted"),
             Err(e) => e.to_string(),
@@ -644,7 +645,7 @@ mod tests {
             (json!({"lod": 7}), "lod 7"),
         ];
         for (json, needle) in cases {
-            let text = error(json.clone());
+            let text = error(&json);
             assert!(text.contains(needle), "{json}: {text}");
         }
         for ok in [

@@ -266,7 +266,7 @@ enum Layer {
     Field {
         field: usize,
         placement: Similarity,
-        plan: Plan,
+        plan: Box<Plan>,
         path: String,
     },
     Mesh {
@@ -375,7 +375,7 @@ impl Scene {
                     layers.push(Layer::Field {
                         field,
                         placement,
-                        plan,
+                        plan: Box::new(plan),
                         path: shown,
                     });
                 }
