@@ -1,5 +1,5 @@
 //! Encoders, decoders and file writers for frames: colour as PNG, JPEG or WebP, depth as NumPy
-//! `.npy` or OpenEXR.
+//! `.npy` or OpenEXR (and, for viewers, a 16-bit PNG of the depth range).
 //!
 //! Every `encode_*` function works in memory (the service sends the bytes), every `write_*`
 //! function encodes first and then writes through [`atomic_write`], so a failed encode touches no
@@ -441,6 +441,53 @@ pub fn read_depth_exr(path: &Path) -> Result<(u32, u32, Vec<f32>), ImageIoError>
 }
 
 // ---------------------------------------------------------------------------------------------
+// Depth: 16-bit PNG (for viewers)
+
+/// Encodes depth as a 16-bit grey PNG: `round((d - near) / (far - near) · 65534)`, 65535 where
+/// nothing is hit, with `near` and `far` the smallest and largest finite depths (both 0 when
+/// none is finite). Returns the bytes and `(near, far)`, which a reader needs to map values back.
+pub fn encode_depth_png16(
+    width: u32,
+    height: u32,
+    depth: &[f32],
+) -> Result<(Vec<u8>, (f32, f32)), ImageIoError> {
+    check_size(width, height, 1, depth.len())?;
+    let (near, far) = depth
+        .iter()
+        .filter(|d| d.is_finite())
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| {
+            (lo.min(d), hi.max(d))
+        });
+    let (near, far) = if near.is_finite() {
+        (near, far)
+    } else {
+        (0.0, 0.0)
+    };
+    let span = far - near;
+    let values: Vec<u16> = depth
+        .iter()
+        .map(|&d| {
+            if !d.is_finite() {
+                u16::MAX
+            } else if span > 0.0 {
+                (((d - near) / span) * 65534.0).round().clamp(0.0, 65534.0) as u16
+            } else {
+                0
+            }
+        })
+        .collect();
+    let image = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(width, height, values)
+        .ok_or_else(|| {
+        ImageIoError::encode("PNG", "depth buffer size does not match the image")
+    })?;
+    let mut bytes = Vec::new();
+    image
+        .write_to(&mut Cursor::new(&mut bytes), ImageFormat::Png)
+        .map_err(|e| ImageIoError::encode("PNG", e))?;
+    Ok((bytes, (near, far)))
+}
+
+// ---------------------------------------------------------------------------------------------
 // Depth: by extension
 
 const DEPTH_EXTENSIONS: &str = ".npy or .exr";
@@ -792,5 +839,32 @@ mod tests {
         write_depth(&target, 1, 1, &[7.0]).unwrap();
         assert!(write_depth(&target, 1, 1, &[7.0, 8.0]).is_err());
         assert_eq!(read_depth(&target).unwrap(), (1, 1, vec![7.0]));
+    }
+
+    #[test]
+    fn png16_depth_maps_the_finite_range_and_marks_misses() {
+        let depth = [2.0, f32::INFINITY, 4.0, 3.0, f32::NAN, 2.5];
+        let (bytes, range) = encode_depth_png16(3, 2, &depth).unwrap();
+        assert_eq!(range, (2.0, 4.0));
+        let image = ImageReader::with_format(Cursor::new(&bytes), ImageFormat::Png)
+            .decode()
+            .unwrap();
+        assert_eq!((image.width(), image.height()), (3, 2));
+        let values = image.into_luma16().into_raw();
+        assert_eq!(values, [0, u16::MAX, 65534, 32767, u16::MAX, 16384]);
+        // Nothing finite: the range is (0, 0) and every pixel a miss.
+        let (bytes, range) = encode_depth_png16(1, 1, &[f32::INFINITY]).unwrap();
+        assert_eq!(range, (0.0, 0.0));
+        let image = ImageReader::with_format(Cursor::new(&bytes), ImageFormat::Png)
+            .decode()
+            .unwrap();
+        assert_eq!(image.into_luma16().into_raw(), [u16::MAX]);
+        // One depth everywhere: span 0 maps to 0.
+        let (_, range) = encode_depth_png16(2, 1, &[1.5, 1.5]).unwrap();
+        assert_eq!(range, (1.5, 1.5));
+        assert!(matches!(
+            encode_depth_png16(2, 2, &[1.0; 3]),
+            Err(ImageIoError::SizeMismatch { .. })
+        ));
     }
 }

@@ -5,7 +5,9 @@ use std::sync::{Arc, Mutex};
 
 use lumigraph_core::bake::sha256_hex;
 use lumigraph_core::gpu::mesh::GpuMesh;
-use lumigraph_core::mesh::{DEFAULT_BASE_COLOR, Material, Mesh, Texture, demo_mesh, load_mesh};
+use lumigraph_core::mesh::{
+    DEFAULT_BASE_COLOR, Material, Mesh, Texture, demo_mesh, demo_provenance, load_mesh,
+};
 use lumigraph_core::shading::Shading;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -74,22 +76,6 @@ impl PyMesh {
     }
 }
 
-/// SHA-256 of the geometry (positions then triangles, little-endian) for array sources.
-fn geometry_sha256(mesh: &Mesh) -> String {
-    let mut bytes = Vec::with_capacity(mesh.positions.len() * 12 + mesh.triangles.len() * 12);
-    for p in &mesh.positions {
-        for c in p {
-            bytes.extend_from_slice(&c.to_le_bytes());
-        }
-    }
-    for t in &mesh.triangles {
-        for c in t {
-            bytes.extend_from_slice(&c.to_le_bytes());
-        }
-    }
-    sha256_hex(&bytes)
-}
-
 #[pymethods]
 impl PyMesh {
     #[new]
@@ -151,7 +137,7 @@ impl PyMesh {
         let mesh = py
             .detach(move || mesh.finish())
             .map_err(|e| errors::mesh(&e))?;
-        let sha = geometry_sha256(&mesh);
+        let sha = mesh.geometry_sha256();
         Ok(Self::from_core(mesh, name, sha))
     }
 
@@ -188,8 +174,12 @@ impl PyMesh {
     #[staticmethod]
     fn demo() -> PyResult<Self> {
         let mesh = demo_mesh().map_err(|e| errors::mesh(&e))?;
-        let sha = geometry_sha256(&mesh);
-        Ok(Self::from_core(mesh, "demo:trefoil".to_owned(), sha))
+        let provenance = demo_provenance(&mesh);
+        Ok(Self::from_core(
+            mesh,
+            provenance.source_name,
+            provenance.source_sha256,
+        ))
     }
 
     /// Vertex positions (N, 3) float32, world units (a copy).

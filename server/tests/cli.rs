@@ -51,6 +51,24 @@ fn demo_asset() -> &'static PathBuf {
     })
 }
 
+/// Bakes a small demo asset without calibration (12 cameras, 32 px) to `name`.
+fn bake_uncalibrated(name: &str) -> PathBuf {
+    let out = path(name);
+    let o = lumigraph(&[
+        "bake",
+        "--demo",
+        "-o",
+        s(&out),
+        "--cameras",
+        "12",
+        "--resolution",
+        "32",
+        "--no-calibrate",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    out
+}
+
 fn write(name: &str, contents: &[u8]) -> PathBuf {
     let p = path(name);
     std::fs::write(&p, contents).expect("write");
@@ -608,6 +626,19 @@ fn render_scene_composites_instances_and_meshes() {
         &["render", s(&scene), "--view", v, "-o", o, "--step", "0.1"],
         "per light-field object",
     );
+    assert_fails(
+        &[
+            "render",
+            s(&scene),
+            "--view",
+            v,
+            "-o",
+            o,
+            "--target-psnr",
+            "25",
+        ],
+        "per light-field object",
+    );
     let lod = format!(
         r#"{{"objects": [{{"type": "lightfield", "asset": "{}", "options": {{"lod": 642}}}}]}}"#,
         s(asset)
@@ -681,26 +712,19 @@ fn calibrated_goals_pick_settings_and_report_predictions() {
     assert_fails(&with(&["--target-psnr", "-1"]), "target PSNR");
     assert_fails(
         &with(&["--target-psnr", "20", "--step", "0.1"]),
-        "cannot be used",
+        "do not send them",
     );
     assert_fails(
         &with(&["--target-psnr", "20", "--budget-ms", "9"]),
-        "cannot be used",
+        "not both",
+    );
+    // A goal decides the guide too: sent with one, it is refused, not dropped.
+    assert_fails(
+        &with(&["--target-psnr", "27", "--guide", "8"]),
+        "do not send them",
     );
     // An asset baked without calibration says how to get one.
-    let plain = path("plain.lfa");
-    let o = lumigraph(&[
-        "bake",
-        "--demo",
-        "-o",
-        s(&plain),
-        "--cameras",
-        "12",
-        "--resolution",
-        "32",
-        "--no-calibrate",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let plain = bake_uncalibrated("plain.lfa");
     assert_fails(
         &[
             "render",
@@ -789,8 +813,8 @@ fn auto_lod_chooses_per_view_and_reports_predicted_beside_measured() {
         &with(&["--auto-lod", "--method", "fixed"]),
         "default-method",
     );
-    assert_fails(&with(&["--auto-lod", "--budget-ms", "9"]), "cannot be used");
-    assert_fails(&with(&["--lod-blend", "0.1"]), "--auto-lod");
+    assert_fails(&with(&["--auto-lod", "--budget-ms", "9"]), "not both");
+    assert_fails(&with(&["--lod-blend", "0.1"]), "need auto_lod");
     // The coarse-to-fine guide: a knob of its own, and it combines with automatic LOD.
     assert_fails(&with(&["--guide", "1"]), "guide 1");
     assert_fails(
@@ -809,19 +833,7 @@ fn auto_lod_chooses_per_view_and_reports_predicted_beside_measured() {
         "--auto-lod",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let plain = path("plain_lod.lfa");
-    let o = lumigraph(&[
-        "bake",
-        "--demo",
-        "-o",
-        s(&plain),
-        "--cameras",
-        "12",
-        "--resolution",
-        "32",
-        "--no-calibrate",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let plain = bake_uncalibrated("plain_lod.lfa");
     assert_fails(
         &[
             "render",

@@ -799,6 +799,10 @@ async fn bake_jobs() {
             "do not send them",
         ),
         (
+            serde_json::json!({"view": view_json(8, 8), "target_psnr": 27.0, "guide": 8}),
+            "do not send them",
+        ),
+        (
             serde_json::json!({"view": view_json(8, 8), "budget_ms": -1.0}),
             "budget",
         ),

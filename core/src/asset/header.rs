@@ -6,7 +6,6 @@ use std::fmt;
 
 use serde::{Deserialize, Serialize};
 
-use super::format::PageGrid;
 use super::{AssetError, FORMAT_VERSION, Result};
 
 /// Highest icosahedron subdivision level of a spherical camera set (642 cameras).
@@ -480,4 +479,84 @@ fn validate_names<'a>(
         }
     }
     Ok(())
+}
+
+/// How a square image is cut into square pages, row-major, edge pages smaller.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct PageGrid {
+    resolution_px: u32,
+    page_size: u32,
+    pages_per_row: u32,
+}
+
+/// A page's pixel rectangle within its image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct PageRect {
+    /// First column.
+    pub x: u32,
+    /// First row (from the top).
+    pub y: u32,
+    /// Columns: `page_size` or less at the right edge.
+    pub width: u32,
+    /// Rows: `page_size` or less at the bottom edge.
+    pub height: u32,
+}
+
+impl PageRect {
+    /// Texels in the page.
+    pub fn texels(&self) -> u64 {
+        u64::from(self.width) * u64::from(self.height)
+    }
+}
+
+impl PageGrid {
+    /// A grid for `resolution_px`² images and `page_size`² pages; `None` if either is zero or
+    /// the page count does not fit a `u32`.
+    pub fn new(resolution_px: u32, page_size: u32) -> Option<Self> {
+        if resolution_px == 0 || page_size == 0 {
+            return None;
+        }
+        let pages_per_row = resolution_px.div_ceil(page_size);
+        pages_per_row.checked_mul(pages_per_row)?;
+        Some(Self {
+            resolution_px,
+            page_size,
+            pages_per_row,
+        })
+    }
+
+    /// Image side in pixels.
+    pub fn resolution_px(&self) -> u32 {
+        self.resolution_px
+    }
+
+    /// Page side in pixels.
+    pub fn page_size(&self) -> u32 {
+        self.page_size
+    }
+
+    /// Pages per row (and per column): `ceil(resolution / page_size)`.
+    pub fn pages_per_row(&self) -> u32 {
+        self.pages_per_row
+    }
+
+    /// Pages per image.
+    pub fn page_count(&self) -> u32 {
+        self.pages_per_row * self.pages_per_row
+    }
+
+    /// The rectangle of page `page = page_row · pages_per_row + page_col`, `None` past the end.
+    pub fn page_rect(&self, page: u32) -> Option<PageRect> {
+        if page >= self.page_count() {
+            return None;
+        }
+        let x = (page % self.pages_per_row) * self.page_size;
+        let y = (page / self.pages_per_row) * self.page_size;
+        Some(PageRect {
+            x,
+            y,
+            width: self.page_size.min(self.resolution_px - x),
+            height: self.page_size.min(self.resolution_px - y),
+        })
+    }
 }

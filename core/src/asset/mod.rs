@@ -29,13 +29,13 @@ mod writer;
 use std::fmt;
 
 pub use format::{
-    Codec, INDEX_ENTRY_LEN, IndexEntry, MAGIC, MAX_HEADER_LEN, PREAMBLE_LEN, PageGrid, PageRect,
-    Preamble, zstd_bound,
+    Codec, INDEX_ENTRY_LEN, IndexEntry, MAGIC, MAX_HEADER_LEN, PREAMBLE_LEN, Preamble, zstd_bound,
 };
 pub use header::{
     AssetHeader, AssetKind, Channel, ChannelDesc, DEFAULT_PAGE_SIZE, Encoding, LayerDesc, LfFrame,
     MAX_CAMERA_LEVEL, MAX_LAYERS, MAX_PAGE_SIZE, MAX_RESOLUTION_PX, MAX_STATES, MIN_PAGE_SIZE,
-    MapProjection, Provenance, SphericalGeometry, StateDesc, camera_count_for_level,
+    MapProjection, PageGrid, PageRect, Provenance, SphericalGeometry, StateDesc,
+    camera_count_for_level,
 };
 pub use reader::AssetFile;
 pub use writer::{AssetWriter, encode_asset, write_asset};

@@ -10,6 +10,10 @@ use std::f64::consts::TAU;
 use glam::DVec3;
 
 use super::{Material, Mesh, MeshError, Texture};
+use crate::asset::Provenance;
+
+/// Source name in the provenance of assets baked from the demo.
+pub const DEMO_SOURCE_NAME: &str = "demo:trefoil";
 
 /// Segments along the knot.
 const SEGMENTS_ALONG: u32 = 360;
@@ -144,4 +148,14 @@ pub fn demo_mesh() -> Result<Mesh, MeshError> {
         textures: vec![checker_texture()],
     }
     .finish()
+}
+
+/// The provenance of an asset baked from `demo`, the mesh [`demo_mesh`] returns: source
+/// [`DEMO_SOURCE_NAME`] and the SHA-256 of its geometry, so every front records the demo alike.
+pub fn demo_provenance(demo: &Mesh) -> Provenance {
+    Provenance {
+        source_name: DEMO_SOURCE_NAME.to_owned(),
+        source_sha256: demo.geometry_sha256(),
+        ..Provenance::default()
+    }
 }

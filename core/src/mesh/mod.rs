@@ -4,7 +4,7 @@
 mod demo;
 mod load;
 
-pub use demo::demo_mesh;
+pub use demo::{DEMO_SOURCE_NAME, demo_mesh, demo_provenance};
 pub use load::{MeshFormat, load_mesh, load_mesh_from_bytes};
 
 use glam::DVec3;
@@ -134,6 +134,28 @@ pub struct Mesh {
     pub textures: Vec<Texture>,
 }
 
+impl Mesh {
+    /// Hex SHA-256 of the geometry: positions, then triangles, as little-endian bytes (for
+    /// sources that are not files, such as the demo or arrays).
+    pub fn geometry_sha256(&self) -> String {
+        use sha2::Digest;
+        let mut bytes = Vec::with_capacity(12 * (self.positions.len() + self.triangles.len()));
+        for c in self.positions.iter().flatten() {
+            bytes.extend_from_slice(&c.to_le_bytes());
+        }
+        for i in self.triangles.iter().flatten() {
+            bytes.extend_from_slice(&i.to_le_bytes());
+        }
+        sha2::Sha256::digest(&bytes)
+            .iter()
+            .fold(String::with_capacity(64), |mut hex, b| {
+                use std::fmt::Write;
+                let _ = write!(hex, "{b:02x}");
+                hex
+            })
+    }
+}
+
 /// The smallest sphere found around a set of points (Ritter's bound refined; within a few
 /// per cent of optimal, always containing every point).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -142,4 +164,30 @@ pub struct BoundingSphere {
     pub center: DVec3,
     /// Radius, world units; > 0.
     pub radius: f64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn geometry_hash_covers_positions_then_triangles() {
+        // SHA-256 of no bytes.
+        assert_eq!(
+            Mesh::default().geometry_sha256(),
+            "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"
+        );
+        let mesh = Mesh {
+            positions: vec![[0.0, 1.0, 2.0]],
+            triangles: vec![[0, 0, 0]],
+            ..Mesh::default()
+        };
+        let mut swapped = mesh.clone();
+        swapped.triangles = vec![[0, 0, 1]];
+        assert_ne!(mesh.geometry_sha256(), swapped.geometry_sha256());
+        assert_eq!(mesh.geometry_sha256().len(), 64);
+        let provenance = demo_provenance(&mesh);
+        assert_eq!(provenance.source_name, DEMO_SOURCE_NAME);
+        assert_eq!(provenance.source_sha256, mesh.geometry_sha256());
+    }
 }

@@ -125,7 +125,7 @@ impl Jobs {
     /// Creates a queued job baking into `asset` with `cameras_total` cameras.
     pub fn create(&self, asset: String, cameras_total: u32) -> Arc<Job> {
         let job = Arc::new(Job {
-            id: super::random_id("job"),
+            id: super::state::random_id("job"),
             asset,
             done: AtomicU32::new(0),
             total: AtomicU32::new(cameras_total),

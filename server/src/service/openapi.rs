@@ -6,24 +6,6 @@ use utoipa::{Modify, OpenApi};
 
 use super::{http, stream};
 
-/// A view (DESIGN §3), documented here because the core type carries no schema.
-#[derive(utoipa::ToSchema)]
-#[allow(dead_code)]
-pub struct ViewSchema {
-    /// Eye position `[x, y, z]`, world units.
-    pub eye: [f64; 3],
-    /// Point looked at.
-    pub target: [f64; 3],
-    /// Up direction (default `[0, 1, 0]`); not zero, not parallel to `target - eye`.
-    pub up: Option<[f64; 3]>,
-    /// Vertical field of view in degrees, in (0, 180).
-    pub yfov_deg: f64,
-    /// Width in pixels, 1..=max_px.
-    pub width: u32,
-    /// Height in pixels, 1..=max_px.
-    pub height: u32,
-}
-
 struct BearerAuth;
 
 impl Modify for BearerAuth {
@@ -57,7 +39,7 @@ impl Modify for BearerAuth {
         http::get_job,
         stream::stream,
     ),
-    components(schemas(ViewSchema)),
+    components(schemas(http::ViewSchema)),
     modifiers(&BearerAuth),
     tags(
         (name = "assets", description = "List, inspect, upload and delete .lfa assets"),

@@ -1,0 +1,127 @@
+//! `lumigraph bake`: a mesh or the demo into a light-field asset, calibrated unless told not to.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use indicatif::ProgressBar;
+use lumigraph_core::asset::Provenance;
+use lumigraph_core::bake::{BakeOptions, Baker};
+use lumigraph_core::calibration;
+use lumigraph_core::gpu::Gpu;
+use lumigraph_core::mesh::Mesh;
+use lumigraph_core::reference::ReferenceRenderer;
+use lumigraph_core::render::Renderer;
+
+use super::args::ShadingArgs;
+use super::common::{gpu, load_source, progress_bar};
+
+/// `lumigraph bake`.
+#[derive(Debug, Args)]
+pub struct BakeArgs {
+    /// Mesh file (omit with --demo).
+    #[arg(required_unless_present = "demo", conflicts_with = "demo")]
+    pub mesh: Option<PathBuf>,
+    /// Bake the built-in demo scene (a trefoil-knot tube).
+    #[arg(long)]
+    pub demo: bool,
+    /// Output asset (.lfa).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Cameras: 12, 42, 162 or 642.
+    #[arg(long, default_value_t = 162, allow_hyphen_values = true)]
+    pub cameras: u32,
+    /// Parabolic map resolution in pixels.
+    #[arg(long, default_value_t = 256, allow_hyphen_values = true)]
+    pub resolution: u32,
+    /// Depth precision: 8 or 16 bits.
+    #[arg(long, default_value_t = 16, allow_hyphen_values = true)]
+    pub depth_bits: u8,
+    /// Shading.
+    #[command(flatten)]
+    pub shading: ShadingArgs,
+    /// Skip the calibration (error against cost of this scene, stored in the asset's quality
+    /// report for `render --target-psnr / --budget-ms`; a few seconds on lavapipe).
+    #[arg(long)]
+    pub no_calibrate: bool,
+}
+
+pub(super) fn bake(args: &BakeArgs) -> Result<()> {
+    let options = BakeOptions {
+        cameras: args.cameras,
+        resolution: args.resolution,
+        shading: args.shading.to_shading()?,
+        depth_bits: args.depth_bits,
+    };
+    options.validate()?;
+    let (mesh, provenance) = load_source(args.mesh.as_deref(), args.demo)?;
+    let gpu = gpu()?;
+    let baker = Baker::new(gpu.clone());
+    let bar = progress_bar(u64::from(options.cameras), "baking cameras");
+    if !args.no_calibrate {
+        return bake_calibrated(args, &options, &mesh, &provenance, &baker, &gpu, &bar);
+    }
+    let report = baker.bake_to_file(
+        &mesh,
+        &options,
+        &provenance,
+        &args.output,
+        &mut |done, _| bar.set_position(u64::from(done)),
+    )?;
+    bar.finish_and_clear();
+    println!(
+        "baked {} cameras at {} px from {} triangles in {:.0} ms: {} ({:.1} MiB)",
+        report.cameras,
+        report.resolution,
+        report.triangles,
+        report.bake_ms,
+        args.output.display(),
+        report.asset_bytes as f64 / (1024.0 * 1024.0)
+    );
+    Ok(())
+}
+
+/// Bakes in memory, measures the scene's calibration (calibration::Calibration) and writes the
+/// asset with it in the quality report, atomically.
+fn bake_calibrated(
+    args: &BakeArgs,
+    options: &BakeOptions,
+    mesh: &Mesh,
+    provenance: &Provenance,
+    baker: &Baker,
+    gpu: &Arc<Gpu>,
+    bar: &ProgressBar,
+) -> Result<()> {
+    let renderer = Renderer::new(gpu.clone());
+    let reference = ReferenceRenderer::new(gpu.clone());
+    let baked = calibration::bake_calibrated(
+        baker,
+        &renderer,
+        &reference,
+        mesh,
+        options,
+        provenance,
+        &mut |done, total| {
+            bar.set_position(u64::from(done));
+            if done == total {
+                bar.set_message("calibrating error against cost");
+            }
+        },
+    )?;
+    bar.finish_and_clear();
+    lumigraph_core::atomic_write(&args.output, |w| std::io::Write::write_all(w, &baked.bytes))
+        .with_context(|| format!("cannot write {}", args.output.display()))?;
+    println!(
+        "baked {} cameras at {} px from {} triangles in {:.0} ms, calibrated {} settings in {:.0} ms: {} ({:.1} MiB)",
+        options.cameras,
+        options.resolution,
+        mesh.triangles.len(),
+        baked.bake_ms,
+        baked.calibration.points.len(),
+        baked.calibrate_ms,
+        args.output.display(),
+        baked.bytes.len() as f64 / (1024.0 * 1024.0)
+    );
+    Ok(())
+}

@@ -1,0 +1,210 @@
+//! `lumigraph render` (an asset or a scene) and `lumigraph reference` (the rasterized ground
+//! truth), with their shared view and output handling.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use lumigraph_core::asset::AssetFile;
+use lumigraph_core::frame::Frame;
+use lumigraph_core::quality::{Quality, Rendered};
+use lumigraph_core::reference::ReferenceRenderer;
+use lumigraph_core::render::Renderer;
+use lumigraph_core::scene::Scene;
+use lumigraph_core::view::View;
+
+use super::args::{DepthArgs, ShadingArgs, ViewArgs, describe_decision};
+use super::common::{gpu, load_source};
+
+/// `lumigraph render`.
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// Light-field asset (.lfa), or a scene (.json: light-field instances and meshes, each
+    /// with its own transform, composited by depth; docs/scene.md).
+    pub asset: PathBuf,
+    /// Views.
+    #[command(flatten)]
+    pub views: ViewArgs,
+    /// Output PNG (or folder with --views).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Depth output.
+    #[command(flatten)]
+    pub depth: DepthArgs,
+    /// Quality: knobs, a goal or automatic LOD.
+    #[command(flatten)]
+    pub quality: Quality,
+}
+
+/// `lumigraph reference`.
+#[derive(Debug, Args)]
+pub struct ReferenceArgs {
+    /// Mesh file (omit with --demo).
+    #[arg(required_unless_present = "demo", conflicts_with = "demo")]
+    pub mesh: Option<PathBuf>,
+    /// Use the built-in demo scene.
+    #[arg(long)]
+    pub demo: bool,
+    /// Views.
+    #[command(flatten)]
+    pub views: ViewArgs,
+    /// Output PNG (or folder with --views).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Depth output.
+    #[command(flatten)]
+    pub depth: DepthArgs,
+    /// Shading.
+    #[command(flatten)]
+    pub shading: ShadingArgs,
+}
+
+/// Reads `--view` / `--views`; returns the views and whether OUT is a folder.
+fn read_views(args: &ViewArgs) -> Result<(Vec<View>, bool)> {
+    let (path, many) = match (&args.view, &args.views) {
+        (Some(p), _) => (p, false),
+        (None, Some(p)) => (p, true),
+        (None, None) => bail!("give --view VIEW.json or --views VIEWS.json"),
+    };
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read view file {}", path.display()))?;
+    let views =
+        View::parse_many(&text).with_context(|| format!("bad view file {}", path.display()))?;
+    if views.is_empty() {
+        bail!("{} holds no views", path.display());
+    }
+    if !many && views.len() != 1 {
+        bail!(
+            "{} holds {} views: use --views for a list",
+            path.display(),
+            views.len()
+        );
+    }
+    for (i, v) in views.iter().enumerate() {
+        v.basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX)
+            .with_context(|| format!("view {i} in {}", path.display()))?;
+    }
+    Ok((views, many))
+}
+
+fn write_outputs(
+    frame: &Frame,
+    index: usize,
+    many: bool,
+    output: &Path,
+    depth: &DepthArgs,
+) -> Result<()> {
+    let (color_path, depth_path) = if many {
+        std::fs::create_dir_all(output)
+            .with_context(|| format!("cannot create {}", output.display()))?;
+        let depth_path = match &depth.depth {
+            Some(dir) => {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("cannot create {}", dir.display()))?;
+                Some(dir.join(format!("{index:03}.{}", depth.depth_format)))
+            }
+            None => None,
+        };
+        (output.join(format!("{index:03}.png")), depth_path)
+    } else {
+        (output.to_path_buf(), depth.depth.clone())
+    };
+    lumigraph_core::image_io::write_png_rgba8(&color_path, frame.width, frame.height, &frame.color)
+        .with_context(|| format!("cannot write {}", color_path.display()))?;
+    if let Some(path) = depth_path {
+        lumigraph_core::image_io::write_depth(&path, frame.width, frame.height, &frame.depth)
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(())
+}
+
+fn check_depth_path(depth: &DepthArgs, many: bool) -> Result<()> {
+    if let (Some(path), false) = (&depth.depth, many) {
+        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+        if ext != "npy" && ext != "exr" {
+            bail!("--depth {}: use a .npy or .exr path", path.display());
+        }
+    }
+    Ok(())
+}
+
+pub(super) fn render(args: &RenderArgs) -> Result<()> {
+    let (views, many) = read_views(&args.views)?;
+    check_depth_path(&args.depth, many)?;
+    if args
+        .asset
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+    {
+        return render_scene(args, &views, many);
+    }
+    let asset = AssetFile::open(&args.asset)
+        .with_context(|| format!("cannot open asset {}", args.asset.display()))?;
+    let plan = args.quality.plan(asset.header())?;
+    let renderer = Renderer::new(gpu()?);
+    let field = renderer
+        .upload(&asset)
+        .with_context(|| format!("cannot load asset {}", args.asset.display()))?;
+    for (i, view) in views.iter().enumerate() {
+        let Rendered { frame, decision } = plan.render(&renderer, &field, view)?;
+        write_outputs(&frame, i, many, &args.output, &args.depth)?;
+        let pixels = u64::from(view.width) * u64::from(view.height);
+        match describe_decision(&decision, pixels) {
+            Some(text) => println!(
+                "view {i:03}: {text}; measured {:.2} ms ({} px covered)",
+                frame.stats.render_ms,
+                frame.covered_count()
+            ),
+            None => println!(
+                "view {i:03}: {:.2} ms ({} px covered)",
+                frame.stats.render_ms,
+                frame.covered_count()
+            ),
+        }
+    }
+    Ok(())
+}
+
+fn render_scene(args: &RenderArgs, views: &[View], many: bool) -> Result<()> {
+    args.quality.check_scene()?;
+    let gpu = gpu()?;
+    let renderer = Renderer::new(gpu.clone());
+    let reference = ReferenceRenderer::new(gpu);
+    let scene = Scene::load(&args.asset, &renderer, &reference)?;
+    println!(
+        "scene {}: {} objects, {} light-field assets and {} meshes on the GPU",
+        args.asset.display(),
+        scene.objects(),
+        scene.uploaded_fields(),
+        scene.uploaded_meshes()
+    );
+    for (i, view) in views.iter().enumerate() {
+        let frame = scene.render(&renderer, &reference, view)?;
+        write_outputs(&frame, i, many, &args.output, &args.depth)?;
+        println!(
+            "view {i:03}: {:.2} ms ({} px covered)",
+            frame.stats.render_ms,
+            frame.covered_count()
+        );
+    }
+    Ok(())
+}
+
+pub(super) fn reference(args: &ReferenceArgs) -> Result<()> {
+    let shading = args.shading.to_shading()?;
+    let (views, many) = read_views(&args.views)?;
+    check_depth_path(&args.depth, many)?;
+    let (mesh, _) = load_source(args.mesh.as_deref(), args.demo)?;
+    let renderer = ReferenceRenderer::new(gpu()?);
+    let gpu_mesh = renderer.upload(&mesh)?;
+    for (i, view) in views.iter().enumerate() {
+        let frame = renderer.render(&gpu_mesh, view, &shading)?;
+        write_outputs(&frame, i, many, &args.output, &args.depth)?;
+        println!(
+            "view {i:03}: {:.2} ms ({} px covered)",
+            frame.stats.render_ms,
+            frame.covered_count()
+        );
+    }
+    Ok(())
+}

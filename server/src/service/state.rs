@@ -1,0 +1,311 @@
+//! The service's shared state: its configuration, the GPU pipelines, the asset store, the render
+//! pool, bake jobs and metrics, behind one cheaply cloned [`AppState`].
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use anyhow::Context as _;
+use axum::http::{HeaderMap, header};
+use lumigraph_core::bake::{BakeOptions, Baker};
+use lumigraph_core::gpu::Gpu;
+use lumigraph_core::render::Renderer;
+use tokio::sync::{Semaphore, watch};
+
+use super::assets::{self, AssetStore};
+use super::error::AppError;
+use super::jobs::Jobs;
+use super::metrics::Metrics;
+use super::render_pool::RenderPool;
+
+/// Settings of `lumigraph serve`.
+#[derive(Clone, Debug)]
+pub struct ServeConfig {
+    /// Folder of `.lfa` assets (created if missing); uploads and bakes are written here.
+    pub assets_dir: PathBuf,
+    /// Address to listen on. Without a token only loopback addresses are accepted.
+    pub addr: SocketAddr,
+    /// Bearer token required for uploads, bakes and deletes; `None` = no auth, loopback only.
+    pub token: Option<String>,
+    /// Most concurrent WebSocket sessions; more get 503.
+    pub max_sessions: usize,
+    /// Largest width or height of a rendered view.
+    pub max_px: u32,
+    /// Renders running on the device at once.
+    pub render_workers: usize,
+    /// HTTP renders allowed to wait for a worker; more get 503.
+    pub max_queued_renders: usize,
+    /// Largest `.lfa` upload in bytes.
+    pub max_upload_bytes: u64,
+    /// Largest mesh upload (the whole multipart body) in bytes.
+    pub max_mesh_bytes: u64,
+    /// Largest JSON body in bytes.
+    pub max_json_bytes: usize,
+    /// Per-request timeout (uploads included).
+    pub request_timeout: Duration,
+    /// Default time a stream view must rest before the full-quality frame is sent.
+    pub rest_delay: Duration,
+    /// Bake the built-in demo scene into `demo.lfa` when the folder holds no asset.
+    pub bake_demo_if_empty: bool,
+    /// Options of that demo bake.
+    pub demo_bake: BakeOptions,
+}
+
+impl ServeConfig {
+    /// Defaults for `assets_dir` and `addr`, no token.
+    pub fn new(assets_dir: impl Into<PathBuf>, addr: SocketAddr) -> Self {
+        Self {
+            assets_dir: assets_dir.into(),
+            addr,
+            token: None,
+            max_sessions: 64,
+            max_px: 4096,
+            render_workers: 2,
+            max_queued_renders: 64,
+            max_upload_bytes: 4 << 30,
+            max_mesh_bytes: 512 << 20,
+            max_json_bytes: 64 << 10,
+            request_timeout: Duration::from_secs(600),
+            rest_delay: Duration::from_millis(250),
+            bake_demo_if_empty: true,
+            demo_bake: BakeOptions::default(),
+        }
+    }
+
+    /// [`Self::new`] with the token read from `LUMIGRAPH_TOKEN` (unset or empty = none).
+    pub fn from_env(assets_dir: impl Into<PathBuf>, addr: SocketAddr) -> Self {
+        let mut config = Self::new(assets_dir, addr);
+        config.token = std::env::var("LUMIGRAPH_TOKEN")
+            .ok()
+            .filter(|t| !t.is_empty());
+        config
+    }
+}
+
+/// Shared state of every handler and session.
+#[derive(Clone)]
+pub struct AppState {
+    pub(super) inner: Arc<Inner>,
+}
+
+pub(super) struct Inner {
+    pub(super) config: ServeConfig,
+    pub(super) adapter: String,
+    pub(super) assets: AssetStore,
+    pub(super) pool: RenderPool,
+    pub(super) baker: Baker,
+    /// Rasterizes source meshes for the calibration of each bake.
+    pub(super) reference: lumigraph_core::reference::ReferenceRenderer,
+    pub(super) bake_slot: Semaphore,
+    pub(super) jobs: Jobs,
+    pub(super) metrics: Metrics,
+    pub(super) ready: AtomicBool,
+    pub(super) sessions: Arc<Semaphore>,
+    pub(super) shutdown: watch::Sender<bool>,
+}
+
+impl AppState {
+    /// Builds the pipelines on `gpu` (blocking: compiles shaders). No asset is loaded yet; see
+    /// [`Self::load_assets`].
+    pub fn new(config: ServeConfig, gpu: Arc<Gpu>) -> anyhow::Result<Self> {
+        let adapter = gpu.adapter_summary();
+        let renderer = Renderer::new(Arc::clone(&gpu));
+        let reference = lumigraph_core::reference::ReferenceRenderer::new(Arc::clone(&gpu));
+        let baker = Baker::new(gpu);
+        let pool = RenderPool::new(
+            Arc::new(renderer),
+            config.render_workers,
+            config.max_queued_renders,
+        );
+        let (shutdown, _) = watch::channel(false);
+        Ok(Self {
+            inner: Arc::new(Inner {
+                assets: AssetStore::new(config.assets_dir.clone()),
+                sessions: Arc::new(Semaphore::new(config.max_sessions)),
+                config,
+                adapter,
+                pool,
+                baker,
+                reference,
+                bake_slot: Semaphore::new(1),
+                jobs: Jobs::default(),
+                metrics: Metrics::new(),
+                ready: AtomicBool::new(false),
+                shutdown,
+            }),
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &ServeConfig {
+        &self.inner.config
+    }
+
+    /// The asset store.
+    pub fn assets(&self) -> &AssetStore {
+        &self.inner.assets
+    }
+
+    /// The metrics.
+    pub fn metrics(&self) -> &Metrics {
+        &self.inner.metrics
+    }
+
+    /// Whether startup loading has finished.
+    pub fn is_ready(&self) -> bool {
+        self.inner.ready.load(Ordering::Acquire)
+    }
+
+    pub(crate) fn pool(&self) -> &RenderPool {
+        &self.inner.pool
+    }
+
+    pub(crate) fn jobs(&self) -> &Jobs {
+        &self.inner.jobs
+    }
+
+    pub(crate) fn shutdown_signal(&self) -> watch::Receiver<bool> {
+        self.inner.shutdown.subscribe()
+    }
+
+    /// Tells stream sessions to finish their current frame and close.
+    pub fn begin_shutdown(&self) {
+        self.inner.shutdown.send_replace(true);
+    }
+
+    /// Checks the bearer token when one is configured.
+    pub(crate) fn authorize(&self, headers: &HeaderMap) -> Result<(), AppError> {
+        let Some(token) = &self.inner.config.token else {
+            return Ok(());
+        };
+        let given = headers
+            .get(header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "))
+            .map(str::trim);
+        match given {
+            Some(given) if constant_time_eq(given.as_bytes(), token.as_bytes()) => Ok(()),
+            _ => Err(AppError::Unauthorized),
+        }
+    }
+
+    /// Loads every `*.lfa` in the assets folder (files that fail are logged and skipped), bakes
+    /// the demo scene first when configured and the folder holds none, then marks the service
+    /// ready.
+    pub async fn load_assets(&self) -> anyhow::Result<()> {
+        let dir = self.inner.config.assets_dir.clone();
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("creating the assets folder {}", dir.display()))?;
+        let mut found = self
+            .inner
+            .assets
+            .scan()
+            .with_context(|| format!("reading {}", dir.display()))?;
+        if found.is_empty() && self.inner.config.bake_demo_if_empty {
+            let path = self.inner.assets.path_for("demo");
+            self.bake_demo(path.clone()).await?;
+            found.push(("demo".to_owned(), path));
+        }
+        for (id, path) in found {
+            let state = self.clone();
+            let loaded = tokio::task::spawn_blocking(move || {
+                assets::load_file(state.inner.pool.renderer(), &id, &path)
+                    .map_err(|e| (id, path, e))
+            })
+            .await?;
+            match loaded {
+                Ok(asset) => {
+                    tracing::info!(
+                        id = asset.id,
+                        cameras = asset.header.geometry.camera_count,
+                        resolution_px = asset.header.geometry.resolution_px,
+                        "asset loaded"
+                    );
+                    self.inner.assets.insert(asset);
+                }
+                Err((id, path, err)) => {
+                    tracing::warn!(id, path = %path.display(), error = format!("{err:#}"), "skipping an asset that cannot be loaded");
+                }
+            }
+        }
+        self.inner.metrics.set_assets(self.inner.assets.len());
+        self.inner.ready.store(true, Ordering::Release);
+        Ok(())
+    }
+
+    /// Bakes `mesh`, measures its calibration (error against cost, for `target_psnr` /
+    /// `budget_ms` renders) and writes the asset to `path` atomically. Blocking.
+    pub(crate) fn bake_calibrated(
+        &self,
+        mesh: &lumigraph_core::mesh::Mesh,
+        options: &BakeOptions,
+        source: &lumigraph_core::asset::Provenance,
+        path: &std::path::Path,
+        progress: &mut dyn FnMut(u32, u32),
+    ) -> anyhow::Result<lumigraph_core::calibration::CalibratedBake> {
+        let baked = lumigraph_core::calibration::bake_calibrated(
+            &self.inner.baker,
+            self.pool().renderer(),
+            &self.inner.reference,
+            mesh,
+            options,
+            source,
+            progress,
+        )?;
+        lumigraph_core::atomic_write(path, |w| std::io::Write::write_all(w, &baked.bytes))
+            .with_context(|| format!("writing {}", path.display()))?;
+        Ok(baked)
+    }
+
+    async fn bake_demo(&self, path: PathBuf) -> anyhow::Result<()> {
+        let state = self.clone();
+        let options = self.inner.config.demo_bake;
+        tracing::info!(path = %path.display(), cameras = options.cameras, resolution_px = options.resolution, "no asset found: baking the built-in demo scene");
+        tokio::task::spawn_blocking(move || -> anyhow::Result<()> {
+            let mesh = lumigraph_core::mesh::demo_mesh().context("building the demo mesh")?;
+            let source = lumigraph_core::mesh::demo_provenance(&mesh);
+            let mut last_decile = 0;
+            let mut progress = |done: u32, total: u32| {
+                let decile = (done * 10).checked_div(total).unwrap_or(10);
+                if decile > last_decile {
+                    last_decile = decile;
+                    tracing::info!("baking demo: {done}/{total} cameras");
+                }
+            };
+            let baked = state
+                .bake_calibrated(&mesh, &options, &source, &path, &mut progress)
+                .context("baking the demo scene")?;
+            tracing::info!(
+                bake_ms = baked.bake_ms,
+                calibrate_ms = baked.calibrate_ms,
+                asset_bytes = baked.bytes.len(),
+                "demo scene baked and calibrated"
+            );
+            Ok(())
+        })
+        .await?
+    }
+}
+
+fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+/// A random id like `job-3f9c0a12b4d5e6f7`.
+pub(crate) fn random_id(prefix: &str) -> String {
+    format!("{prefix}-{:016x}", rand::random::<u64>())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn token_comparison() {
+        assert!(constant_time_eq(b"abc", b"abc"));
+        assert!(!constant_time_eq(b"abc", b"abd"));
+        assert!(!constant_time_eq(b"abc", b"ab"));
+    }
+}

@@ -1,0 +1,82 @@
+//! `/v1/stream`: interactive frame streaming over a WebSocket (protocol: `docs/protocol.md`).
+//!
+//! Each session runs two tasks joined with `select!`: the receiver parses client messages and
+//! publishes the latest wanted frame on a `watch` channel (latest wins: an unrendered request
+//! is simply overwritten and counted as dropped), and the sender renders and sends at most
+//! `max_in_flight` unacknowledged frames. Nothing queues beyond one request, one frame being
+//! rendered and a bounded channel of error messages, so a slow client costs dropped frames,
+//! never memory.
+
+mod protocol;
+mod session;
+mod settings;
+
+use std::sync::Arc;
+
+use axum::extract::rejection::QueryRejection;
+use axum::extract::ws::WebSocketUpgrade;
+use axum::extract::{Query, State, ws::rejection::WebSocketUpgradeRejection};
+use axum::response::Response;
+use serde::Deserialize;
+
+use super::error::AppError;
+use super::state::AppState;
+
+pub use protocol::{FRAME_HEADER_LEN, FrameHeader, PROTOCOL_VERSION};
+pub use settings::Settings;
+
+/// Largest client message in bytes.
+const MAX_CLIENT_MESSAGE: usize = 64 << 10;
+
+/// Query of `GET /v1/stream`.
+#[derive(Debug, Deserialize, utoipa::IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct StreamQuery {
+    /// Asset to stream (default: the first asset in id order).
+    pub asset: Option<String>,
+}
+
+/// Opens a stream session (WebSocket upgrade). 404 for an unknown asset, 503 when the session
+/// limit is reached.
+#[utoipa::path(get, path = "/v1/stream", tag = "stream",
+    params(StreamQuery),
+    responses((status = 101, description = "WebSocket; see docs/protocol.md"),
+        (status = 404, body = super::error::ErrorBody), (status = 503, body = super::error::ErrorBody)))]
+pub async fn stream(
+    State(state): State<AppState>,
+    query: Result<Query<StreamQuery>, QueryRejection>,
+    upgrade: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
+) -> Result<Response, AppError> {
+    let Query(query) = query.map_err(|e| AppError::Invalid(e.body_text()))?;
+    let asset = match &query.asset {
+        Some(id) => state.assets().get(id)?,
+        None => state.assets().first().ok_or_else(|| {
+            if state.is_ready() {
+                AppError::NotFound("no asset is loaded".to_owned())
+            } else {
+                AppError::Unavailable("loading assets; retry shortly".to_owned())
+            }
+        })?,
+    };
+    let upgrade = upgrade.map_err(|e| AppError::Rejected {
+        status: e.status(),
+        message: e.body_text(),
+    })?;
+    let permit = Arc::clone(&state.inner.sessions)
+        .try_acquire_owned()
+        .map_err(|_| {
+            AppError::Unavailable(format!(
+                "the session limit of {} concurrent streams is reached; retry later",
+                state.config().max_sessions
+            ))
+        })?;
+    Ok(upgrade
+        .max_message_size(MAX_CLIENT_MESSAGE)
+        .on_upgrade(move |socket| async move {
+            state.metrics().sessions_add(1);
+            session::run_session(socket, state.clone(), asset).await;
+            state.metrics().sessions_add(-1);
+            drop(permit);
+        }))
+}

@@ -1,0 +1,140 @@
+//! The wire format: client and server messages and the binary frame header.
+
+use lumigraph_core::view::View;
+use serde::{Deserialize, Serialize};
+
+use crate::service::assets::AssetSummary;
+use crate::service::codecs::ColorFormat;
+
+/// Version of the stream protocol, sent in `hello`.
+pub const PROTOCOL_VERSION: u32 = 1;
+/// Bytes of the binary frame header.
+pub const FRAME_HEADER_LEN: usize = 40;
+
+/// Client messages (`type` selects the variant; see docs/protocol.md).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct ViewMessage {
+    pub(super) id: u32,
+    pub(super) view: View,
+    #[serde(default)]
+    pub(super) still: bool,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct AckMessage {
+    pub(super) frame: u32,
+}
+
+#[derive(Serialize)]
+struct ErrorMessage<'a> {
+    r#type: &'static str,
+    request: Option<u32>,
+    kind: &'a str,
+    message: &'a str,
+}
+
+pub(super) fn error_text(request: Option<u32>, kind: &str, message: &str) -> String {
+    serde_json::to_string(&ErrorMessage {
+        r#type: "error",
+        request,
+        kind,
+        message,
+    })
+    .unwrap_or_default()
+}
+
+#[derive(Serialize)]
+pub(super) struct Hello {
+    pub(super) r#type: &'static str,
+    pub(super) protocol: u32,
+    pub(super) asset: AssetSummary,
+    /// Every setting, the quality keys at the top level.
+    pub(super) settings: serde_json::Value,
+    pub(super) max_px: u32,
+    pub(super) header_len: usize,
+}
+
+/// Quality level of a frame, as in the header.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Quality {
+    Interactive = 0,
+    Full = 1,
+}
+
+/// The 40-byte little-endian header in front of every binary frame (docs/protocol.md).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameHeader {
+    /// Image codec.
+    pub codec: ColorFormat,
+    pub(super) quality: Quality,
+    /// Frame id, 1, 2, 3... per session.
+    pub frame_id: u32,
+    /// The `id` of the view message this frame answers.
+    pub request_id: u32,
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Render time, ms.
+    pub render_ms: f32,
+    /// Encode time, ms.
+    pub encode_ms: f32,
+    /// View requests dropped so far in this session.
+    pub dropped: u32,
+    /// Cameras used.
+    pub cameras: u16,
+}
+
+impl FrameHeader {
+    pub(super) fn write(&self, out: &mut Vec<u8>) {
+        out.extend_from_slice(b"LGF1");
+        out.extend_from_slice(&(FRAME_HEADER_LEN as u16).to_le_bytes());
+        out.push(match self.codec {
+            ColorFormat::Png => 0,
+            ColorFormat::Jpeg => 1,
+            ColorFormat::Webp => 2,
+            ColorFormat::None => 255,
+        });
+        out.push(self.quality as u8);
+        out.extend_from_slice(&self.frame_id.to_le_bytes());
+        out.extend_from_slice(&self.request_id.to_le_bytes());
+        out.extend_from_slice(&self.width.to_le_bytes());
+        out.extend_from_slice(&self.height.to_le_bytes());
+        out.extend_from_slice(&self.render_ms.to_le_bytes());
+        out.extend_from_slice(&self.encode_ms.to_le_bytes());
+        out.extend_from_slice(&self.dropped.to_le_bytes());
+        out.extend_from_slice(&self.cameras.to_le_bytes());
+        out.extend_from_slice(&0u16.to_le_bytes());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn header_is_40_bytes() {
+        let header = FrameHeader {
+            codec: ColorFormat::Jpeg,
+            quality: Quality::Full,
+            frame_id: 7,
+            request_id: 9,
+            width: 64,
+            height: 32,
+            render_ms: 1.5,
+            encode_ms: 0.25,
+            dropped: 3,
+            cameras: 162,
+        };
+        let mut out = Vec::new();
+        header.write(&mut out);
+        assert_eq!(out.len(), FRAME_HEADER_LEN);
+        assert_eq!(&out[..4], b"LGF1");
+        assert_eq!(out[6], 1);
+        assert_eq!(out[7], 1);
+        assert_eq!(u32::from_le_bytes([out[8], out[9], out[10], out[11]]), 7);
+        assert_eq!(u16::from_le_bytes([out[36], out[37]]), 162);
+    }
+}

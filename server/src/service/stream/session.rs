@@ -1,0 +1,444 @@
+//! One session's tasks: the receiver that parses client messages into the wanted frame, and the
+//! sender that renders, encodes and sends frames.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use axum::extract::ws::{Message, WebSocket};
+use futures_util::{SinkExt as _, StreamExt as _};
+use lumigraph_core::frame::Frame;
+use lumigraph_core::view::View;
+use tokio::sync::{mpsc, watch};
+
+use super::protocol::{
+    AckMessage, FRAME_HEADER_LEN, FrameHeader, Hello, PROTOCOL_VERSION, Quality, ViewMessage,
+    error_text,
+};
+use super::settings::{Effective, Settings, merge_settings, validate_settings};
+use crate::service::assets::LoadedAsset;
+use crate::service::codecs::{Encoding, encode_blocking, encode_color};
+use crate::service::error::AppError;
+use crate::service::state::AppState;
+
+/// Error messages buffered for the client; more are dropped.
+const ERROR_QUEUE: usize = 16;
+
+/// What the sender should show next: the latest view and settings.
+#[derive(Clone, Debug)]
+struct Wanted {
+    /// Bumped by every accepted view or settings message.
+    seq: u64,
+    /// View messages accepted so far (for dropped-frame accounting).
+    views: u64,
+    /// The request id of the latest view.
+    request_id: u32,
+    view: Option<View>,
+    /// Skip the interactive frame for this view.
+    still: bool,
+    /// When the latest view or settings change arrived (the rest timer starts here).
+    arrived: Instant,
+    effective: Arc<Effective>,
+}
+
+pub(super) async fn run_session(socket: WebSocket, state: AppState, asset: Arc<LoadedAsset>) {
+    let (mut sink, mut source) = socket.split();
+    let defaults = Settings::defaults(state.config().rest_delay);
+    let effective = match validate_settings(defaults, &asset) {
+        Ok(e) => Arc::new(e),
+        Err(message) => {
+            let _ = sink
+                .send(Message::Text(error_text(None, "internal", &message).into()))
+                .await;
+            return;
+        }
+    };
+    let hello = Hello {
+        r#type: "hello",
+        protocol: PROTOCOL_VERSION,
+        asset: asset.summary(),
+        settings: effective.settings.to_json(),
+        max_px: state.config().max_px,
+        header_len: FRAME_HEADER_LEN,
+    };
+    let Ok(hello) = serde_json::to_string(&hello) else {
+        return;
+    };
+    if sink.send(Message::Text(hello.into())).await.is_err() {
+        return;
+    }
+    let wanted = Wanted {
+        seq: 0,
+        views: 0,
+        request_id: 0,
+        view: None,
+        still: false,
+        arrived: Instant::now(),
+        effective,
+    };
+    let (wanted_tx, wanted_rx) = watch::channel(wanted);
+    let (ack_tx, ack_rx) = watch::channel(0u32);
+    let (error_tx, error_rx) = mpsc::channel::<String>(ERROR_QUEUE);
+    let receiver = receive_loop(&mut source, &state, &asset, &wanted_tx, &ack_tx, &error_tx);
+    let sender = Sender {
+        state: &state,
+        asset: &asset,
+        sink: &mut sink,
+        wanted: wanted_rx,
+        acked: ack_rx,
+        errors: error_rx,
+        shutdown: state.shutdown_signal(),
+        frame_id: 0,
+        dropped: 0,
+        ms_per_mpx: None,
+    };
+    tokio::select! {
+        () = receiver => {}
+        () = sender.run() => {}
+    }
+    let _ = sink.send(Message::Close(None)).await;
+    let _ = sink.close().await;
+}
+
+async fn receive_loop(
+    source: &mut futures_util::stream::SplitStream<WebSocket>,
+    state: &AppState,
+    asset: &LoadedAsset,
+    wanted: &watch::Sender<Wanted>,
+    acked: &watch::Sender<u32>,
+    errors: &mpsc::Sender<String>,
+) {
+    let report = |request: Option<u32>, kind: &str, message: &str| {
+        state.metrics().error(kind);
+        // A client that does not read its errors loses some; it never grows a queue.
+        let _ = errors.try_send(error_text(request, kind, message));
+    };
+    while let Some(message) = source.next().await {
+        let text = match message {
+            Ok(Message::Text(text)) => text,
+            Ok(Message::Binary(_)) => {
+                report(
+                    None,
+                    "bad_message",
+                    "binary messages are not accepted: send JSON text",
+                );
+                continue;
+            }
+            Ok(Message::Close(_)) | Err(_) => return,
+            Ok(Message::Ping(_) | Message::Pong(_)) => continue,
+        };
+        let mut value: serde_json::Value = match serde_json::from_str(text.as_str()) {
+            Ok(v) => v,
+            Err(e) => {
+                report(None, "malformed_json", &format!("malformed JSON: {e}"));
+                continue;
+            }
+        };
+        let request = value
+            .get("id")
+            .and_then(serde_json::Value::as_u64)
+            .and_then(|v| u32::try_from(v).ok());
+        let kind = value
+            .as_object_mut()
+            .and_then(|o| o.remove("type"))
+            .and_then(|t| t.as_str().map(str::to_owned));
+        match kind.as_deref() {
+            Some("view") => match serde_json::from_value::<ViewMessage>(value) {
+                Ok(message) => {
+                    if let Err(e) = message.view.basis(state.config().max_px) {
+                        report(Some(message.id), "invalid", &e.to_string());
+                        continue;
+                    }
+                    wanted.send_modify(|w| {
+                        w.seq += 1;
+                        w.views += 1;
+                        w.request_id = message.id;
+                        w.view = Some(message.view);
+                        w.still = message.still;
+                        w.arrived = Instant::now();
+                    });
+                }
+                Err(e) => report(request, "invalid", &format!("invalid view message: {e}")),
+            },
+            Some("settings") => {
+                let current = wanted.borrow().effective.settings.clone();
+                match merge_settings(&current, value).and_then(|s| validate_settings(s, asset)) {
+                    Ok(effective) => wanted.send_modify(|w| {
+                        w.seq += 1;
+                        w.arrived = Instant::now();
+                        w.effective = Arc::new(effective);
+                    }),
+                    Err(message) => report(request, "invalid", &message),
+                }
+            }
+            Some("ack") => match serde_json::from_value::<AckMessage>(value) {
+                Ok(ack) => {
+                    acked.send_if_modified(|last| {
+                        let newer = ack.frame > *last;
+                        if newer {
+                            *last = ack.frame;
+                        }
+                        newer
+                    });
+                }
+                Err(e) => report(request, "invalid", &format!("invalid ack message: {e}")),
+            },
+            Some(other) => report(
+                request,
+                "invalid",
+                &format!("unknown message type {other:?}: use view, settings or ack"),
+            ),
+            None => report(
+                request,
+                "invalid",
+                "a message needs a string field `type` (view, settings or ack)",
+            ),
+        }
+    }
+}
+
+struct Sender<'a> {
+    state: &'a AppState,
+    asset: &'a Arc<LoadedAsset>,
+    sink: &'a mut futures_util::stream::SplitSink<WebSocket, Message>,
+    wanted: watch::Receiver<Wanted>,
+    acked: watch::Receiver<u32>,
+    errors: mpsc::Receiver<String>,
+    shutdown: watch::Receiver<bool>,
+    frame_id: u32,
+    dropped: u64,
+    /// Measured interactive render cost, milliseconds per megapixel (moving average).
+    ms_per_mpx: Option<f64>,
+}
+
+enum Wake {
+    Changed,
+    Rested,
+    Error(String),
+    Closed,
+}
+
+impl Sender<'_> {
+    async fn run(mut self) {
+        // Sequence numbers of the last frame sent and of the last full-quality frame sent.
+        let mut sent_seq = 0u64;
+        let mut full_seq = 0u64;
+        let mut rendered_views = 0u64;
+        loop {
+            if *self.shutdown.borrow() {
+                break;
+            }
+            let want = self.wanted.borrow_and_update().clone();
+            let in_flight = self
+                .frame_id
+                .saturating_sub(*self.acked.borrow_and_update());
+            let window_open = in_flight < want.effective.settings.max_in_flight;
+            let mut rest_deadline = None;
+            if let (Some(view), true) = (&want.view, window_open) {
+                let interactive = want.effective.settings.interactive && !want.still;
+                if want.seq > sent_seq {
+                    let skipped = want.views.saturating_sub(rendered_views + 1);
+                    if skipped > 0 {
+                        self.dropped += skipped;
+                        self.state.metrics().dropped(skipped);
+                    }
+                    rendered_views = want.views;
+                    let quality = if interactive {
+                        Quality::Interactive
+                    } else {
+                        Quality::Full
+                    };
+                    if !self.send_frame(&want, view, quality).await {
+                        break;
+                    }
+                    sent_seq = want.seq;
+                    if quality == Quality::Full {
+                        full_seq = want.seq;
+                    }
+                    continue;
+                }
+                if full_seq < want.seq {
+                    let rest = Duration::from_millis(u64::from(want.effective.settings.rest_ms));
+                    rest_deadline = Some(tokio::time::Instant::from_std(want.arrived + rest));
+                }
+            }
+            match self.wait(rest_deadline).await {
+                Wake::Changed => {}
+                Wake::Rested => {
+                    let want = self.wanted.borrow().clone();
+                    if want.seq == sent_seq {
+                        if let Some(view) = &want.view
+                            && !self.send_frame(&want, view, Quality::Full).await
+                        {
+                            break;
+                        }
+                        full_seq = want.seq;
+                    }
+                }
+                Wake::Error(text) => {
+                    if self.sink.send(Message::Text(text.into())).await.is_err() {
+                        break;
+                    }
+                }
+                Wake::Closed => break,
+            }
+        }
+        let unrendered = self.wanted.borrow().views.saturating_sub(rendered_views);
+        if unrendered > 0 {
+            self.state.metrics().dropped(unrendered);
+        }
+    }
+
+    async fn wait(&mut self, rest_deadline: Option<tokio::time::Instant>) -> Wake {
+        let rest = async {
+            match rest_deadline {
+                Some(deadline) => tokio::time::sleep_until(deadline).await,
+                None => std::future::pending::<()>().await,
+            }
+        };
+        tokio::select! {
+            changed = self.wanted.changed() => if changed.is_ok() { Wake::Changed } else { Wake::Closed },
+            changed = self.acked.changed() => if changed.is_ok() { Wake::Changed } else { Wake::Closed },
+            changed = self.shutdown.changed() => if changed.is_ok() { Wake::Changed } else { Wake::Closed },
+            error = self.errors.recv() => error.map_or(Wake::Closed, Wake::Error),
+            () = rest => Wake::Rested,
+        }
+    }
+
+    /// Renders, encodes and sends one frame; false when the socket is gone.
+    async fn send_frame(&mut self, want: &Wanted, view: &View, quality: Quality) -> bool {
+        let effective = &want.effective;
+        let settings = &effective.settings;
+        let (mut view, plan, encoding) = match quality {
+            Quality::Interactive => (
+                view.clone(),
+                effective.motion.clone(),
+                Encoding {
+                    format: settings.interactive_codec,
+                    quality: settings.interactive_quality,
+                    background: settings.background,
+                },
+            ),
+            Quality::Full => (
+                view.clone(),
+                effective.still.clone(),
+                Encoding {
+                    format: settings.still_codec,
+                    quality: settings.still_quality,
+                    background: settings.background,
+                },
+            ),
+        };
+        if quality == Quality::Interactive {
+            let scale = settings.interactive_scale.map_or_else(
+                || self.adaptive_scale(&view, settings.target_fps),
+                f64::from,
+            );
+            view.width = ((f64::from(view.width) * scale).round() as u32).max(1);
+            view.height = ((f64::from(view.height) * scale).round() as u32).max(1);
+        }
+        let rendered = match self
+            .state
+            .pool()
+            .render(Arc::clone(self.asset), view, plan)
+            .await
+        {
+            Ok(r) => r,
+            Err(err) => {
+                self.state.metrics().error(err.kind());
+                let message = if matches!(err, AppError::Internal(_)) {
+                    tracing::error!(error = format!("{err:#}"), "stream render failed");
+                    "render failed (details are in the server log)".to_owned()
+                } else {
+                    err.to_string()
+                };
+                let text = error_text(Some(want.request_id), err.kind(), &message);
+                return self.sink.send(Message::Text(text.into())).await.is_ok();
+            }
+        };
+        let pixels_mpx = f64::from(rendered.frame.width) * f64::from(rendered.frame.height) / 1e6;
+        if quality == Quality::Interactive && pixels_mpx > 0.0 {
+            let sample = rendered.render_ms / pixels_mpx;
+            self.ms_per_mpx = Some(
+                self.ms_per_mpx
+                    .map_or(sample, |old| 0.7 * old + 0.3 * sample),
+            );
+        }
+        let cameras = rendered.decision.cameras();
+        let opacity = effective.opacity;
+        let mut frame = rendered.frame;
+        let encoded = encode_blocking(move || {
+            apply_opacity(&mut frame, opacity);
+            let bytes = encode_color(&frame, encoding).map_err(|e| {
+                AppError::Internal(anyhow::Error::new(e).context("encoding a frame"))
+            })?;
+            Ok((bytes, frame.width, frame.height))
+        })
+        .await;
+        let ((bytes, width, height), encode_ms) = match encoded {
+            Ok(ok) => ok,
+            Err(err) => {
+                tracing::error!(error = format!("{err:#}"), "stream encode failed");
+                let text = error_text(
+                    Some(want.request_id),
+                    "internal",
+                    "encoding the frame failed",
+                );
+                return self.sink.send(Message::Text(text.into())).await.is_ok();
+            }
+        };
+        self.frame_id += 1;
+        let header = FrameHeader {
+            codec: encoding.format,
+            quality,
+            frame_id: self.frame_id,
+            request_id: want.request_id,
+            width,
+            height,
+            render_ms: rendered.render_ms as f32,
+            encode_ms: encode_ms as f32,
+            dropped: u32::try_from(self.dropped).unwrap_or(u32::MAX),
+            cameras: u16::try_from(cameras).unwrap_or(u16::MAX),
+        };
+        let mut message = Vec::with_capacity(FRAME_HEADER_LEN + bytes.len());
+        header.write(&mut message);
+        message.extend_from_slice(&bytes);
+        let quality_name = if quality == Quality::Full {
+            "full"
+        } else {
+            "interactive"
+        };
+        self.state.metrics().frame(
+            "stream",
+            quality_name,
+            message.len(),
+            rendered.render_ms,
+            encode_ms,
+            encoding.format.name(),
+        );
+        self.sink
+            .send(Message::Binary(message.into()))
+            .await
+            .is_ok()
+    }
+
+    /// Resolution scale that keeps an interactive frame within the frame budget of `target_fps`.
+    fn adaptive_scale(&self, view: &View, target_fps: f32) -> f64 {
+        let Some(ms_per_mpx) = self.ms_per_mpx.filter(|v| *v > 0.0) else {
+            return 0.5;
+        };
+        let budget_ms = 1000.0 / f64::from(target_fps);
+        let full_mpx = f64::from(view.width) * f64::from(view.height) / 1e6;
+        let scale = (budget_ms / ms_per_mpx / full_mpx).sqrt();
+        // Quantized so small speed changes do not change the frame size every frame.
+        ((scale.clamp(0.25, 1.0) * 8.0).floor() / 8.0).max(0.25)
+    }
+}
+
+fn apply_opacity(frame: &mut Frame, opacity: f32) {
+    if opacity >= 1.0 {
+        return;
+    }
+    for px in frame.color.chunks_exact_mut(4) {
+        px[3] = (f32::from(px[3]) * opacity).round() as u8;
+    }
+}
