@@ -16,7 +16,7 @@ use crate::asset::{
     AssetError, AssetHeader, AssetWriter, Channel, Encoding, ImageKey, Provenance, encode_asset,
 };
 use crate::geometry::{self, CAMERA_COUNTS};
-use crate::gpu::mesh::{GpuMesh, mesh_sampler};
+use crate::gpu::mesh::{GpuMesh, mesh_bind_group, mesh_layout, mesh_sampler, storage_entry};
 use crate::gpu::{Gpu, GpuError, storage_buffer};
 use crate::mesh::Mesh;
 use crate::shading::{GpuShading, Shading, ShadingError};
@@ -74,6 +74,20 @@ impl Default for BakeOptions {
 }
 
 impl BakeOptions {
+    /// The options an asset was baked with, as its provenance records them; defaults for what
+    /// it lacks or cannot be read (assets written before a field existed), the recorded
+    /// shading kept whenever it parses, so a reference render shades as the bake did.
+    pub fn of(header: &crate::asset::AssetHeader) -> BakeOptions {
+        let recorded = &header.provenance.bake_options;
+        serde_json::from_value(recorded.clone()).unwrap_or_else(|_| BakeOptions {
+            shading: recorded
+                .get("shading")
+                .and_then(|v| serde_json::from_value(v.clone()).ok())
+                .unwrap_or_default(),
+            ..BakeOptions::default()
+        })
+    }
+
     /// Checks every option.
     ///
     /// # Errors
@@ -159,90 +173,6 @@ pub(crate) fn gpu_cameras(count: usize) -> Vec<GpuCamera> {
             }
         })
         .collect()
-}
-
-fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE
-            | wgpu::ShaderStages::VERTEX
-            | wgpu::ShaderStages::FRAGMENT,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Storage { read_only },
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    }
-}
-
-/// The mesh bind group layout shared by baker and reference renderer (`@group(1)`).
-pub(crate) fn mesh_layout(gpu: &Gpu, visibility: wgpu::ShaderStages) -> wgpu::BindGroupLayout {
-    let mut entries: Vec<wgpu::BindGroupLayoutEntry> = (0..4)
-        .map(|b| wgpu::BindGroupLayoutEntry {
-            visibility,
-            ..storage_entry(b, true)
-        })
-        .collect();
-    entries.push(wgpu::BindGroupLayoutEntry {
-        binding: 4,
-        visibility,
-        ty: wgpu::BindingType::Texture {
-            sample_type: wgpu::TextureSampleType::Float { filterable: true },
-            view_dimension: wgpu::TextureViewDimension::D2Array,
-            multisampled: false,
-        },
-        count: None,
-    });
-    entries.push(wgpu::BindGroupLayoutEntry {
-        binding: 5,
-        visibility,
-        ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
-        count: None,
-    });
-    gpu.device
-        .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("mesh"),
-            entries: &entries,
-        })
-}
-
-pub(crate) fn mesh_bind_group(
-    gpu: &Gpu,
-    layout: &wgpu::BindGroupLayout,
-    mesh: &GpuMesh,
-    sampler: &wgpu::Sampler,
-) -> wgpu::BindGroup {
-    gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: Some("mesh"),
-        layout,
-        entries: &[
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: mesh.vertex_buffer.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 1,
-                resource: mesh.triangle_buffer.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 2,
-                resource: mesh.bvh_buffer.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 3,
-                resource: mesh.material_buffer.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 4,
-                resource: wgpu::BindingResource::TextureView(&mesh.texture_view),
-            },
-            wgpu::BindGroupEntry {
-                binding: 5,
-                resource: wgpu::BindingResource::Sampler(sampler),
-            },
-        ],
-    })
 }
 
 /// Hex SHA-256 of `bytes` (provenance).

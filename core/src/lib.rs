@@ -21,13 +21,18 @@
 //!   embedded at build time ([`shaders`]).
 //! - [`metrics`] implements DESIGN §3's metrics (cross-checked against scikit-image);
 //!   [`tradeoff`] sweeps every quality knob and measures its cost and error.
+//! - [`calibration`] measures a scene's error against cost at bake time and serves goals
+//!   (target PSNR, time budget) from it.
 //! - [`lod`] chooses cameras and step from an object's projected size under a quality floor.
 //! - [`refine`] accumulates jittered sub-pixel samples of a resting view into an anti-aliased
 //!   still, rejecting stray samples.
+//! - [`quality`] is the one quality request every front speaks (knobs, a goal or automatic LOD):
+//!   it plans against an asset and renders a view, returning the frame and the decision.
 //! - [`scene`] composites light-field instances and meshes, each with its own transform, by depth.
 
 pub mod asset;
 pub mod bake;
+pub mod calibration;
 pub mod frame;
 mod fsutil;
 pub mod geometry;
@@ -36,6 +41,7 @@ pub mod image_io;
 pub mod lod;
 pub mod mesh;
 pub mod metrics;
+pub mod quality;
 pub mod reference;
 pub mod refine;
 pub mod render;

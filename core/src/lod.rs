@@ -28,13 +28,12 @@
 //!   step's nearest calibrated value stands for it in the predictions); a pinned tolerance or
 //!   coarse-to-fine `guide` is passed through.
 
-use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
+use crate::calibration::Calibration;
 use crate::frame::Frame;
 use crate::render::{GpuLightField, Method, RenderError, RenderOptions, Renderer};
-use crate::tradeoff::Calibration;
-use crate::view::{View, ViewBasis};
+use crate::view::View;
 
 /// Default bound on the predicted silhouette error, pixels.
 pub const DEFAULT_MAX_ERROR_PX: f64 = 1.0;
@@ -163,17 +162,21 @@ impl LodPolicy {
     }
 }
 
-/// Diameter in pixels of the image of a sphere (`center`, `radius`, world units) seen from the
-/// view's eye: `2·f·r / √(d² − r²)` for an eye at distance `d > r` (the cone of tangent rays,
-/// measured across its axis, so it does not change as the view turns); infinite with the eye
-/// inside or on the sphere.
-pub fn projected_diameter_px(basis: &ViewBasis, center: DVec3, radius: f64) -> f64 {
-    let d = (center - basis.eye).length();
-    if !(d > radius) {
-        return f64::INFINITY;
+/// Checks that the knobs pinned with automatic LOD leave it a choice: it chooses among
+/// default-method settings.
+///
+/// # Errors
+/// [`LodError::Policy`] for a pinned fixed method.
+pub fn check_pinned(pinned: &RenderOptions) -> Result<(), LodError> {
+    if pinned.method == Method::Default {
+        Ok(())
+    } else {
+        Err(LodError::Policy(
+            "it chooses among default-method settings: drop method=fixed or pin the lod and step \
+             yourself"
+                .to_owned(),
+        ))
     }
-    let px = 2.0 * basis.focal_px * radius / ((d - radius) * (d + radius)).sqrt();
-    if px.is_nan() { f64::INFINITY } else { px }
 }
 
 /// One calibrated setting automatic LOD can choose.
@@ -252,13 +255,7 @@ impl Ladder {
         pinned: &RenderOptions,
     ) -> Result<Ladder, LodError> {
         policy.validate()?;
-        if pinned.method != Method::Default {
-            return Err(LodError::Policy(
-                "it chooses among default-method settings: drop method=fixed or pin the lod \
-                 and step yourself"
-                    .to_owned(),
-            ));
-        }
+        check_pinned(pinned)?;
         let max_level = crate::geometry::level_for_camera_count(max_cameras)
             .ok_or_else(|| LodError::Policy(format!("{max_cameras} is not a camera count")))?;
         let resolved = pinned.resolve(max_level)?;
@@ -444,7 +441,7 @@ impl Ladder {
     /// [`RenderError::View`] for an invalid view.
     pub fn decide_view(&self, field: &GpuLightField, view: &View) -> Result<LodDecision, LodError> {
         let basis = view.basis(u32::MAX).map_err(RenderError::from)?;
-        Ok(self.decide(projected_diameter_px(&basis, field.center, field.radius)))
+        Ok(self.decide(basis.projected_diameter_px(field.center, field.radius)))
     }
 
     /// The render options of a level (default method, pinned tolerance and guide if any).
@@ -498,7 +495,7 @@ impl Ladder {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::tradeoff::CalibrationPoint;
+    use crate::calibration::CalibrationPoint;
 
     fn point(cameras: u32, step: f32, e: f64, ms: f64, psnr: f64) -> CalibrationPoint {
         CalibrationPoint {
@@ -544,32 +541,6 @@ mod tests {
 
     fn ladder(policy: &LodPolicy, pinned: &RenderOptions) -> Ladder {
         Ladder::new(&calibration(), policy, 162, pinned).expect("ladder")
-    }
-
-    #[test]
-    fn projected_diameter_matches_tangent_rays() {
-        // Eye on +z at distance d, sphere radius r at the origin, looking at it: the tangent
-        // ray's angle is asin(r / d), so the image radius is f · tan(asin(r / d)).
-        let view = View::look_at([0.0, 0.0, 5.0], [0.0, 0.0, 0.0], 40.0, 256, 256);
-        let basis = view.basis(4096).expect("view");
-        let px = projected_diameter_px(&basis, DVec3::ZERO, 2.0);
-        let expected = 2.0 * basis.focal_px * (2.0_f64 / 5.0).asin().tan();
-        assert!(
-            (px - expected).abs() < 1e-9 * expected,
-            "{px} vs {expected}"
-        );
-        // Turning the view does not change it; the eye inside or on the sphere gives infinity.
-        let turned = View::look_at([0.0, 0.0, 5.0], [3.0, 1.0, 0.0], 40.0, 256, 256);
-        let px2 = projected_diameter_px(&turned.basis(4096).expect("view"), DVec3::ZERO, 2.0);
-        assert!((px2 - px).abs() < 1e-9 * px);
-        assert!(projected_diameter_px(&basis, DVec3::ZERO, 5.0).is_infinite());
-        assert!(projected_diameter_px(&basis, DVec3::ZERO, 6.0).is_infinite());
-        // Scale invariance at the extremes: 1e-4 and 1e4 scenes project the same.
-        for s in [1e-4, 1e4] {
-            let v = View::look_at([0.0, 0.0, 5.0 * s], [0.0, 0.0, 0.0], 40.0, 256, 256);
-            let p = projected_diameter_px(&v.basis(4096).expect("view"), DVec3::ZERO, 2.0 * s);
-            assert!((p - px).abs() < 1e-9 * px, "scale {s}: {p}");
-        }
     }
 
     #[test]

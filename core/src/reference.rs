@@ -6,9 +6,8 @@
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use crate::bake::mesh_layout;
 use crate::frame::{Frame, FrameStats};
-use crate::gpu::mesh::{GpuMesh, mesh_sampler};
+use crate::gpu::mesh::{GpuMesh, mesh_bind_group, mesh_layout, mesh_sampler};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::Mesh;
 use crate::shading::{GpuShading, Shading, ShadingError};
@@ -204,8 +203,7 @@ impl ReferenceRenderer {
                 resource: uniform.as_entire_binding(),
             }],
         });
-        let mesh_group =
-            crate::bake::mesh_bind_group(&self.gpu, &self.mesh_layout, mesh, &self.sampler);
+        let mesh_group = mesh_bind_group(&self.gpu, &self.mesh_layout, mesh, &self.sampler);
         let size = wgpu::Extent3d {
             width: view.width,
             height: view.height,

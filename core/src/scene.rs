@@ -23,10 +23,11 @@ use crate::asset::{AssetError, AssetFile};
 use crate::frame::{Frame, FrameStats};
 use crate::gpu::GpuError;
 use crate::gpu::mesh::GpuMesh;
-use crate::lod::{Ladder, LodError, LodPolicy};
+use crate::lod::LodPolicy;
 use crate::mesh::{MeshError, load_mesh};
+use crate::quality::{Plan, Quality, QualityError};
 use crate::reference::{ReferenceError, ReferenceRenderer};
-use crate::render::{GpuLightField, RenderError, RenderOptions, Renderer};
+use crate::render::{GpuLightField, Method, RenderError, RenderOptions, Renderer};
 use crate::shading::Shading;
 use crate::view::{View, ViewError};
 
@@ -81,13 +82,16 @@ pub enum SceneError {
         /// The cause.
         source: RenderError,
     },
-    /// An object's automatic LOD cannot be served (bad policy, no calibration) or failed.
-    #[error("scene object {index}: {source}")]
-    Lod {
+    /// An object's quality cannot be served (bad knobs or policy, no calibration) or its
+    /// render failed.
+    #[error("scene object {index} ({path}): {source}")]
+    Quality {
         /// Object index.
         index: usize,
+        /// Asset path.
+        path: String,
         /// The cause.
-        source: LodError,
+        source: QualityError,
     },
     /// A mesh render failed.
     #[error("scene object {index}: {source}")]
@@ -262,8 +266,8 @@ enum Layer {
     Field {
         field: usize,
         placement: Similarity,
-        options: RenderOptions,
-        ladder: Option<Ladder>,
+        plan: Box<Plan>,
+        path: String,
     },
     Mesh {
         mesh: usize,
@@ -324,8 +328,8 @@ impl Scene {
                 file.objects.len()
             )));
         }
-        // Asset index → its calibration (read once per asset, for automatic LOD).
-        let mut calibrations: HashMap<usize, Option<crate::tradeoff::Calibration>> = HashMap::new();
+        // Asset index → its header (plans read the cameras and calibration from it).
+        let mut headers: Vec<crate::asset::AssetHeader> = Vec::new();
         let mut field_index: HashMap<PathBuf, usize> = HashMap::new();
         let mut mesh_index: HashMap<PathBuf, usize> = HashMap::new();
         let mut fields = Vec::new();
@@ -356,48 +360,23 @@ impl Scene {
                             .upload(&file)
                             .map_err(|source| SceneError::Render { index, source })?;
                         fields.push(Arc::new(uploaded));
-                        // A malformed calibration only matters to objects asking for LOD.
-                        calibrations.insert(
-                            fields.len() - 1,
-                            crate::tradeoff::Calibration::from_quality(
-                                file.header().quality.as_ref(),
-                            )
-                            .ok()
-                            .flatten(),
-                        );
+                        headers.push(file.header().clone());
                         field_index.insert(key, fields.len() - 1);
                         fields.len() - 1
                     };
-                    options
-                        .resolve(fields[field].max_level)
-                        .map_err(|source| SceneError::Render { index, source })?;
-                    let ladder = match auto_lod {
-                        None => None,
-                        Some(policy) => {
-                            let calibration = calibrations
-                                .get(&field)
-                                .and_then(Option::as_ref)
-                                .ok_or_else(|| SceneError::Lod {
-                                    index,
-                                    source: LodError::Policy(format!(
-                                        "{} has no readable calibration: re-bake it with \
-                                         `lumigraph bake` (calibration on)",
-                                        path.display()
-                                    )),
-                                })?;
-                            let cameras =
-                                crate::geometry::CAMERA_COUNTS[fields[field].max_level as usize];
-                            Some(
-                                Ladder::new(calibration, policy, cameras, options)
-                                    .map_err(|source| SceneError::Lod { index, source })?,
-                            )
-                        }
-                    };
+                    let shown = path.display().to_string();
+                    let plan = object_quality(options, auto_lod.as_ref())
+                        .plan(&headers[field])
+                        .map_err(|source| SceneError::Quality {
+                            index,
+                            path: shown.clone(),
+                            source,
+                        })?;
                     layers.push(Layer::Field {
                         field,
                         placement,
-                        options: *options,
-                        ladder,
+                        plan: Box::new(plan),
+                        path: shown,
                     });
                 }
                 SceneObject::Mesh {
@@ -479,21 +458,18 @@ impl Scene {
                 Layer::Field {
                     field,
                     placement,
-                    options,
-                    ladder,
+                    plan,
+                    path,
                 } => {
                     let local = placement.view_to_local(view);
-                    let frame = match ladder {
-                        Some(ladder) => {
-                            ladder
-                                .render_auto(renderer, &self.fields[*field], &local)
-                                .map_err(|source| SceneError::Lod { index, source })?
-                                .0
-                        }
-                        None => renderer
-                            .render(&self.fields[*field], &local, options)
-                            .map_err(|source| SceneError::Render { index, source })?,
-                    };
+                    let frame = plan
+                        .render(renderer, &self.fields[*field], &local)
+                        .map_err(|source| SceneError::Quality {
+                            index,
+                            path: path.clone(),
+                            source,
+                        })?
+                        .frame;
                     (frame, placement.scale())
                 }
                 Layer::Mesh {
@@ -511,6 +487,23 @@ impl Scene {
             composite_into(&mut out, &frame, scale);
         }
         Ok(out)
+    }
+}
+
+/// The quality of a light-field object: its `options` knobs, with automatic LOD when it has an
+/// `auto_lod` policy (`max_psnr_drop: null` there means no limit).
+fn object_quality(options: &RenderOptions, auto_lod: Option<&LodPolicy>) -> Quality {
+    Quality {
+        lod: options.lod,
+        step: options.step,
+        tolerance: options.tolerance,
+        method: (options.method != Method::Default).then_some(options.method),
+        guide: options.guide,
+        auto_lod: auto_lod.map(|p| p.max_error_px),
+        lod_min_psnr: auto_lod.and_then(|p| p.min_psnr),
+        lod_max_psnr_drop: auto_lod.map(|p| p.max_psnr_drop.unwrap_or(f64::INFINITY)),
+        lod_blend: auto_lod.map(|p| p.blend_band),
+        ..Quality::default()
     }
 }
 

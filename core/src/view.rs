@@ -173,6 +173,44 @@ impl ViewBasis {
         let y = -(f64::from(i) + 0.5 - f64::from(self.height) / 2.0) / self.focal_px;
         (x * self.right + y * self.true_up + self.forward).normalize()
     }
+
+    /// Diameter in pixels of the image of a sphere (`center`, `radius`, world units) seen from
+    /// the eye: `2·f·r / √(d² − r²)` for an eye at distance `d > r` (the cone of tangent rays,
+    /// measured across its axis, so it does not change as the view turns); infinite with the
+    /// eye inside or on the sphere.
+    pub fn projected_diameter_px(&self, center: DVec3, radius: f64) -> f64 {
+        let d = (center - self.eye).length();
+        if !(d > radius) {
+            return f64::INFINITY;
+        }
+        let px = 2.0 * self.focal_px * radius / ((d - radius) * (d + radius)).sqrt();
+        if px.is_nan() { f64::INFINITY } else { px }
+    }
+}
+
+/// Distance of the evaluation orbit's eye from the object's centre, in bounding radii.
+pub const EVALUATION_DISTANCE_RADII: f64 = 2.5;
+/// Vertical field of view of the evaluation views, degrees.
+pub const EVALUATION_YFOV_DEG: f64 = 40.0;
+
+/// The evaluation orbit every measurement uses (`eval`, calibration, reports): `n` square views
+/// of `size_px` with the eye uniformly random (from `seed`) at [`EVALUATION_DISTANCE_RADII`]
+/// bounding radii from `center`, looking at it with a [`EVALUATION_YFOV_DEG`] field of view.
+pub fn evaluation_views(
+    center: [f64; 3],
+    radius: f64,
+    n: usize,
+    seed: u64,
+    size_px: u32,
+) -> Vec<View> {
+    random_orbit_views(
+        center,
+        EVALUATION_DISTANCE_RADII * radius,
+        n,
+        seed,
+        EVALUATION_YFOV_DEG,
+        size_px,
+    )
 }
 
 /// `n` views with the eye uniformly random on a sphere of radius `distance` around `center`,
@@ -276,6 +314,47 @@ mod tests {
                 r#"{"eye":[0,0,5],"target":[0,0,0],"yfov_deg":40,"width":8,"height":8,"zoom":1}"#
             )
             .is_err()
+        );
+    }
+
+    #[test]
+    fn projected_diameter_matches_tangent_rays() {
+        // Eye on +z at distance d, sphere radius r at the origin, looking at it: the tangent
+        // ray's angle is asin(r / d), so the image radius is f · tan(asin(r / d)).
+        let view = View::look_at([0.0, 0.0, 5.0], [0.0, 0.0, 0.0], 40.0, 256, 256);
+        let basis = view.basis(4096).expect("view");
+        let px = basis.projected_diameter_px(DVec3::ZERO, 2.0);
+        let expected = 2.0 * basis.focal_px * (2.0_f64 / 5.0).asin().tan();
+        assert!(
+            (px - expected).abs() < 1e-9 * expected,
+            "{px} vs {expected}"
+        );
+        // Turning the view does not change it; the eye inside or on the sphere gives infinity.
+        let turned = View::look_at([0.0, 0.0, 5.0], [3.0, 1.0, 0.0], 40.0, 256, 256);
+        let px2 = turned
+            .basis(4096)
+            .expect("view")
+            .projected_diameter_px(DVec3::ZERO, 2.0);
+        assert!((px2 - px).abs() < 1e-9 * px);
+        assert!(basis.projected_diameter_px(DVec3::ZERO, 5.0).is_infinite());
+        assert!(basis.projected_diameter_px(DVec3::ZERO, 6.0).is_infinite());
+        // Scale invariance at the extremes: 1e-4 and 1e4 scenes project the same.
+        for s in [1e-4, 1e4] {
+            let v = View::look_at([0.0, 0.0, 5.0 * s], [0.0, 0.0, 0.0], 40.0, 256, 256);
+            let p = v
+                .basis(4096)
+                .expect("view")
+                .projected_diameter_px(DVec3::ZERO, 2.0 * s);
+            assert!((p - px).abs() < 1e-9 * px, "scale {s}: {p}");
+        }
+    }
+
+    #[test]
+    fn evaluation_views_orbit_at_two_and_a_half_radii() {
+        let views = evaluation_views([1.0, 0.0, 0.0], 2.0, 3, 5, 64);
+        assert_eq!(
+            views,
+            random_orbit_views([1.0, 0.0, 0.0], 5.0, 3, 5, 40.0, 64)
         );
     }
 

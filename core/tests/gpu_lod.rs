@@ -5,16 +5,16 @@ use std::sync::{Arc, OnceLock};
 
 use lumigraph_core::asset::{AssetFile, Provenance};
 use lumigraph_core::bake::{BakeOptions, Baker};
+use lumigraph_core::calibration::{Calibration, CalibrationPoint};
 use lumigraph_core::frame::Frame;
 use lumigraph_core::gpu::Gpu;
-use lumigraph_core::lod::{Ladder, LodPolicy, projected_diameter_px};
+use lumigraph_core::lod::{Ladder, LodPolicy};
 use lumigraph_core::mesh::{Mesh, demo_mesh};
 use lumigraph_core::metrics;
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::{RenderOptions, Renderer};
 use lumigraph_core::scene::{Scene, Transform};
 use lumigraph_core::shading::Shading;
-use lumigraph_core::tradeoff::{Calibration, CalibrationPoint};
 use lumigraph_core::view::View;
 
 struct Ctx {
@@ -41,7 +41,7 @@ fn ctx() -> &'static Ctx {
             resolution: 64,
             ..Default::default()
         };
-        let baked = lumigraph_core::tradeoff::bake_calibrated(
+        let baked = lumigraph_core::calibration::bake_calibrated(
             &baker,
             &renderer,
             &reference,
@@ -236,7 +236,7 @@ fn level_switches_cross_fade_instead_of_popping() {
     assert_eq!(soft[soft.len() - 1].color, hard[hard.len() - 1].color);
     // And the projection helper agrees with the view's own geometry.
     let basis = view.basis(4096).expect("view");
-    let px = projected_diameter_px(&basis, field.center, field.radius);
+    let px = basis.projected_diameter_px(field.center, field.radius);
     assert!((px - 100.0).abs() < 1e-6, "{px}");
 }
 

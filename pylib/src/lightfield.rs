@@ -6,11 +6,12 @@ use std::sync::{Arc, Mutex};
 
 use lumigraph_core::asset::{AssetFile, Provenance};
 use lumigraph_core::bake::BakeOptions;
+use lumigraph_core::calibration;
 use lumigraph_core::frame::Frame;
-use lumigraph_core::lod::{Ladder, LodError, LodPolicy};
-use lumigraph_core::render::{GpuLightField, Method, RenderOptions};
+use lumigraph_core::lod::LodError;
+use lumigraph_core::quality::{Plan, Quality, QualityError};
+use lumigraph_core::render::GpuLightField;
 use lumigraph_core::shading::Shading;
-use lumigraph_core::tradeoff::{self, Calibration, Choice, Goal};
 use lumigraph_core::view::View;
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
@@ -91,49 +92,12 @@ impl PyLightField {
         }
     }
 
+    /// Renders every view with `plan` (GIL released).
     fn render_all(
         &self,
         py: Python<'_>,
-        jobs: Vec<(View, RenderOptions)>,
-        background: Option<[u8; 4]>,
-    ) -> PyResult<Vec<PyFrame>> {
-        let frames: Vec<Frame> = py.detach(|| {
-            let field = self.uploaded()?;
-            let renderer = engines::renderer().map_err(|e| errors::gpu_for_render(&e))?;
-            jobs.iter()
-                .map(|(v, options)| {
-                    renderer
-                        .render(&field, v, options)
-                        .map_err(|e| errors::render(&e))
-                })
-                .collect::<PyResult<Vec<Frame>>>()
-        })?;
-        Ok(frames
-            .into_iter()
-            .map(|f| PyFrame::new(f, background))
-            .collect())
-    }
-}
-
-impl PyLightField {
-    /// The automatic-LOD ladder of this light field's calibration for `policy`, with the
-    /// explicit knobs pinned.
-    fn ladder(&self, policy: &LodPolicy, explicit: &RenderOptions) -> PyResult<Ladder> {
-        Ladder::new(
-            &self.calibration("auto_lod")?,
-            policy,
-            self.asset.header().geometry.camera_count,
-            explicit,
-        )
-        .map_err(|e| lod_err(&e))
-    }
-
-    /// Renders every view with automatic LOD (GIL released); frames with their decisions.
-    fn render_lod_all(
-        &self,
-        py: Python<'_>,
         views: &[View],
-        ladder: &Ladder,
+        plan: &Plan,
         background: Option<[u8; 4]>,
     ) -> PyResult<Vec<PyFrame>> {
         let frames: Vec<Frame> = py.detach(|| {
@@ -142,10 +106,9 @@ impl PyLightField {
             views
                 .iter()
                 .map(|v| {
-                    ladder
-                        .render_auto(renderer, &field, v)
-                        .map(|(frame, _)| frame)
-                        .map_err(|e| lod_err(&e))
+                    plan.render(renderer, &field, v)
+                        .map(|r| r.frame)
+                        .map_err(|e| quality_err(&e))
                 })
                 .collect::<PyResult<Vec<Frame>>>()
         })?;
@@ -154,113 +117,68 @@ impl PyLightField {
             .map(|f| PyFrame::new(f, background))
             .collect())
     }
+
+    /// The plan of a quality request for this light field.
+    fn plan(&self, quality: &Quality) -> PyResult<Plan> {
+        quality
+            .plan(self.asset.header())
+            .map_err(|e| quality_err(&e))
+    }
 }
 
-/// The automatic-LOD policy of `auto_lod` / `lod_min_psnr` / `lod_blend` (None: no auto LOD).
-fn lod_policy(
-    auto_lod: Option<f64>,
-    lod_min_psnr: Option<f64>,
-    lod_max_psnr_drop: Option<f64>,
-    lod_blend: Option<f64>,
-    goal: Option<&Goal>,
-) -> PyResult<Option<LodPolicy>> {
-    LodPolicy::from_parts(
-        auto_lod,
-        lod_min_psnr,
-        lod_max_psnr_drop,
-        lod_blend,
-        goal.is_some(),
-    )
-    .map_err(|e| lod_err(&e))
-}
-
-/// Python exception of an automatic-LOD error: device failures as render errors, the rest
-/// as ValueError.
-fn lod_err(err: &LodError) -> PyErr {
+/// Python exception of a quality error: device failures as render errors, the rest (conflicts,
+/// bad values, no calibration) as ValueError.
+fn quality_err(err: &QualityError) -> PyErr {
     match err {
-        LodError::Render(r) => errors::render(r),
+        QualityError::Render(r) | QualityError::Lod(LodError::Render(r)) => errors::render(r),
         other => PyValueError::new_err(other.to_string()),
     }
 }
 
-/// The goal of `target_psnr` / `budget_ms`, checked against explicit knobs.
-fn goal_of(
-    target_psnr: Option<f64>,
-    budget_ms: Option<f64>,
-    explicit: &RenderOptions,
-) -> PyResult<Option<Goal>> {
-    let goal = Goal::from_pair(target_psnr, budget_ms)
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
-    if goal.is_some() && *explicit != RenderOptions::default() {
-        return Err(PyValueError::new_err(
-            "target_psnr / budget_ms choose lod, step, tolerance and method: do not set them too",
-        ));
+/// A Python keyword value as JSON (JSON has no infinity: ±inf becomes the largest float, which
+/// every quality bound treats alike).
+fn json_of(value: &Bound<'_, PyAny>) -> PyResult<serde_json::Value> {
+    use pyo3::types::{PyBool, PyFloat, PyInt, PyString};
+    if value.is_none() {
+        return Ok(serde_json::Value::Null);
     }
-    Ok(goal)
-}
-
-impl PyLightField {
-    /// The asset's calibration, or an error saying how to get one.
-    fn calibration(&self, to_use: &str) -> PyResult<Calibration> {
-        Calibration::from_quality(self.asset.header().quality.as_ref())
-            .map_err(|e| PyValueError::new_err(e.to_string()))?
-            .ok_or_else(|| {
-                PyValueError::new_err(format!(
-                    "this light field has no calibration: bake it with calibrate=True (or \
-                     `lumigraph bake`) to use {to_use}"
-                ))
-            })
+    if let Ok(b) = value.cast::<PyBool>() {
+        return Ok(serde_json::Value::Bool(b.is_true()));
     }
-
-    /// The calibrated choice for `goal` at the view's size.
-    fn choice(&self, calibration: &Calibration, goal: Goal, view: &View) -> PyResult<Choice> {
-        calibration
-            .choose(
-                goal,
-                view.width,
-                view.height,
-                self.asset.header().geometry.camera_count,
-            )
-            .map_err(|e| PyValueError::new_err(e.to_string()))
+    if value.cast::<PyInt>().is_ok() {
+        if let Ok(i) = value.extract::<i64>() {
+            return Ok(i.into());
+        }
+        return Ok(value.extract::<u64>()?.into());
     }
-
-    /// Each view with its options: the explicit ones, or the calibrated choice for a goal
-    /// (the calibration is read once for all views).
-    fn jobs(
-        &self,
-        views: Vec<View>,
-        explicit: RenderOptions,
-        goal: Option<Goal>,
-    ) -> PyResult<Vec<(View, RenderOptions)>> {
-        let Some(goal) = goal else {
-            return Ok(views.into_iter().map(|v| (v, explicit)).collect());
+    if value.cast::<PyFloat>().is_ok() {
+        let x: f64 = value.extract()?;
+        let x = if x.is_infinite() {
+            f64::MAX.copysign(x)
+        } else {
+            x
         };
-        let calibration = self.calibration("target_psnr / budget_ms")?;
-        views
-            .into_iter()
-            .map(|v| {
-                let options = self.choice(&calibration, goal, &v)?.options();
-                Ok((v, options))
-            })
-            .collect()
+        return Ok(serde_json::Number::from_f64(x)
+            .map_or_else(|| serde_json::Value::String("nan".to_owned()), Into::into));
     }
+    if let Ok(text) = value.cast::<PyString>() {
+        return Ok(serde_json::Value::String(text.to_str()?.to_owned()));
+    }
+    Err(PyTypeError::new_err(format!(
+        "a quality option must be a number, a string or None, got {}",
+        value.get_type().name()?
+    )))
 }
 
-fn render_options(
-    lod: Option<u32>,
-    step: Option<f32>,
-    tolerance: Option<f32>,
-    method: &str,
-    guide: Option<u32>,
-) -> PyResult<RenderOptions> {
-    let method: Method = method.parse().map_err(PyValueError::new_err)?;
-    Ok(RenderOptions {
-        lod,
-        step,
-        tolerance,
-        method,
-        guide,
-    })
+/// The quality request of keyword arguments (core `Quality`: the same keys as the HTTP body).
+fn quality_of(kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<Quality> {
+    let mut map = serde_json::Map::new();
+    if let Some(kwargs) = kwargs {
+        for (key, value) in kwargs.iter() {
+            map.insert(key.extract::<String>()?, json_of(&value)?);
+        }
+    }
+    Quality::from_json_map(map).map_err(|e| quality_err(&e))
 }
 
 fn json_to_py<'py>(py: Python<'py>, value: &AssetHeader) -> PyResult<Bound<'py, PyAny>> {
@@ -269,16 +187,9 @@ fn json_to_py<'py>(py: Python<'py>, value: &AssetHeader) -> PyResult<Bound<'py, 
 }
 
 use lumigraph_core::asset::AssetHeader;
-use serde_json::Value;
 
 fn shading_of(header: &AssetHeader) -> Shading {
-    header
-        .provenance
-        .bake_options
-        .get("shading")
-        .cloned()
-        .and_then(|v: Value| serde_json::from_value(v).ok())
-        .unwrap_or_default()
+    BakeOptions::of(header).shading
 }
 
 #[pymethods]
@@ -390,132 +301,65 @@ impl PyLightField {
         Ok(d)
     }
 
-    /// render(view, *, lod=None, step=None, tolerance=None, method="default", background=None, target_psnr=None, budget_ms=None, auto_lod=None, lod_min_psnr=None, lod_max_psnr_drop=None, lod_blend=None, guide=None) -> Frame
+    /// render(view, *, background=None, **quality) -> Frame
     ///
     /// Renders one view with depth-corrected ray casting on the GPU (GIL released).
     ///
     /// Args:
     ///     view: a :class:`View` or a dict with keys eye, target, up, yfov_deg, width, height
     ///         (world coordinates of the source mesh).
-    ///     lod: cameras to use: 12, 42, 162 or 642 (nested sets; at most the asset's count), or
-    ///         a level 0-3. Default: all.
-    ///     step: march step in bounding-sphere diameters, in [1/4096, 1]. Default 1/32
-    ///         (``method="fixed"``: 1/64).
-    ///     tolerance: depth agreement tolerance in bounding-sphere diameters, in (0, 1].
-    ///         Default step/2 (smaller leaves gaps, seed 000 §3.1).
-    ///     method: ``"default"`` (edge-aware depth, bisection-refined crossings) or ``"fixed"``
-    ///         (the seed's fixed-step search, the baseline).
     ///     background: RGB or RGBA integers 0..255 for pixels outside coverage. Default
     ///         transparent black.
-    ///     target_psnr / budget_ms: let the calibration choose the cheapest setting reaching a
-    ///         masked PSNR, or the most accurate one within a time (see :meth:`choose`).
-    ///     auto_lod: automatic LOD: the cheapest cameras and step whose calibrated silhouette
-    ///         error at the object's projected size stays under this many pixels (1.0 is a
-    ///         good start); explicit ``lod``/``step`` are kept. See :meth:`choose_lod`.
-    ///     lod_min_psnr: with auto_lod, only settings whose calibrated masked PSNR reaches it.
-    ///     lod_max_psnr_drop: with auto_lod, only settings within this many dB of the most
-    ///         accurate level's calibrated masked PSNR (default 2; ``math.inf``: no limit).
-    ///     lod_blend: with auto_lod, the dissolve band below each switch as a fraction of the
-    ///         projected size (default 0.15; 0 = hard switches).
-    ///     guide: coarse-to-fine factor of the default method, 2-16, or 0 = off (None: 4 for
-    ///         the default method, off for the fixed one): a coarse pass renders every
-    ///         guide-th pixel per axis and bounds each pixel's march (4: about 0.7x the
-    ///         unguided time at 512², same masked PSNR on the fixtures).
+    ///     **quality: the quality request, the same keys as the HTTP render body and the CLI
+    ///         flags (docs/protocol.md): explicit knobs ``lod`` (cameras 12/42/162/642 or a level
+    ///         0-3), ``step`` and ``tolerance`` (bounding-sphere diameters), ``method``
+    ///         (``"default"`` or ``"fixed"``), ``guide`` (coarse-to-fine factor 2-16, 0 = off);
+    ///         or a goal ``target_psnr`` (dB) / ``budget_ms`` served by the calibration (see
+    ///         :meth:`choose`); or automatic LOD ``auto_lod`` (bound on the predicted
+    ///         silhouette error, pixels) with ``lod_min_psnr``, ``lod_max_psnr_drop`` and
+    ///         ``lod_blend`` (see :meth:`choose_lod`).
     ///
     /// Raises:
-    ///     ValueError: a bad view or option. TypeError: an argument of the wrong type.
-    ///     AssetError: a corrupt page. RenderError: the device failed.
-    #[pyo3(signature = (view, *, lod = None, step = None, tolerance = None, method = "default", background = None, target_psnr = None, budget_ms = None, auto_lod = None, lod_min_psnr = None, lod_max_psnr_drop = None, lod_blend = None, guide = None))]
+    ///     ValueError: a bad view, an unknown or bad quality option, or a conflict between
+    ///         them. TypeError: an argument of the wrong type. AssetError: a corrupt page.
+    ///     RenderError: the device failed.
+    #[pyo3(signature = (view, *, background = None, **quality))]
     fn render(
         &self,
         py: Python<'_>,
         view: &Bound<'_, PyAny>,
-        lod: Option<u32>,
-        step: Option<f32>,
-        tolerance: Option<f32>,
-        method: &str,
         background: Option<&Bound<'_, PyAny>>,
-        target_psnr: Option<f64>,
-        budget_ms: Option<f64>,
-        auto_lod: Option<f64>,
-        lod_min_psnr: Option<f64>,
-        lod_max_psnr_drop: Option<f64>,
-        lod_blend: Option<f64>,
-        guide: Option<u32>,
+        quality: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<PyFrame> {
         let view = view::parse_view(view)?;
-        let options = render_options(lod, step, tolerance, method, guide)?;
-        let goal = goal_of(target_psnr, budget_ms, &options)?;
-        let policy = lod_policy(
-            auto_lod,
-            lod_min_psnr,
-            lod_max_psnr_drop,
-            lod_blend,
-            goal.as_ref(),
-        )?;
+        let plan = self.plan(&quality_of(quality)?)?;
         let background = background.map(parse_background).transpose()?;
-        if let Some(policy) = policy {
-            let ladder = self.ladder(&policy, &options)?;
-            let mut frames = self.render_lod_all(py, &[view], &ladder, background)?;
-            return frames
-                .pop()
-                .ok_or_else(|| errors::RenderError::new_err("no frame rendered"));
-        }
-        let jobs = self.jobs(vec![view], options, goal)?;
-        let mut frames = self.render_all(py, jobs, background)?;
-        frames
+        self.render_all(py, &[view], &plan, background)?
             .pop()
             .ok_or_else(|| errors::RenderError::new_err("no frame rendered"))
     }
 
-    /// render_many(views, *, lod=None, step=None, tolerance=None, method="default", background=None, target_psnr=None, budget_ms=None, auto_lod=None, lod_min_psnr=None, lod_max_psnr_drop=None, lod_blend=None, guide=None) -> list[Frame]
+    /// render_many(views, *, background=None, **quality) -> list[Frame]
     ///
     /// Renders a batch of views (a list of :class:`View` or dicts) with one release of the GIL;
-    /// options as in :meth:`render`. Every view is validated before any is rendered.
-    #[pyo3(signature = (views, *, lod = None, step = None, tolerance = None, method = "default", background = None, target_psnr = None, budget_ms = None, auto_lod = None, lod_min_psnr = None, lod_max_psnr_drop = None, lod_blend = None, guide = None))]
+    /// options as in :meth:`render`. Every view and option is validated before any is rendered.
+    #[pyo3(signature = (views, *, background = None, **quality))]
     fn render_many(
         &self,
         py: Python<'_>,
         views: &Bound<'_, PyAny>,
-        lod: Option<u32>,
-        step: Option<f32>,
-        tolerance: Option<f32>,
-        method: &str,
         background: Option<&Bound<'_, PyAny>>,
-        target_psnr: Option<f64>,
-        budget_ms: Option<f64>,
-        auto_lod: Option<f64>,
-        lod_min_psnr: Option<f64>,
-        lod_max_psnr_drop: Option<f64>,
-        lod_blend: Option<f64>,
-        guide: Option<u32>,
+        quality: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Vec<PyFrame>> {
         let views = view::parse_views(views)?;
-        let options = render_options(lod, step, tolerance, method, guide)?;
-        let goal = goal_of(target_psnr, budget_ms, &options)?;
-        let policy = lod_policy(
-            auto_lod,
-            lod_min_psnr,
-            lod_max_psnr_drop,
-            lod_blend,
-            goal.as_ref(),
-        )?;
-        if let Some(policy) = policy {
-            let ladder = self.ladder(&policy, &options)?;
-            for v in &views {
-                v.basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX)
-                    .map_err(|e| PyValueError::new_err(e.to_string()))?;
-            }
-            let background = background.map(parse_background).transpose()?;
-            return self.render_lod_all(py, &views, &ladder, background);
+        let plan = self.plan(&quality_of(quality)?)?;
+        for v in &views {
+            v.basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX)
+                .map_err(|e| PyValueError::new_err(e.to_string()))?;
+            plan.decide(v).map_err(|e| quality_err(&e))?;
         }
-        // Check the options once up front, so a bad knob fails before any GPU work.
-        options
-            .resolve(u32::from(self.asset.header().geometry.camera_level))
-            .map_err(|e| errors::render(&e))?;
         let background = background.map(parse_background).transpose()?;
-        let jobs = self.jobs(views, options, goal)?;
-        self.render_all(py, jobs, background)
+        self.render_all(py, &views, &plan, background)
     }
 
     /// choose(view, *, target_psnr=None, budget_ms=None) -> dict
@@ -539,9 +383,21 @@ impl PyLightField {
         budget_ms: Option<f64>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let view = view::parse_view(view)?;
-        let goal = goal_of(target_psnr, budget_ms, &RenderOptions::default())?
+        if target_psnr.is_none() && budget_ms.is_none() {
+            return Err(PyValueError::new_err("give target_psnr or budget_ms"));
+        }
+        let quality = Quality {
+            target_psnr,
+            budget_ms,
+            ..Quality::default()
+        };
+        let decision = self
+            .plan(&quality)?
+            .decide(&view)
+            .map_err(|e| quality_err(&e))?;
+        let c = decision
+            .choice
             .ok_or_else(|| PyValueError::new_err("give target_psnr or budget_ms"))?;
-        let c = self.choice(&self.calibration("target_psnr / budget_ms")?, goal, &view)?;
         let out = PyDict::new(py);
         out.set_item("cameras", c.cameras)?;
         out.set_item("step", c.step)?;
@@ -576,25 +432,24 @@ impl PyLightField {
         guide: Option<u32>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let view = view::parse_view(view)?;
-        let options = render_options(lod, step, tolerance, "default", guide)?;
-        let policy = lod_policy(
-            Some(auto_lod),
+        let quality = Quality {
+            lod,
+            step,
+            tolerance,
+            guide,
+            auto_lod: Some(auto_lod),
             lod_min_psnr,
             lod_max_psnr_drop,
             lod_blend,
-            None,
-        )?
-        .ok_or_else(|| PyValueError::new_err("auto_lod is required"))?;
-        let ladder = self.ladder(&policy, &options)?;
-        let basis = view
-            .basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX)
-            .map_err(|e| PyValueError::new_err(e.to_string()))?;
-        let f = &self.asset.header().frame;
-        let d = ladder.decide(lumigraph_core::lod::projected_diameter_px(
-            &basis,
-            f.center.into(),
-            f.radius,
-        ));
+            ..Quality::default()
+        };
+        let decision = self
+            .plan(&quality)?
+            .decide(&view)
+            .map_err(|e| quality_err(&e))?;
+        let d = decision
+            .lod
+            .ok_or_else(|| PyValueError::new_err("auto_lod is required"))?;
         let out = PyDict::new(py);
         out.set_item("projected_px", d.projected_px)?;
         out.set_item("cameras", d.level.cameras)?;
@@ -685,7 +540,7 @@ pub fn bake(
         let bytes = if calibrate {
             let renderer = engines::renderer().map_err(|e| errors::gpu_for_render(&e))?;
             let reference = engines::reference().map_err(|e| errors::gpu_for_render(&e))?;
-            tradeoff::bake_calibrated(
+            calibration::bake_calibrated(
                 baker,
                 renderer,
                 reference,
@@ -695,7 +550,7 @@ pub fn bake(
                 &mut report,
             )
             .map_err(|e| match e {
-                tradeoff::TradeoffError::Bake(e) => errors::bake(&e),
+                calibration::CalibrationError::Bake(e) => errors::bake(&e),
                 other => errors::BakeError::new_err(format!("calibration failed: {other}")),
             })?
             .bytes

@@ -626,6 +626,19 @@ fn render_scene_composites_instances_and_meshes() {
         &["render", s(&scene), "--view", v, "-o", o, "--step", "0.1"],
         "per light-field object",
     );
+    assert_fails(
+        &[
+            "render",
+            s(&scene),
+            "--view",
+            v,
+            "-o",
+            o,
+            "--target-psnr",
+            "25",
+        ],
+        "per light-field object",
+    );
     let lod = format!(
         r#"{{"objects": [{{"type": "lightfield", "asset": "{}", "options": {{"lod": 642}}}}]}}"#,
         s(asset)
@@ -699,11 +712,16 @@ fn calibrated_goals_pick_settings_and_report_predictions() {
     assert_fails(&with(&["--target-psnr", "-1"]), "target PSNR");
     assert_fails(
         &with(&["--target-psnr", "20", "--step", "0.1"]),
-        "cannot be used",
+        "do not send them",
     );
     assert_fails(
         &with(&["--target-psnr", "20", "--budget-ms", "9"]),
-        "cannot be used",
+        "not both",
+    );
+    // A goal decides the guide too: sent with one, it is refused, not dropped.
+    assert_fails(
+        &with(&["--target-psnr", "27", "--guide", "8"]),
+        "do not send them",
     );
     // An asset baked without calibration says how to get one.
     let plain = bake_uncalibrated("plain.lfa");
@@ -795,8 +813,8 @@ fn auto_lod_chooses_per_view_and_reports_predicted_beside_measured() {
         &with(&["--auto-lod", "--method", "fixed"]),
         "default-method",
     );
-    assert_fails(&with(&["--auto-lod", "--budget-ms", "9"]), "cannot be used");
-    assert_fails(&with(&["--lod-blend", "0.1"]), "--auto-lod");
+    assert_fails(&with(&["--auto-lod", "--budget-ms", "9"]), "not both");
+    assert_fails(&with(&["--lod-blend", "0.1"]), "need auto_lod");
     // The coarse-to-fine guide: a knob of its own, and it combines with automatic LOD.
     assert_fails(&with(&["--guide", "1"]), "guide 1");
     assert_fails(

@@ -799,6 +799,10 @@ async fn bake_jobs() {
             "do not send them",
         ),
         (
+            serde_json::json!({"view": view_json(8, 8), "target_psnr": 27.0, "guide": 8}),
+            "do not send them",
+        ),
+        (
             serde_json::json!({"view": view_json(8, 8), "budget_ms": -1.0}),
             "budget",
         ),
@@ -1098,7 +1102,7 @@ async fn websocket_goals_choose_full_quality_settings() {
         let gpu = gpu();
         let renderer = lumigraph_core::render::Renderer::new(gpu.clone());
         let reference = lumigraph_core::reference::ReferenceRenderer::new(gpu.clone());
-        lumigraph_core::tradeoff::bake_calibrated(
+        lumigraph_core::calibration::bake_calibrated(
             &Baker::new(gpu),
             &renderer,
             &reference,

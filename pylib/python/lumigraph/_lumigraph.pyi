@@ -1,7 +1,7 @@
 # Type stubs of the native module (pylib/src); checked against it by mypy.stubtest.
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from os import PathLike
-from typing import Any, final
+from typing import Any, TypedDict, Unpack, final
 
 import numpy as np
 import numpy.typing as npt
@@ -14,6 +14,21 @@ __all__ = [
 ]
 
 _ViewLike = View | Mapping[str, Any]
+
+class _Quality(TypedDict, total=False):
+    """The quality request (core ``Quality``): the keys of the HTTP render body and the CLI flags."""
+
+    lod: int | None
+    step: float | None
+    tolerance: float | None
+    method: str | None
+    guide: int | None
+    target_psnr: float | None
+    budget_ms: float | None
+    auto_lod: float | None
+    lod_min_psnr: float | None
+    lod_max_psnr_drop: float | None
+    lod_blend: float | None
 _Image = Frame | npt.ArrayLike
 
 class LumigraphError(Exception): ...
@@ -130,35 +145,15 @@ class LightField:
         self,
         view: _ViewLike,
         *,
-        lod: int | None = None,
-        step: float | None = None,
-        tolerance: float | None = None,
-        method: str = "default",
         background: Sequence[int] | None = None,
-        target_psnr: float | None = None,
-        budget_ms: float | None = None,
-        auto_lod: float | None = None,
-        lod_min_psnr: float | None = None,
-        lod_max_psnr_drop: float | None = None,
-        lod_blend: float | None = None,
-        guide: int | None = None,
+        **quality: Unpack[_Quality],
     ) -> Frame: ...
     def render_many(
         self,
         views: Iterable[_ViewLike],
         *,
-        lod: int | None = None,
-        step: float | None = None,
-        tolerance: float | None = None,
-        method: str = "default",
         background: Sequence[int] | None = None,
-        target_psnr: float | None = None,
-        budget_ms: float | None = None,
-        auto_lod: float | None = None,
-        lod_min_psnr: float | None = None,
-        lod_max_psnr_drop: float | None = None,
-        lod_blend: float | None = None,
-        guide: int | None = None,
+        **quality: Unpack[_Quality],
     ) -> list[Frame]: ...
     def choose(
         self,

@@ -1,16 +1,14 @@
-//! Flags and value parsers shared by several commands: shading, views, quality knobs, depth
-//! output.
+//! Flags and value parsers shared by several commands: shading, views, depth output (the
+//! quality flags are core's `Quality`), and how a quality decision is described.
 
 use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Args;
-use lumigraph_core::asset::AssetFile;
-use lumigraph_core::lod::{Ladder, Level, LodDecision, LodPolicy};
-use lumigraph_core::render::{Method, RenderOptions};
+use lumigraph_core::calibration::Choice;
+use lumigraph_core::lod::{Level, LodDecision};
+use lumigraph_core::quality::Decision;
 use lumigraph_core::shading::Shading;
-use lumigraph_core::tradeoff::{Calibration, Choice, Goal};
-use lumigraph_core::view::View;
 
 /// Shading flags shared by `bake` and `reference` (DESIGN §3).
 #[derive(Debug, Args, Clone)]
@@ -55,108 +53,6 @@ pub struct ViewArgs {
     /// A JSON list of views; OUT becomes a folder of 000.png, 001.png, …
     #[arg(long)]
     pub views: Option<PathBuf>,
-}
-
-/// Quality knobs of `render` and `eval`.
-#[derive(Debug, Args, Clone)]
-pub struct QualityArgs {
-    /// Cameras to use (12, 42, 162, 642; at most the asset's).
-    #[arg(long, allow_hyphen_values = true)]
-    pub lod: Option<u32>,
-    /// Step in bounding-sphere diameters.
-    #[arg(long, allow_hyphen_values = true)]
-    pub step: Option<f32>,
-    /// Tolerance in bounding-sphere diameters (default step/2).
-    #[arg(long, allow_hyphen_values = true)]
-    pub tolerance: Option<f32>,
-    /// Marching method: default or fixed.
-    #[arg(long, default_value = "default")]
-    pub method: Method,
-    /// Coarse-to-fine factor of the default method (2–16; 0 = off; default 4): a coarse pass
-    /// renders every F-th pixel per axis and bounds each pixel's march (4: 0.22–0.38× the
-    /// unguided time at 512², same masked PSNR on the fixtures).
-    #[arg(long, value_name = "F", allow_hyphen_values = true)]
-    pub guide: Option<u32>,
-    /// Pick the cheapest setting the asset's calibration predicts to reach this masked PSNR (dB).
-    #[arg(long, allow_hyphen_values = true, conflicts_with_all = ["lod", "step", "tolerance", "method", "budget_ms"])]
-    pub target_psnr: Option<f64>,
-    /// Pick the most accurate setting the calibration predicts to render within this time (ms).
-    #[arg(long, allow_hyphen_values = true, conflicts_with_all = ["lod", "step", "tolerance", "method"])]
-    pub budget_ms: Option<f64>,
-    /// Automatic LOD: per view, the cheapest cameras and step whose calibrated silhouette error
-    /// at the object's projected size stays under PX pixels (`--auto-lod` = 1 px); a --lod or
-    /// --step given as well is kept. Cross-fades near switches (no popping).
-    #[arg(long, value_name = "PX", num_args = 0..=1, require_equals = true, default_missing_value = "1", allow_hyphen_values = true, conflicts_with_all = ["target_psnr", "budget_ms"])]
-    pub auto_lod: Option<f64>,
-    /// With --auto-lod: only settings whose calibrated masked PSNR reaches DB.
-    #[arg(
-        long,
-        value_name = "DB",
-        requires = "auto_lod",
-        allow_hyphen_values = true
-    )]
-    pub lod_min_psnr: Option<f64>,
-    /// With --auto-lod: only settings within DB of the most accurate level's calibrated masked
-    /// PSNR (default 2; inf: no limit).
-    #[arg(
-        long,
-        value_name = "DB",
-        requires = "auto_lod",
-        allow_hyphen_values = true
-    )]
-    pub lod_max_psnr_drop: Option<f64>,
-    /// With --auto-lod: cross-fade band below each switch, as a fraction of the projected size
-    /// (default 0.15; 0 = hard switches).
-    #[arg(
-        long,
-        value_name = "FRACTION",
-        requires = "auto_lod",
-        allow_hyphen_values = true
-    )]
-    pub lod_blend: Option<f64>,
-}
-
-impl QualityArgs {
-    /// The goal (`--target-psnr` / `--budget-ms`, exclusive by clap) with the asset's
-    /// calibration, read once; an error says how to get a calibration.
-    pub(super) fn goal(&self, asset: &AssetFile) -> Result<Option<(Goal, Calibration)>> {
-        let Some(goal) = Goal::from_pair(self.target_psnr, self.budget_ms)? else {
-            return Ok(None);
-        };
-        let calibration = calibration_for(asset, "--target-psnr / --budget-ms need")?;
-        Ok(Some((goal, calibration)))
-    }
-
-    /// The automatic-LOD ladder (`--auto-lod`) of the asset's calibration, if asked for.
-    pub(super) fn ladder(&self, asset: &AssetFile) -> Result<Option<Ladder>> {
-        // clap already refuses the floors without --auto-lod and --auto-lod with a goal.
-        let Some(policy) = LodPolicy::from_parts(
-            self.auto_lod,
-            self.lod_min_psnr,
-            self.lod_max_psnr_drop,
-            self.lod_blend,
-            false,
-        )?
-        else {
-            return Ok(None);
-        };
-        Ok(Some(Ladder::new(
-            &calibration_for(asset, "--auto-lod needs")?,
-            &policy,
-            asset.header().geometry.camera_count,
-            &self.options(),
-        )?))
-    }
-
-    pub(super) fn options(&self) -> RenderOptions {
-        RenderOptions {
-            lod: self.lod,
-            step: self.step,
-            tolerance: self.tolerance,
-            method: self.method,
-            guide: self.guide,
-        }
-    }
 }
 
 /// Depth output flags.
@@ -220,28 +116,13 @@ fn parse_pair(s: &str) -> Result<(f32, f32), String> {
     Ok((v[0], v[1]))
 }
 
-/// The asset's calibration, or an error that starts with `flags_need` and says how to get one.
-pub(super) fn calibration_for(asset: &AssetFile, flags_need: &str) -> Result<Calibration> {
-    Calibration::from_quality(asset.header().quality.as_ref())?.ok_or_else(|| {
-        anyhow::anyhow!(
-            "{flags_need} the asset's calibration, which this asset lacks (baked with \
-             --no-calibrate, by the Python API or the service): re-bake it with `lumigraph bake`"
-        )
-    })
-}
-
-/// The calibrated choice for `goal` at the view's size.
-pub(super) fn choose(
-    asset: &AssetFile,
-    (goal, calibration): &(Goal, Calibration),
-    view: &View,
-) -> Result<Choice> {
-    Ok(calibration.choose(
-        *goal,
-        view.width,
-        view.height,
-        asset.header().geometry.camera_count,
-    )?)
+/// One line on what a quality plan decided for a view (`None` for explicit knobs).
+pub(super) fn describe_decision(decision: &Decision, pixels: u64) -> Option<String> {
+    match (&decision.choice, &decision.lod) {
+        (Some(choice), _) => Some(describe(choice)),
+        (None, Some(lod)) => Some(describe_lod(lod, pixels)),
+        (None, None) => None,
+    }
 }
 
 pub(super) fn describe(choice: &Choice) -> String {

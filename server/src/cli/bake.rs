@@ -8,11 +8,11 @@ use clap::Args;
 use indicatif::ProgressBar;
 use lumigraph_core::asset::Provenance;
 use lumigraph_core::bake::{BakeOptions, Baker};
+use lumigraph_core::calibration;
 use lumigraph_core::gpu::Gpu;
 use lumigraph_core::mesh::Mesh;
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::Renderer;
-use lumigraph_core::tradeoff;
 
 use super::args::ShadingArgs;
 use super::common::{gpu, load_source, progress_bar};
@@ -82,7 +82,7 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
     Ok(())
 }
 
-/// Bakes in memory, measures the scene's calibration (tradeoff::Calibration) and writes the
+/// Bakes in memory, measures the scene's calibration (calibration::Calibration) and writes the
 /// asset with it in the quality report, atomically.
 fn bake_calibrated(
     args: &BakeArgs,
@@ -95,7 +95,7 @@ fn bake_calibrated(
 ) -> Result<()> {
     let renderer = Renderer::new(gpu.clone());
     let reference = ReferenceRenderer::new(gpu.clone());
-    let baked = tradeoff::bake_calibrated(
+    let baked = calibration::bake_calibrated(
         baker,
         &renderer,
         &reference,

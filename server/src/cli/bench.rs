@@ -9,7 +9,7 @@ use lumigraph_core::bake::BakeOptions;
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::{Method, Renderer};
 use lumigraph_core::tradeoff::{self, Grid, SweepInputs};
-use lumigraph_core::view::random_orbit_views;
+use lumigraph_core::view::evaluation_views;
 
 use super::args::parse_fraction;
 use super::common::{gpu, load_source, progress_bar};
@@ -124,18 +124,10 @@ pub(super) fn bench_tradeoff(args: &TradeoffArgs) -> Result<()> {
         .clone()
         .unwrap_or_else(|| Path::new("out/tradeoff").join(&stem));
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
-    let bake_options: BakeOptions =
-        serde_json::from_value(header.provenance.bake_options.clone()).unwrap_or_default();
+    let bake_options = BakeOptions::of(&header);
     let (mesh, provenance) = load_source(args.mesh.as_deref(), args.demo)?;
     let frame = &header.frame;
-    let views = random_orbit_views(
-        frame.center,
-        2.5 * frame.radius,
-        args.views,
-        args.seed,
-        40.0,
-        1,
-    );
+    let views = evaluation_views(frame.center, frame.radius, args.views, args.seed, 1);
     let gpu = gpu()?;
     let renderer = Renderer::new(gpu.clone());
     let reference = ReferenceRenderer::new(gpu.clone());

@@ -6,14 +6,16 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use lumigraph_core::asset::AssetFile;
 use lumigraph_core::bake::BakeOptions;
+use lumigraph_core::calibration::Choice;
 use lumigraph_core::lod::LodDecision;
 use lumigraph_core::metrics::{self, Comparison};
+use lumigraph_core::quality::{Quality, Rendered};
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::Renderer;
-use lumigraph_core::tradeoff::Choice;
-use lumigraph_core::view::{View, random_orbit_views};
 
-use super::args::{QualityArgs, choose, describe, describe_lod};
+use super::args::{describe, describe_lod};
+use lumigraph_core::view::{View, evaluation_views};
+
 use super::common::{gpu, load_source, progress_bar};
 
 /// `lumigraph eval`.
@@ -36,15 +38,15 @@ pub struct EvalArgs {
     /// Size of the random views in pixels.
     #[arg(long, default_value_t = 256)]
     pub size: u32,
-    /// Quality knobs.
+    /// Quality: knobs, a goal or automatic LOD.
     #[command(flatten)]
-    pub quality: QualityArgs,
+    pub quality: Quality,
     /// Print JSON instead of a table.
     #[arg(long)]
     pub json: bool,
 }
 
-/// Default eval views: eye on a sphere of 2.5× the bounding radius, looking at the centre.
+/// Default eval views: the evaluation orbit around the asset's bounding sphere.
 fn eval_views(args: &EvalArgs, asset: &AssetFile) -> Result<Vec<View>> {
     if let Ok(n) = args.views.parse::<usize>() {
         if n == 0 || n > 10_000 {
@@ -54,12 +56,11 @@ fn eval_views(args: &EvalArgs, asset: &AssetFile) -> Result<Vec<View>> {
             bail!("--size {}: give 1 to 4096 pixels", args.size);
         }
         let frame = &asset.header().frame;
-        return Ok(random_orbit_views(
+        return Ok(evaluation_views(
             frame.center,
-            2.5 * frame.radius,
+            frame.radius,
             n,
             args.seed,
-            40.0,
             args.size,
         ));
     }
@@ -116,18 +117,13 @@ pub(super) fn eval(args: &EvalArgs) -> Result<()> {
         v.basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX)
             .with_context(|| format!("view {i}"))?;
     }
-    // With a goal, the calibration chooses (for the first view's size) and the report sets
-    // the prediction beside the measurement.
-    let choice = match args.quality.goal(&asset)? {
-        Some(goal) => Some(choose(&asset, &goal, &views[0])?),
-        None => None,
-    };
-    let ladder = args.quality.ladder(&asset)?;
-    let options = choice.map_or_else(|| args.quality.options(), |c| c.options());
-    let settings = options.resolve(u32::from(header.geometry.camera_level))?;
+    // The report sets the first view's settings and, with a goal, its prediction beside the
+    // measurement.
+    let plan = args.quality.plan(&header)?;
+    let first = plan.decide(&views[0])?;
+    let (settings, choice) = (first.settings, first.choice);
     // The reference must shade exactly as the bake did.
-    let bake_options: BakeOptions =
-        serde_json::from_value(header.provenance.bake_options.clone()).unwrap_or_default();
+    let bake_options = BakeOptions::of(&header);
     let (mesh, _) = load_source(args.mesh.as_deref(), args.demo)?;
     let gpu = gpu()?;
     let renderer = Renderer::new(gpu.clone());
@@ -137,17 +133,12 @@ pub(super) fn eval(args: &EvalArgs) -> Result<()> {
         .with_context(|| format!("cannot load asset {}", args.asset.display()))?;
     let gpu_mesh = reference.upload(&mesh)?;
     // Warm up: the first dispatch pays shader compilation.
-    renderer.render(&field, &views[0], &options)?;
+    plan.render(&renderer, &field, &views[0])?;
     let bar = progress_bar(views.len() as u64, "evaluating views");
     let mut rows = Vec::with_capacity(views.len());
     for (index, view) in views.iter().enumerate() {
-        let (frame, lod) = match &ladder {
-            Some(ladder) => {
-                let (frame, decision) = ladder.render_auto(&renderer, &field, view)?;
-                (frame, Some(decision))
-            }
-            None => (renderer.render(&field, view, &options)?, None),
-        };
+        let Rendered { frame, decision } = plan.render(&renderer, &field, view)?;
+        let lod = decision.lod;
         let truth = reference.render(&gpu_mesh, view, &bake_options.shading)?;
         let comparison = metrics::compare(&frame, &truth)?;
         let silhouette_error_px =

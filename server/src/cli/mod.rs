@@ -17,7 +17,7 @@ mod plot;
 mod render;
 mod serve;
 
-pub use args::{DepthArgs, QualityArgs, ShadingArgs, ViewArgs};
+pub use args::{DepthArgs, ShadingArgs, ViewArgs};
 pub use bake::BakeArgs;
 pub use bench::{BenchArgs, BenchCommand, TradeoffArgs};
 pub use eval::EvalArgs;

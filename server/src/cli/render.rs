@@ -7,12 +7,13 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use lumigraph_core::asset::AssetFile;
 use lumigraph_core::frame::Frame;
+use lumigraph_core::quality::{Quality, Rendered};
 use lumigraph_core::reference::ReferenceRenderer;
-use lumigraph_core::render::{Method, Renderer};
+use lumigraph_core::render::Renderer;
 use lumigraph_core::scene::Scene;
 use lumigraph_core::view::View;
 
-use super::args::{DepthArgs, QualityArgs, ShadingArgs, ViewArgs, choose, describe, describe_lod};
+use super::args::{DepthArgs, ShadingArgs, ViewArgs, describe_decision};
 use super::common::{gpu, load_source};
 
 /// `lumigraph render`.
@@ -30,9 +31,9 @@ pub struct RenderArgs {
     /// Depth output.
     #[command(flatten)]
     pub depth: DepthArgs,
-    /// Quality knobs.
+    /// Quality: knobs, a goal or automatic LOD.
     #[command(flatten)]
-    pub quality: QualityArgs,
+    pub quality: Quality,
 }
 
 /// `lumigraph reference`.
@@ -139,34 +140,18 @@ pub(super) fn render(args: &RenderArgs) -> Result<()> {
     }
     let asset = AssetFile::open(&args.asset)
         .with_context(|| format!("cannot open asset {}", args.asset.display()))?;
-    let options = args.quality.options();
-    options.resolve(u32::from(asset.header().geometry.camera_level))?;
+    let plan = args.quality.plan(asset.header())?;
     let renderer = Renderer::new(gpu()?);
     let field = renderer
         .upload(&asset)
         .with_context(|| format!("cannot load asset {}", args.asset.display()))?;
-    let goal = args.quality.goal(&asset)?;
-    let ladder = args.quality.ladder(&asset)?;
     for (i, view) in views.iter().enumerate() {
-        if let Some(ladder) = &ladder {
-            let (frame, decision) = ladder.render_auto(&renderer, &field, view)?;
-            write_outputs(&frame, i, many, &args.output, &args.depth)?;
-            println!(
-                "view {i:03}: {}; measured {:.2} ms ({} px covered)",
-                describe_lod(&decision, u64::from(view.width) * u64::from(view.height)),
-                frame.stats.render_ms,
-                frame.covered_count()
-            );
-            continue;
-        }
-        let choice = goal.as_ref().map(|g| choose(&asset, g, view)).transpose()?;
-        let options = choice.map_or(options, |c| c.options());
-        let frame = renderer.render(&field, view, &options)?;
+        let Rendered { frame, decision } = plan.render(&renderer, &field, view)?;
         write_outputs(&frame, i, many, &args.output, &args.depth)?;
-        match choice {
-            Some(c) => println!(
-                "view {i:03}: {}; measured {:.2} ms ({} px covered)",
-                describe(&c),
+        let pixels = u64::from(view.width) * u64::from(view.height);
+        match describe_decision(&decision, pixels) {
+            Some(text) => println!(
+                "view {i:03}: {text}; measured {:.2} ms ({} px covered)",
                 frame.stats.render_ms,
                 frame.covered_count()
             ),
@@ -181,18 +166,7 @@ pub(super) fn render(args: &RenderArgs) -> Result<()> {
 }
 
 fn render_scene(args: &RenderArgs, views: &[View], many: bool) -> Result<()> {
-    let q = &args.quality;
-    if q.lod.is_some()
-        || q.step.is_some()
-        || q.tolerance.is_some()
-        || q.method != Method::Default
-        || q.auto_lod.is_some()
-    {
-        bail!(
-            "quality flags do not apply to a scene: set \"options\" per light-field object in {}",
-            args.asset.display()
-        );
-    }
+    args.quality.check_scene()?;
     let gpu = gpu()?;
     let renderer = Renderer::new(gpu.clone());
     let reference = ReferenceRenderer::new(gpu);

@@ -14,6 +14,7 @@ use axum::response::{IntoResponse, Response};
 use futures_util::StreamExt as _;
 use lumigraph_core::bake::BakeOptions;
 use lumigraph_core::mesh::{MeshFormat, load_mesh_from_bytes};
+use lumigraph_core::quality::Quality;
 use lumigraph_core::view::View;
 use serde::{Deserialize, Serialize};
 use tokio::io::AsyncWriteExt as _;
@@ -24,7 +25,7 @@ use super::codecs::{
 };
 use super::error::{AppError, ErrorBody, ErrorKind};
 use super::jobs::{JobState, JobStatus};
-use super::render_pool::{Knobs, Plan, goal_calibration, lod_ladder};
+use super::render_pool::{plan, quality_error};
 use super::state::{AppState, random_id};
 
 /// Counts error responses by kind for `/metrics`.
@@ -297,57 +298,43 @@ pub struct ViewSchema {
     pub height: u32,
 }
 
-/// Body of `POST /v1/assets/{id}/render`.
-#[derive(Debug, Deserialize, utoipa::ToSchema)]
-#[serde(deny_unknown_fields)]
+/// Body of `POST /v1/assets/{id}/render`: the view, the output fields and, at the top level,
+/// the quality keys (core `Quality`: knobs, a goal or automatic LOD). A goal's choice comes
+/// back in `X-Chosen-Cameras`, `X-Chosen-Step`, `X-Predicted-Psnr`, `X-Predicted-Ms` and
+/// `X-Goal-Met` (`false`: no calibrated setting meets it, the closest is used); an automatic-LOD
+/// decision in `X-Projected-Px`, `X-Chosen-Cameras`, `X-Chosen-Step`, `X-Predicted-Error-Px`,
+/// `X-Predicted-Psnr`, `X-Goal-Met` and, inside a cross-fade band, `X-Lod-Blend:
+/// CAMERAS,STEP,WEIGHT`.
+#[derive(Debug, utoipa::ToSchema)]
+#[allow(dead_code)]
 pub struct RenderRequest {
     /// The view (DESIGN §3), in the asset's world coordinates.
     #[schema(value_type = ViewSchema)]
     pub view: View,
-    /// Cameras: 12, 42, 162, 642 (or level 0-3); default all of the asset's.
-    pub lod: Option<u32>,
-    /// March step in bounding-sphere diameters.
-    pub step: Option<f32>,
-    /// Depth agreement tolerance in bounding-sphere diameters.
-    pub tolerance: Option<f32>,
-    /// `default` or `fixed`.
-    #[schema(value_type = Option<String>)]
-    pub method: Option<lumigraph_core::render::Method>,
-    /// Coarse-to-fine factor of the default method (2–16, 0 = off; absent: 4): a coarse pass
-    /// bounds each pixel's march (same masked PSNR in less time on the fixtures,
-    /// BENCHMARKS.md).
-    pub guide: Option<u32>,
     /// RGBA8 background where nothing is hit; default transparent black.
     pub background: Option<[u8; 4]>,
     /// Colour codec; default `png`. `none` returns only the depth image.
-    #[serde(default)]
-    pub format: ColorFormat,
+    pub format: Option<ColorFormat>,
     /// JPEG quality 1..=100, default 90.
     pub quality: Option<u8>,
     /// Also return depth in this format (see the response description).
     pub depth: Option<DepthFormat>,
-    /// Instead of the knobs: the cheapest setting the asset's calibration predicts to reach
-    /// this masked PSNR (dB). The choice comes back in `X-Chosen-Cameras`, `X-Chosen-Step`,
-    /// `X-Predicted-Psnr`, `X-Predicted-Ms` and `X-Goal-Met` (`false`: no calibrated setting
-    /// meets it, the closest is used).
-    pub target_psnr: Option<f64>,
-    /// Instead of the knobs: the most accurate setting predicted to render within this many
-    /// milliseconds at the view's size (same response headers).
-    pub budget_ms: Option<f64>,
-    /// Automatic LOD: the cheapest cameras and step whose calibrated silhouette error at the
-    /// object's projected size stays under this many pixels (knobs sent as well stay pinned).
-    /// The decision comes back in `X-Projected-Px`, `X-Chosen-Cameras`, `X-Chosen-Step`,
-    /// `X-Predicted-Error-Px`, `X-Predicted-Psnr`, `X-Goal-Met` and, inside a cross-fade band,
-    /// `X-Lod-Blend: CAMERAS,STEP,WEIGHT`.
-    pub auto_lod: Option<f64>,
-    /// With `auto_lod`: only settings whose calibrated masked PSNR reaches this (dB).
-    pub lod_min_psnr: Option<f64>,
-    /// With `auto_lod`: only settings within this many dB of the most accurate level's
-    /// calibrated masked PSNR (default 2; a large value lifts the limit).
-    pub lod_max_psnr_drop: Option<f64>,
-    /// With `auto_lod`: cross-fade band below each switch, as a fraction of the projected size
-    /// (default 0.15; 0 = hard switches).
-    pub lod_blend: Option<f64>,
+    /// The quality request, its keys at the top level.
+    #[schema(inline)]
+    #[serde(flatten)]
+    pub render_quality: Quality,
+}
+
+/// The fields of a render body other than the quality keys.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RenderFields {
+    view: View,
+    background: Option<[u8; 4]>,
+    #[serde(default)]
+    format: ColorFormat,
+    quality: Option<u8>,
+    depth: Option<DepthFormat>,
 }
 
 fn ms_header(value: f64) -> HeaderValue {
@@ -375,8 +362,11 @@ pub async fn render_asset(
 ) -> Result<Response, AppError> {
     let body = body.map_err(|e| body_error(&e, state.config().max_json_bytes))?;
     let asset = state.assets().get(&id)?;
-    let request: RenderRequest =
+    let mut body: serde_json::Map<String, serde_json::Value> =
         serde_json::from_slice(&body).map_err(|e| AppError::from_json(&e))?;
+    let render_quality = Quality::take_from(&mut body).map_err(quality_error)?;
+    let request: RenderFields = serde_json::from_value(serde_json::Value::Object(body))
+        .map_err(|e| AppError::from_json(&e))?;
     request
         .view
         .basis(state.config().max_px)
@@ -392,46 +382,12 @@ pub async fn render_asset(
             "format `none` needs a `depth` format".to_owned(),
         ));
     }
-    let knobs = Knobs {
-        lod: request.lod,
-        step: request.step,
-        tolerance: request.tolerance,
-        method: request.method,
-        guide: request.guide,
-    };
-    let ladder = lod_ladder(
-        request.auto_lod,
-        request.lod_min_psnr,
-        request.lod_max_psnr_drop,
-        request.lod_blend,
-        &knobs,
-        request.target_psnr.is_some() || request.budget_ms.is_some(),
-        &asset,
-    )?;
-    let goal = match ladder {
-        Some(_) => None,
-        None => goal_calibration(request.target_psnr, request.budget_ms, &knobs, &asset)?,
-    };
-    let (plan, choice) = match (goal, ladder) {
-        (_, Some(ladder)) => (Plan::Lod(ladder), None),
-        (None, None) => (Plan::Options(knobs.to_options(&asset)?), None),
-        (Some((goal, calibration)), None) => {
-            let choice = calibration
-                .choose(
-                    goal,
-                    request.view.width,
-                    request.view.height,
-                    asset.header.geometry.camera_count,
-                )
-                .map_err(|e| AppError::Invalid(e.to_string()))?;
-            (Plan::Options(choice.options()), Some(choice))
-        }
-    };
+    let plan = plan(&render_quality, &asset)?;
     let rendered = state
         .pool()
         .render(Arc::clone(&asset), request.view.clone(), plan)
         .await?;
-    let lod = rendered.lod;
+    let decision = rendered.decision;
     let encoding = Encoding {
         format: request.format,
         quality,
@@ -471,46 +427,11 @@ pub async fn render_asset(
         HeaderValue::from(height),
     );
     headers.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
-    let text = |v: String| HeaderValue::from_str(&v).unwrap_or(HeaderValue::from_static("?"));
-    if let Some(d) = lod {
-        for (name, value) in [
-            ("x-projected-px", format!("{:.2}", d.projected_px)),
-            ("x-chosen-cameras", d.level.cameras.to_string()),
-            ("x-chosen-step", d.level.step.to_string()),
-            ("x-predicted-error-px", format!("{:.3}", d.error_px)),
-            ("x-predicted-psnr", format!("{:.3}", d.level.masked_psnr)),
-            ("x-goal-met", d.met.to_string()),
-        ] {
-            headers.insert(HeaderName::from_static(name), text(value));
-        }
-        if let Some((next, w)) = d.blend {
-            headers.insert(
-                HeaderName::from_static("x-lod-blend"),
-                text(format!("{},{},{w:.4}", next.cameras, next.step)),
-            );
-        }
-    }
-    if let Some(c) = choice {
-        headers.insert(
-            HeaderName::from_static("x-chosen-cameras"),
-            HeaderValue::from(c.cameras),
-        );
-        headers.insert(
-            HeaderName::from_static("x-chosen-step"),
-            text(format!("{}", c.step)),
-        );
-        headers.insert(
-            HeaderName::from_static("x-predicted-psnr"),
-            text(format!("{:.3}", c.predicted_psnr)),
-        );
-        headers.insert(
-            HeaderName::from_static("x-predicted-ms"),
-            ms_header(c.predicted_ms),
-        );
-        headers.insert(
-            HeaderName::from_static("x-goal-met"),
-            HeaderValue::from_static(if c.met { "true" } else { "false" }),
-        );
+    for (name, value) in decision.report() {
+        let name = HeaderName::from_bytes(format!("x-{name}").as_bytes())
+            .map_err(|e| AppError::Internal(e.into()))?;
+        let value = HeaderValue::from_str(&value).unwrap_or(HeaderValue::from_static("?"));
+        headers.insert(name, value);
     }
     let body = if let (Some(depth), Some(depth_format)) = (depth, depth_format) {
         if let Some((near, far)) = depth.range {

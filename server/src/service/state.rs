@@ -244,8 +244,8 @@ impl AppState {
         source: &lumigraph_core::asset::Provenance,
         path: &std::path::Path,
         progress: &mut dyn FnMut(u32, u32),
-    ) -> anyhow::Result<lumigraph_core::tradeoff::CalibratedBake> {
-        let baked = lumigraph_core::tradeoff::bake_calibrated(
+    ) -> anyhow::Result<lumigraph_core::calibration::CalibratedBake> {
+        let baked = lumigraph_core::calibration::bake_calibrated(
             &self.inner.baker,
             self.pool().renderer(),
             &self.inner.reference,

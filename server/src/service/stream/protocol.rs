@@ -3,7 +3,6 @@
 use lumigraph_core::view::View;
 use serde::{Deserialize, Serialize};
 
-use super::settings::Settings;
 use crate::service::assets::AssetSummary;
 use crate::service::codecs::ColorFormat;
 
@@ -47,11 +46,12 @@ pub(super) fn error_text(request: Option<u32>, kind: &str, message: &str) -> Str
 }
 
 #[derive(Serialize)]
-pub(super) struct Hello<'a> {
+pub(super) struct Hello {
     pub(super) r#type: &'static str,
     pub(super) protocol: u32,
     pub(super) asset: AssetSummary,
-    pub(super) settings: &'a Settings,
+    /// Every setting, the quality keys at the top level.
+    pub(super) settings: serde_json::Value,
     pub(super) max_px: u32,
     pub(super) header_len: usize,
 }

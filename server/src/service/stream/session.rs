@@ -18,7 +18,6 @@ use super::settings::{Effective, Settings, merge_settings, validate_settings};
 use crate::service::assets::LoadedAsset;
 use crate::service::codecs::{Encoding, encode_blocking, encode_color};
 use crate::service::error::AppError;
-use crate::service::render_pool::Plan;
 use crate::service::state::AppState;
 
 /// Error messages buffered for the client; more are dropped.
@@ -57,7 +56,7 @@ pub(super) async fn run_session(socket: WebSocket, state: AppState, asset: Arc<L
         r#type: "hello",
         protocol: PROTOCOL_VERSION,
         asset: asset.summary(),
-        settings: &effective.settings,
+        settings: effective.settings.to_json(),
         max_px: state.config().max_px,
         header_len: FRAME_HEADER_LEN,
     };
@@ -309,39 +308,25 @@ impl Sender<'_> {
     async fn send_frame(&mut self, want: &Wanted, view: &View, quality: Quality) -> bool {
         let effective = &want.effective;
         let settings = &effective.settings;
-        let (mut view, options, encoding, cameras) = match quality {
+        let (mut view, plan, encoding) = match quality {
             Quality::Interactive => (
                 view.clone(),
-                effective.interactive_options,
+                effective.motion.clone(),
                 Encoding {
                     format: settings.interactive_codec,
                     quality: settings.interactive_quality,
                     background: settings.background,
                 },
-                effective.interactive_cameras,
             ),
             Quality::Full => (
                 view.clone(),
-                effective.still_options,
+                effective.still.clone(),
                 Encoding {
                     format: settings.still_codec,
                     quality: settings.still_quality,
                     background: settings.background,
                 },
-                effective.still_cameras,
             ),
-        };
-        let (options, cameras) = match (&effective.goal, quality) {
-            (Some((goal, calibration)), Quality::Full) => match calibration.choose(
-                *goal,
-                view.width,
-                view.height,
-                self.asset.header.geometry.camera_count,
-            ) {
-                Ok(choice) => (choice.options(), choice.cameras),
-                Err(_) => (options, cameras),
-            },
-            _ => (options, cameras),
         };
         if quality == Quality::Interactive {
             let scale = settings.interactive_scale.map_or_else(
@@ -351,10 +336,6 @@ impl Sender<'_> {
             view.width = ((f64::from(view.width) * scale).round() as u32).max(1);
             view.height = ((f64::from(view.height) * scale).round() as u32).max(1);
         }
-        let plan = match &effective.ladder {
-            Some(ladder) => Plan::Lod(Arc::clone(ladder)),
-            None => Plan::Options(options),
-        };
         let rendered = match self
             .state
             .pool()
@@ -382,7 +363,7 @@ impl Sender<'_> {
                     .map_or(sample, |old| 0.7 * old + 0.3 * sample),
             );
         }
-        let lod_cameras = rendered.lod.map(|d| d.level.cameras);
+        let cameras = rendered.decision.cameras();
         let opacity = effective.opacity;
         let mut frame = rendered.frame;
         let encoded = encode_blocking(move || {
@@ -416,7 +397,7 @@ impl Sender<'_> {
             render_ms: rendered.render_ms as f32,
             encode_ms: encode_ms as f32,
             dropped: u32::try_from(self.dropped).unwrap_or(u32::MAX),
-            cameras: u16::try_from(lod_cameras.unwrap_or(cameras)).unwrap_or(u16::MAX),
+            cameras: u16::try_from(cameras).unwrap_or(u16::MAX),
         };
         let mut message = Vec::with_capacity(FRAME_HEADER_LEN + bytes.len());
         header.write(&mut message);

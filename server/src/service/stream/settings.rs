@@ -1,32 +1,18 @@
 //! Sticky per-session settings and their validation against the asset.
 
 use std::collections::BTreeMap;
-use std::sync::Arc;
 use std::time::Duration;
 
-use lumigraph_core::lod::Ladder;
-use lumigraph_core::render::RenderOptions;
-use lumigraph_core::tradeoff::{Calibration, Goal};
+use lumigraph_core::quality::{Plan, Quality};
 use serde::{Deserialize, Serialize};
 
 use crate::service::assets::LoadedAsset;
 use crate::service::codecs::ColorFormat;
-use crate::service::render_pool::{Knobs, goal_calibration, lod_ladder};
 
 /// Sticky per-session settings; each `settings` message overrides the fields it names.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Settings {
-    /// Cameras of full-quality frames: 12, 42, 162 or 642 (absent: all of the asset's).
-    pub lod: Option<u32>,
-    /// March step in bounding-sphere diameters (absent: the method's default).
-    pub step: Option<f32>,
-    /// Depth tolerance in bounding-sphere diameters (absent: step / 2).
-    pub tolerance: Option<f32>,
-    /// `default` or `fixed`.
-    pub method: Option<lumigraph_core::render::Method>,
-    /// Coarse-to-fine factor of the default method (2–16, 0 = off; absent: 4).
-    pub guide: Option<u32>,
     /// Codec of full-quality (resting) frames: `png`, `webp` (lossless) or `jpeg`.
     pub still_codec: ColorFormat,
     /// JPEG quality of full-quality frames.
@@ -54,38 +40,16 @@ pub struct Settings {
     pub layers: BTreeMap<String, f32>,
     /// Named state of the asset (lighting, animation frame); absent = the base state.
     pub state: Option<String>,
-    /// Full-quality frames use the cheapest setting the asset's calibration predicts to reach
-    /// this masked PSNR (dB), chosen per frame size; excludes `lod`/`step`/`tolerance`/`method`.
-    #[serde(default)]
-    pub target_psnr: Option<f64>,
-    /// Full-quality frames use the most accurate setting predicted to render within this many
-    /// ms at the frame's size; excludes the knobs and `target_psnr`.
-    #[serde(default)]
-    pub budget_ms: Option<f64>,
-    /// Automatic LOD for every frame (interactive frames, smaller, may take coarser levels):
-    /// the bound on the predicted silhouette error in pixels; the knobs stay pinned; excludes
-    /// `target_psnr` / `budget_ms`.
-    #[serde(default)]
-    pub auto_lod: Option<f64>,
-    /// With `auto_lod`: only settings whose calibrated masked PSNR reaches this (dB).
-    #[serde(default)]
-    pub lod_min_psnr: Option<f64>,
-    /// With `auto_lod`: only settings within this many dB of the most accurate level (default 2).
-    #[serde(default)]
-    pub lod_max_psnr_drop: Option<f64>,
-    /// With `auto_lod`: cross-fade band below each switch (fraction of the projected size).
-    #[serde(default)]
-    pub lod_blend: Option<f64>,
+    /// The quality request (core `Quality`) as its JSON keys: a message's quality key sets
+    /// it, `null` clears it. Resting frames render with it; moving frames with its motion
+    /// quality (`Quality::for_motion`, `interactive_lod` replacing `lod` without `auto_lod`).
+    #[serde(skip)]
+    pub quality: serde_json::Map<String, serde_json::Value>,
 }
 
 impl Settings {
     pub(super) fn defaults(rest: Duration) -> Self {
         Self {
-            lod: None,
-            step: None,
-            tolerance: None,
-            method: None,
-            guide: None,
             still_codec: ColorFormat::Jpeg,
             still_quality: 90,
             interactive: true,
@@ -99,12 +63,7 @@ impl Settings {
             background: [0; 4],
             layers: BTreeMap::new(),
             state: None,
-            target_psnr: None,
-            budget_ms: None,
-            auto_lod: None,
-            lod_min_psnr: None,
-            lod_max_psnr_drop: None,
-            lod_blend: None,
+            quality: serde_json::Map::new(),
         }
     }
 }
@@ -113,17 +72,12 @@ impl Settings {
 #[derive(Clone, Debug)]
 pub(super) struct Effective {
     pub(super) settings: Settings,
-    pub(super) still_options: RenderOptions,
-    pub(super) interactive_options: RenderOptions,
-    /// Cameras of each kind of frame, for the header.
-    pub(super) still_cameras: u32,
-    pub(super) interactive_cameras: u32,
+    /// The plan of resting (full-quality) frames.
+    pub(super) still: Plan,
+    /// The plan of interactive frames while the view moves.
+    pub(super) motion: Plan,
     /// Opacity of layer 0 (the one rendered), multiplied into alpha.
     pub(super) opacity: f32,
-    /// A quality or time goal for full-quality frames, with the calibration that serves it.
-    pub(super) goal: Option<(Goal, Arc<Calibration>)>,
-    /// Automatic LOD for every frame.
-    pub(super) ladder: Option<Arc<Ladder>>,
 }
 
 pub(super) fn validate_settings(
@@ -203,49 +157,30 @@ pub(super) fn validate_settings(
             }
         }
     }
-    let knobs = Knobs {
-        lod: s.lod,
-        step: s.step,
-        tolerance: s.tolerance,
-        method: s.method,
-        guide: s.guide,
-    };
-    let ladder = lod_ladder(
-        s.auto_lod,
-        s.lod_min_psnr,
-        s.lod_max_psnr_drop,
-        s.lod_blend,
-        &knobs,
-        s.target_psnr.is_some() || s.budget_ms.is_some(),
-        asset,
-    )
-    .map_err(|e| e.to_string())?;
-    let goal =
-        goal_calibration(s.target_psnr, s.budget_ms, &knobs, asset).map_err(|e| e.to_string())?;
-    if let Some((goal, calibration)) = &goal {
-        // Checks the goal's value now rather than at the first frame.
-        calibration
-            .choose(*goal, 64, 64, asset.header.geometry.camera_count)
-            .map_err(|e| e.to_string())?;
+    let quality = Quality::from_json_map(s.quality.clone()).map_err(|e| e.to_string())?;
+    let still = quality.plan(&asset.header).map_err(|e| e.to_string())?;
+    let mut moving = quality.for_motion();
+    if moving.auto_lod.is_none() {
+        moving.lod = s.interactive_lod.or(moving.lod);
     }
-    let still_options = knobs.to_options(asset).map_err(|e| e.to_string())?;
-    let interactive_options = Knobs {
-        lod: s.interactive_lod.or(s.lod),
-        ..knobs
-    }
-    .to_options(asset)
-    .map_err(|e| e.to_string())?;
-    let cameras = |o: &RenderOptions| o.resolve(asset.field.max_level).map_or(0, |r| r.cameras);
+    let motion = moving.plan(&asset.header).map_err(|e| e.to_string())?;
     Ok(Effective {
-        still_cameras: cameras(&still_options),
-        interactive_cameras: cameras(&interactive_options),
-        still_options,
-        interactive_options,
-        opacity,
         settings,
-        goal,
-        ladder,
+        still,
+        motion,
+        opacity,
     })
+}
+
+impl Settings {
+    /// The settings as the client sees them: every field, the quality keys at the top level.
+    pub(super) fn to_json(&self) -> serde_json::Value {
+        let mut value = serde_json::to_value(self).unwrap_or_default();
+        if let serde_json::Value::Object(map) = &mut value {
+            map.extend(self.quality.clone());
+        }
+        value
+    }
 }
 
 /// Applies the fields of a `settings` message to `current`.
@@ -256,13 +191,25 @@ pub(super) fn merge_settings(
     let serde_json::Value::Object(patch) = patch else {
         return Err("a settings message must be a JSON object".to_owned());
     };
+    let mut quality = current.quality.clone();
     let mut merged = serde_json::to_value(current).map_err(|e| e.to_string())?;
     if let serde_json::Value::Object(merged) = &mut merged {
         for (key, value) in patch {
-            merged.insert(key, value);
+            if Quality::FIELDS.contains(&key.as_str()) {
+                if value.is_null() {
+                    quality.remove(&key);
+                } else {
+                    quality.insert(key, value);
+                }
+            } else {
+                merged.insert(key, value);
+            }
         }
     }
-    serde_json::from_value(merged).map_err(|e| format!("invalid settings: {e}"))
+    let mut settings: Settings =
+        serde_json::from_value(merged).map_err(|e| format!("invalid settings: {e}"))?;
+    settings.quality = quality;
+    Ok(settings)
 }
 
 #[cfg(test)]
@@ -277,7 +224,9 @@ mod tests {
             serde_json::json!({"lod": 42, "still_codec": "png"}),
         )
         .unwrap();
-        assert_eq!(merged.lod, Some(42));
+        assert_eq!(merged.quality.get("lod"), Some(&serde_json::json!(42)));
+        let cleared = merge_settings(&merged, serde_json::json!({"lod": null})).unwrap();
+        assert!(cleared.quality.is_empty());
         assert_eq!(merged.still_codec, ColorFormat::Png);
         assert_eq!(merged.interactive_quality, 50);
         assert!(merge_settings(&current, serde_json::json!({"bogus": 1})).is_err());

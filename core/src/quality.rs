@@ -1,0 +1,862 @@
+//! The quality request: how to render, in one type every front speaks.
+//!
+//! A [`Quality`] is explicit knobs (cameras, step, tolerance, method, guide), or a goal
+//! (`target_psnr` / `budget_ms`, served by the asset's [`Calibration`]), or automatic LOD
+//! (`auto_lod` with its floors and blend, [`crate::lod`]). [`Quality::validate`] decides every
+//! conflict once; [`Quality::plan`] turns the request and an asset's header into a [`Plan`];
+//! [`Plan::render`] renders a view with it and returns the frame with the [`Decision`] taken.
+//! The CLI flags, the HTTP body, the stream's sticky settings and the Python keyword arguments
+//! are this type's fields: a knob added here reaches every front.
+//!
+//! ```text
+//!  Quality ──validate──▶ plan(header) ──▶ Plan { Options | Goal(calibration) | Lod(ladder) }
+//!                                            └──render(renderer, field, view)──▶ Frame + Decision
+//! ```
+
+use std::sync::Arc;
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::asset::AssetHeader;
+use crate::calibration::{Calibration, CalibrationError, Choice, Goal};
+use crate::frame::Frame;
+use crate::lod::{
+    DEFAULT_BLEND_BAND, DEFAULT_MAX_PSNR_DROP, Ladder, LodDecision, LodError, LodPolicy,
+};
+use crate::render::{GpuLightField, Method, RenderError, RenderOptions, Renderer, ResolvedOptions};
+use crate::view::View;
+
+/// Highest icosphere level an asset can hold: knob ranges are checked against it before an
+/// asset is known.
+const MAX_LEVEL: u32 = 3;
+
+/// Errors of a quality request: one variant, and one text, per conflict.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum QualityError {
+    /// `target_psnr` and `budget_ms` together.
+    #[error("give target_psnr or budget_ms, not both")]
+    BothGoals,
+    /// A goal with `auto_lod`.
+    #[error("automatic LOD: give auto_lod or target_psnr / budget_ms, not both")]
+    LodWithGoal,
+    /// `lod_min_psnr`, `lod_max_psnr_drop` or `lod_blend` without `auto_lod`.
+    #[error("automatic LOD: lod_min_psnr / lod_max_psnr_drop / lod_blend need auto_lod")]
+    FloorsWithoutLod,
+    /// A goal with explicit knobs: the calibration measured its settings with the default
+    /// method, tolerance step / 2 and guide 4, so a goal decides all of them (a kept `guide`
+    /// would change the time the prediction promises).
+    #[error(
+        "target_psnr / budget_ms choose lod, step, tolerance, method and guide: do not send them \
+         too (clear them first where they were set before)"
+    )]
+    GoalWithKnobs,
+    /// A goal or automatic LOD on an asset baked without calibration.
+    #[error(
+        "the asset has no calibration: re-bake it with calibration on (`lumigraph bake` without \
+         --no-calibrate, POST /v1/bake with calibrate=true, bake_mesh(calibrate=True) in Python) \
+         to render with {0}"
+    )]
+    NoCalibration(&'static str),
+    /// Quality options sent with a scene, whose objects carry their own.
+    #[error(
+        "quality options do not apply to a scene: set \"options\" / \"auto_lod\" per light-field \
+         object in the scene file (docs/scene.md)"
+    )]
+    Scene,
+    /// The request is not a JSON object of quality fields.
+    #[error("invalid quality options: {0}")]
+    Json(String),
+    /// A knob out of range, a bad view or a failed render.
+    #[error(transparent)]
+    Render(#[from] RenderError),
+    /// A goal out of range or a calibration that cannot serve it.
+    #[error(transparent)]
+    Calibration(#[from] CalibrationError),
+    /// An automatic-LOD policy out of range or with no level left.
+    #[error(transparent)]
+    Lod(#[from] LodError),
+}
+
+/// How to render: explicit knobs, a goal, or automatic LOD (see the module doc). Every field is
+/// optional; absent knobs take the method's defaults.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct Quality {
+    /// Cameras to use: 12, 42, 162 or 642 (or a level 0-3), at most the asset's; default all.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
+    pub lod: Option<u32>,
+    /// March step in bounding-sphere diameters, in [1/4096, 1] (default 1/32; fixed: 1/64).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
+    pub step: Option<f32>,
+    /// Depth agreement tolerance in bounding-sphere diameters, in (0, 1] (default step / 2).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
+    pub tolerance: Option<f32>,
+    /// Marching method: default (the accelerated marcher) or fixed (the fixed-step baseline).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(feature = "clap", arg(long))]
+    #[cfg_attr(feature = "openapi", schema(value_type = Option<String>))]
+    pub method: Option<Method>,
+    /// Coarse-to-fine factor of the default method, 2-16 (0 = off; default 4): a coarse pass
+    /// renders every F-th pixel per axis and bounds each pixel's march (BENCHMARKS.md).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(
+        feature = "clap",
+        arg(long, value_name = "F", allow_hyphen_values = true)
+    )]
+    pub guide: Option<u32>,
+    /// Goal: the cheapest setting the asset's calibration predicts to reach this masked PSNR
+    /// (dB), chosen per frame size; excludes the knobs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
+    pub target_psnr: Option<f64>,
+    /// Goal: the most accurate setting the calibration predicts to render within this many
+    /// milliseconds at the frame's size; excludes the knobs and target_psnr.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
+    pub budget_ms: Option<f64>,
+    /// Automatic LOD: per view, the cheapest cameras and step whose calibrated silhouette error
+    /// at the object's projected size stays under PX pixels (bare flag: 1); lod / step given
+    /// as well stay pinned; cross-fades near switches.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(
+        feature = "clap",
+        arg(
+            long,
+            value_name = "PX",
+            num_args = 0..=1,
+            require_equals = true,
+            default_missing_value = "1",
+            allow_hyphen_values = true
+        )
+    )]
+    pub auto_lod: Option<f64>,
+    /// With auto_lod: only settings whose calibrated masked PSNR reaches DB.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(
+        feature = "clap",
+        arg(long, value_name = "DB", allow_hyphen_values = true)
+    )]
+    pub lod_min_psnr: Option<f64>,
+    /// With auto_lod: only settings within DB of the most accurate level's calibrated masked
+    /// PSNR (default 2; inf: no limit).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(
+        feature = "clap",
+        arg(long, value_name = "DB", allow_hyphen_values = true)
+    )]
+    pub lod_max_psnr_drop: Option<f64>,
+    /// With auto_lod: cross-fade band below each switch, as a fraction of the projected size
+    /// (default 0.15; 0 = hard switches).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(
+        feature = "clap",
+        arg(long, value_name = "FRACTION", allow_hyphen_values = true)
+    )]
+    pub lod_blend: Option<f64>,
+}
+
+impl Quality {
+    /// The keys of a quality request, as its JSON spells them: what a front splits off a flat
+    /// body or keyword dict before [`Quality::from_json_map`].
+    pub const FIELDS: &[&str] = &[
+        "lod",
+        "step",
+        "tolerance",
+        "method",
+        "guide",
+        "target_psnr",
+        "budget_ms",
+        "auto_lod",
+        "lod_min_psnr",
+        "lod_max_psnr_drop",
+        "lod_blend",
+    ];
+
+    /// The request of a JSON object holding only quality keys (`null` = absent).
+    ///
+    /// # Errors
+    /// [`QualityError::Json`] for an unknown key or a value of the wrong type.
+    pub fn from_json_map(
+        map: serde_json::Map<String, serde_json::Value>,
+    ) -> Result<Self, QualityError> {
+        serde_json::from_value(serde_json::Value::Object(map))
+            .map_err(|e| QualityError::Json(e.to_string()))
+    }
+
+    /// Removes the quality keys ([`Quality::FIELDS`]) from a flat JSON object (a request body,
+    /// keyword arguments) and parses them; the front's own keys stay in `map`.
+    ///
+    /// # Errors
+    /// As [`Quality::from_json_map`].
+    pub fn take_from(
+        map: &mut serde_json::Map<String, serde_json::Value>,
+    ) -> Result<Self, QualityError> {
+        let mut own = serde_json::Map::new();
+        for key in Self::FIELDS {
+            if let Some(value) = map.remove(*key) {
+                own.insert((*key).to_owned(), value);
+            }
+        }
+        Self::from_json_map(own)
+    }
+
+    /// The explicit knobs as render options (absent: the method's defaults).
+    pub fn options(&self) -> RenderOptions {
+        RenderOptions {
+            lod: self.lod,
+            step: self.step,
+            tolerance: self.tolerance,
+            method: self.method.unwrap_or_default(),
+            guide: self.guide,
+        }
+    }
+
+    /// Whether any explicit knob is set.
+    fn has_knobs(&self) -> bool {
+        self.lod.is_some()
+            || self.step.is_some()
+            || self.tolerance.is_some()
+            || self.method.is_some()
+            || self.guide.is_some()
+    }
+
+    /// The goal, if one is asked for (after [`Quality::validate`]: at most one).
+    fn goal(&self) -> Option<Goal> {
+        match (self.target_psnr, self.budget_ms) {
+            (Some(db), _) => Some(Goal::TargetPsnr(db)),
+            (None, Some(ms)) => Some(Goal::BudgetMs(ms)),
+            (None, None) => None,
+        }
+    }
+
+    /// The automatic-LOD policy, if `auto_lod` is set (defaults for absent floors and band).
+    fn policy(&self) -> Option<LodPolicy> {
+        self.auto_lod.map(|max_error_px| LodPolicy {
+            max_error_px,
+            min_psnr: self.lod_min_psnr,
+            max_psnr_drop: Some(self.lod_max_psnr_drop.unwrap_or(DEFAULT_MAX_PSNR_DROP)),
+            blend_band: self.lod_blend.unwrap_or(DEFAULT_BLEND_BAND),
+        })
+    }
+
+    /// Checks every conflict and every range that needs no asset, in this order: both goals,
+    /// a goal with auto_lod, floors without auto_lod, a goal with knobs, then the values.
+    ///
+    /// # Errors
+    /// The [`QualityError`] of the first conflict or bad value.
+    pub fn validate(&self) -> Result<(), QualityError> {
+        let goal = self.target_psnr.is_some() || self.budget_ms.is_some();
+        if self.target_psnr.is_some() && self.budget_ms.is_some() {
+            return Err(QualityError::BothGoals);
+        }
+        if goal && self.auto_lod.is_some() {
+            return Err(QualityError::LodWithGoal);
+        }
+        if self.auto_lod.is_none()
+            && (self.lod_min_psnr.is_some()
+                || self.lod_max_psnr_drop.is_some()
+                || self.lod_blend.is_some())
+        {
+            return Err(QualityError::FloorsWithoutLod);
+        }
+        if goal && self.has_knobs() {
+            return Err(QualityError::GoalWithKnobs);
+        }
+        if let Some(goal) = self.goal() {
+            goal.validate()?;
+        }
+        let options = self.options();
+        if let Some(policy) = self.policy() {
+            policy.validate()?;
+            crate::lod::check_pinned(&options)?;
+        }
+        options.resolve(MAX_LEVEL)?;
+        Ok(())
+    }
+
+    /// The quality of frames while a stream's view moves: the knobs and automatic LOD apply;
+    /// a goal does not (it is chosen for resting frames, whose size it predicts for).
+    #[must_use]
+    pub fn for_motion(&self) -> Quality {
+        Quality {
+            target_psnr: None,
+            budget_ms: None,
+            ..self.clone()
+        }
+    }
+
+    /// Checks that no quality option comes with a scene: its light-field objects carry their
+    /// own (docs/scene.md).
+    ///
+    /// # Errors
+    /// [`QualityError::Scene`] when any field is set.
+    pub fn check_scene(&self) -> Result<(), QualityError> {
+        if *self == Quality::default() {
+            Ok(())
+        } else {
+            Err(QualityError::Scene)
+        }
+    }
+
+    /// The plan of this request for an asset: the knobs checked against its cameras, or its
+    /// calibration read for a goal or automatic LOD.
+    ///
+    /// # Errors
+    /// [`QualityError`] for a conflict, a bad value, a missing or malformed calibration, or no
+    /// automatic-LOD level left.
+    pub fn plan(&self, header: &AssetHeader) -> Result<Plan, QualityError> {
+        self.validate()?;
+        let max_level = u32::from(header.geometry.camera_level);
+        let max_cameras = header.geometry.camera_count;
+        let options = self.options();
+        options.resolve(max_level)?;
+        let calibration = |how: &'static str| -> Result<Calibration, QualityError> {
+            Calibration::of(header)?.ok_or(QualityError::NoCalibration(how))
+        };
+        let strategy = if let Some(policy) = self.policy() {
+            let ladder = Ladder::new(&calibration("auto_lod")?, &policy, max_cameras, &options)?;
+            Strategy::Lod(Arc::new(ladder))
+        } else if let Some(goal) = self.goal() {
+            Strategy::Goal {
+                goal,
+                calibration: Arc::new(calibration("target_psnr / budget_ms")?),
+            }
+        } else {
+            Strategy::Options(options)
+        };
+        Ok(Plan {
+            strategy,
+            quality: self.clone(),
+            max_level,
+            max_cameras,
+            center: DVec3::from(header.frame.center),
+            radius: header.frame.radius,
+        })
+    }
+}
+
+/// How a plan picks each view's settings.
+#[derive(Clone, Debug)]
+#[non_exhaustive]
+pub enum Strategy {
+    /// These options for every view.
+    Options(RenderOptions),
+    /// The calibration's choice for the goal at each view's size.
+    Goal {
+        /// The goal.
+        goal: Goal,
+        /// The asset's calibration.
+        calibration: Arc<Calibration>,
+    },
+    /// The ladder's choice for each view's projected size (one blended pass inside a band).
+    Lod(Arc<Ladder>),
+}
+
+/// A quality request planned for one asset: cheap to clone and to share between threads.
+#[derive(Clone, Debug)]
+pub struct Plan {
+    strategy: Strategy,
+    quality: Quality,
+    max_level: u32,
+    max_cameras: u32,
+    center: DVec3,
+    radius: f64,
+}
+
+/// What a plan decided for one view, with the predictions behind it.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Decision {
+    /// The settings the frame renders with (inside a blend band, those of most pixels).
+    pub settings: ResolvedOptions,
+    /// The calibrated choice, for a goal.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub choice: Option<Choice>,
+    /// The automatic-LOD decision, with `auto_lod`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lod: Option<LodDecision>,
+}
+
+/// A rendered view with the decision behind it.
+#[derive(Clone, Debug)]
+pub struct Rendered {
+    /// The frame.
+    pub frame: Frame,
+    /// What was decided.
+    pub decision: Decision,
+}
+
+impl Decision {
+    /// Cameras the frame renders with.
+    pub fn cameras(&self) -> u32 {
+        self.settings.cameras
+    }
+
+    /// The decision as (name, value) pairs in the form every front reports (HTTP sends each as
+    /// an `X-` header): the calibrated choice of a goal, or the automatic-LOD decision; none
+    /// for explicit knobs.
+    pub fn report(&self) -> Vec<(&'static str, String)> {
+        let mut out = Vec::new();
+        if let Some(c) = &self.choice {
+            out.extend([
+                ("chosen-cameras", c.cameras.to_string()),
+                ("chosen-step", c.step.to_string()),
+                ("predicted-psnr", format!("{:.3}", c.predicted_psnr)),
+                ("predicted-ms", format!("{:.3}", c.predicted_ms)),
+                ("goal-met", c.met.to_string()),
+            ]);
+        }
+        if let Some(d) = &self.lod {
+            out.extend([
+                ("projected-px", format!("{:.2}", d.projected_px)),
+                ("chosen-cameras", d.level.cameras.to_string()),
+                ("chosen-step", d.level.step.to_string()),
+                ("predicted-error-px", format!("{:.3}", d.error_px)),
+                ("predicted-psnr", format!("{:.3}", d.level.masked_psnr)),
+                ("goal-met", d.met.to_string()),
+            ]);
+            if let Some((next, w)) = d.blend {
+                out.push((
+                    "lod-blend",
+                    format!("{},{},{w:.4}", next.cameras, next.step),
+                ));
+            }
+        }
+        out
+    }
+}
+
+impl Plan {
+    /// How the plan picks settings.
+    pub fn strategy(&self) -> &Strategy {
+        &self.strategy
+    }
+
+    /// The request the plan was made from.
+    pub fn quality(&self) -> &Quality {
+        &self.quality
+    }
+
+    /// The decision for `view`, without rendering.
+    ///
+    /// # Errors
+    /// [`QualityError`] for a bad view or a goal the calibration cannot serve.
+    pub fn decide(&self, view: &View) -> Result<Decision, QualityError> {
+        self.job(view).map(|(decision, _)| decision)
+    }
+
+    /// The decision for `view` and the render it asks for.
+    fn job(&self, view: &View) -> Result<(Decision, Job), QualityError> {
+        Ok(match &self.strategy {
+            Strategy::Options(options) => (
+                Decision {
+                    settings: options.resolve(self.max_level)?,
+                    choice: None,
+                    lod: None,
+                },
+                Job::Single(*options),
+            ),
+            Strategy::Goal { goal, calibration } => {
+                let choice =
+                    calibration.choose(*goal, view.width, view.height, self.max_cameras)?;
+                let options = choice.options();
+                (
+                    Decision {
+                        settings: options.resolve(self.max_level)?,
+                        choice: Some(choice),
+                        lod: None,
+                    },
+                    Job::Single(options),
+                )
+            }
+            Strategy::Lod(ladder) => {
+                let basis = view.basis(u32::MAX).map_err(RenderError::from)?;
+                let d = ladder.decide(basis.projected_diameter_px(self.center, self.radius));
+                let options = ladder.options(&d.level);
+                let job = match d.blend {
+                    Some((next, w)) => Job::Blend(options, ladder.options(&next), w as f32),
+                    None => Job::Single(options),
+                };
+                (
+                    Decision {
+                        settings: options.resolve(self.max_level)?,
+                        choice: None,
+                        lod: Some(d),
+                    },
+                    job,
+                )
+            }
+        })
+    }
+
+    /// Renders `view` of `field` (the asset the plan was made for) as the plan decides.
+    ///
+    /// # Errors
+    /// [`QualityError`] for a bad view, a goal the calibration cannot serve or a failed render.
+    pub fn render(
+        &self,
+        renderer: &Renderer,
+        field: &GpuLightField,
+        view: &View,
+    ) -> Result<Rendered, QualityError> {
+        let (decision, job) = self.job(view)?;
+        let frame = match job {
+            Job::Single(options) => renderer.render(field, view, &options)?,
+            Job::Blend(a, b, weight) => renderer.render_blend(field, view, &a, &b, weight)?,
+        };
+        Ok(Rendered { frame, decision })
+    }
+}
+
+/// One render a decision asks for.
+#[derive(Clone, Copy, Debug)]
+enum Job {
+    /// One setting for every pixel.
+    Single(RenderOptions),
+    /// A blend band: the fraction `weight` of pixels (an ordered dither) with the second.
+    Blend(RenderOptions, RenderOptions, f32),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calibration::CalibrationPoint;
+
+    fn full() -> Quality {
+        Quality {
+            lod: Some(42),
+            step: Some(0.25),
+            tolerance: Some(0.125),
+            method: Some(Method::Fixed),
+            guide: Some(0),
+            target_psnr: Some(20.0),
+            budget_ms: Some(5.0),
+            auto_lod: Some(1.0),
+            lod_min_psnr: Some(20.0),
+            lod_max_psnr_drop: Some(2.0),
+            lod_blend: Some(0.1),
+        }
+    }
+
+    fn parse(json: serde_json::Value) -> Result<Quality, QualityError> {
+        match json {
+            serde_json::Value::Object(map) => Quality::from_json_map(map),
+            other => panic!("not an object: {other}"),
+        }
+    }
+
+    fn error(json: &serde_json::Value) -> String {
+        match parse(json.clone()).and_then(|q| q.validate()) {
+            Ok(()) => panic!("{json} was accepted"),
+            Err(e) => e.to_string(),
+        }
+    }
+
+    #[test]
+    fn fields_are_the_serialized_keys() {
+        let value = serde_json::to_value(full()).expect("json");
+        let keys: Vec<&str> = value
+            .as_object()
+            .expect("object")
+            .keys()
+            .map(String::as_str)
+            .collect();
+        let mut fields = Quality::FIELDS.to_vec();
+        fields.sort_unstable();
+        let mut keys = keys;
+        keys.sort_unstable();
+        assert_eq!(keys, fields);
+        // Round trip, and the default serializes to an empty object.
+        assert_eq!(parse(value).expect("parses"), full());
+        assert_eq!(
+            serde_json::to_value(Quality::default()).expect("json"),
+            serde_json::json!({})
+        );
+    }
+
+    #[test]
+    fn json_maps_split_and_refuse_unknown_keys() {
+        let mut body = serde_json::json!({"view": 1, "lod": 12, "method": "fixed", "guide": null,
+                                          "format": "png"})
+        .as_object()
+        .cloned()
+        .expect("object");
+        let q = Quality::take_from(&mut body).expect("quality");
+        assert_eq!(
+            q,
+            Quality {
+                lod: Some(12),
+                method: Some(Method::Fixed),
+                ..Quality::default()
+            }
+        );
+        let rest: Vec<&str> = body.keys().map(String::as_str).collect();
+        assert_eq!(rest, ["format", "view"]);
+        for bad in [
+            serde_json::json!({"zoom": 1}),
+            serde_json::json!({"lod": "many"}),
+            serde_json::json!({"method": "fast"}),
+        ] {
+            assert!(
+                matches!(parse(bad.clone()), Err(QualityError::Json(_))),
+                "{bad}"
+            );
+        }
+    }
+
+    #[test]
+    fn every_conflict_has_one_error() {
+        use serde_json::json;
+        let cases = [
+            (json!({"target_psnr": 20, "budget_ms": 5}), "not both"),
+            (
+                json!({"target_psnr": 20, "budget_ms": 5, "auto_lod": 1}),
+                "give target_psnr or budget_ms, not both",
+            ),
+            (
+                json!({"auto_lod": 1, "budget_ms": 5}),
+                "give auto_lod or target_psnr / budget_ms, not both",
+            ),
+            (json!({"lod_blend": 0.1}), "need auto_lod"),
+            (json!({"lod_min_psnr": 20}), "need auto_lod"),
+            (json!({"lod_max_psnr_drop": 1, "lod": 12}), "need auto_lod"),
+            (json!({"target_psnr": 27, "guide": 8}), "do not send them"),
+            (json!({"budget_ms": 5, "lod": 12}), "do not send them"),
+            (
+                json!({"budget_ms": 5, "method": "default"}),
+                "do not send them",
+            ),
+            (json!({"target_psnr": -1}), "target PSNR -1 dB"),
+            (json!({"budget_ms": 0}), "budget 0 ms"),
+            (json!({"auto_lod": 0}), "max_error_px"),
+            (json!({"auto_lod": 1, "lod_blend": 2}), "blend_band"),
+            (json!({"auto_lod": 1, "lod_min_psnr": -3}), "min_psnr"),
+            (json!({"auto_lod": 1, "method": "fixed"}), "default-method"),
+            (json!({"guide": 1}), "guide 1"),
+            (json!({"guide": 4, "method": "fixed"}), "default method"),
+            (json!({"step": 0}), "step 0"),
+            (json!({"tolerance": 2}), "tolerance 2"),
+            (json!({"lod": 7}), "lod 7"),
+        ];
+        for (json, needle) in cases {
+            let text = error(&json);
+            assert!(text.contains(needle), "{json}: {text}");
+        }
+        for ok in [
+            json!({}),
+            json!({"lod": 42, "step": 0.0625, "tolerance": 0.03, "method": "fixed", "guide": 0}),
+            json!({"target_psnr": 25}),
+            json!({"budget_ms": 10}),
+            json!({"auto_lod": 1, "lod": 42, "guide": 8, "lod_blend": 0}),
+            json!({"auto_lod": 2, "lod_min_psnr": 20, "lod_max_psnr_drop": 1e300}),
+        ] {
+            parse(ok.clone())
+                .and_then(|q| q.validate())
+                .unwrap_or_else(|e| panic!("{ok}: {e}"));
+        }
+    }
+
+    #[test]
+    fn motion_drops_the_goal_and_scenes_take_no_options() {
+        let goal = Quality {
+            target_psnr: Some(25.0),
+            ..Quality::default()
+        };
+        assert_eq!(goal.for_motion(), Quality::default());
+        let lod = Quality {
+            auto_lod: Some(1.0),
+            lod: Some(42),
+            ..Quality::default()
+        };
+        assert_eq!(lod.for_motion(), lod);
+        assert!(Quality::default().check_scene().is_ok());
+        assert!(matches!(goal.check_scene(), Err(QualityError::Scene)));
+    }
+
+    fn point(cameras: u32, step: f32, e: f64, ms: f64, psnr: f64) -> CalibrationPoint {
+        CalibrationPoint {
+            cameras,
+            step,
+            ms_per_mpx: ms,
+            masked_psnr: psnr,
+            depth_median_r: 1e-3,
+            silhouette_error: Some(e),
+        }
+    }
+
+    /// A header of a 162-camera asset (unit sphere at the origin), with a calibration or not.
+    fn header(calibrated: bool) -> AssetHeader {
+        let mut header = AssetHeader::new_spherical(
+            2,
+            32,
+            crate::asset::LfFrame {
+                center: [0.0; 3],
+                radius: 1.0,
+            },
+            crate::asset::Encoding::R16,
+            crate::asset::Provenance::default(),
+        )
+        .expect("header");
+        if calibrated {
+            let calibration = Calibration {
+                size: 256,
+                views: 4,
+                adapter: "test".to_owned(),
+                points: vec![
+                    point(12, 1.0 / 16.0, 0.02, 500.0, 23.0),
+                    point(42, 1.0 / 16.0, 0.01, 600.0, 25.5),
+                    point(162, 1.0 / 32.0, 0.004, 900.0, 27.0),
+                ],
+            };
+            header.quality = Some(serde_json::json!({
+                "calibration": serde_json::to_value(&calibration).expect("json")
+            }));
+        }
+        header
+    }
+
+    #[test]
+    fn plans_decide_as_the_request_says() {
+        let view = View::look_at([0.0, 0.0, 5.0], [0.0; 3], 40.0, 512, 512);
+        // Knobs: resolved against the asset, no predictions.
+        let plan = Quality {
+            lod: Some(42),
+            ..Quality::default()
+        }
+        .plan(&header(false))
+        .expect("plan");
+        let d = plan.decide(&view).expect("decision");
+        assert_eq!((d.cameras(), d.settings.guide), (42, 4));
+        assert!(d.report().is_empty());
+        // Too many cameras for the asset.
+        let too_many = Quality {
+            lod: Some(642),
+            ..Quality::default()
+        };
+        assert!(matches!(
+            too_many.plan(&header(true)),
+            Err(QualityError::Render(_))
+        ));
+        // A goal: the cheapest setting reaching 25 dB, rendered as calibrated (guide 4).
+        let plan = Quality {
+            target_psnr: Some(25.0),
+            ..Quality::default()
+        }
+        .plan(&header(true))
+        .expect("plan");
+        let d = plan.decide(&view).expect("decision");
+        let choice = d.choice.expect("choice");
+        assert_eq!((choice.cameras, choice.met), (42, true));
+        assert_eq!(
+            (d.settings.cameras, d.settings.step, d.settings.guide),
+            (42, 1.0 / 16.0, 4)
+        );
+        assert!((choice.predicted_ms - 600.0 * 0.262_144).abs() < 1e-9);
+        let report = d.report();
+        assert_eq!(report[0], ("chosen-cameras", "42".to_owned()));
+        assert_eq!(report[4], ("goal-met", "true".to_owned()));
+        // Automatic LOD: the object is 2·f·r/√(d²−r²) px across; the cheapest level whose
+        // error stays under 5 px there.
+        let plan = Quality {
+            auto_lod: Some(5.0),
+            lod_blend: Some(0.0),
+            lod_max_psnr_drop: Some(f64::INFINITY),
+            ..Quality::default()
+        }
+        .plan(&header(true))
+        .expect("plan");
+        let d = plan.decide(&view).expect("decision");
+        let lod = d.lod.expect("lod decision");
+        let px = view
+            .basis(u32::MAX)
+            .expect("view")
+            .projected_diameter_px(DVec3::ZERO, 1.0);
+        assert!((lod.projected_px - px).abs() < 1e-9);
+        let want = if 0.02 * px <= 5.0 {
+            12
+        } else if 0.01 * px <= 5.0 {
+            42
+        } else {
+            162
+        };
+        assert_eq!((d.cameras(), lod.level.cameras), (want, want));
+        assert!(d.report().iter().any(|(k, _)| *k == "projected-px"));
+        // No calibration: one error naming how to get one.
+        for q in [
+            Quality {
+                budget_ms: Some(10.0),
+                ..Quality::default()
+            },
+            Quality {
+                auto_lod: Some(1.0),
+                ..Quality::default()
+            },
+        ] {
+            let e = q.plan(&header(false)).expect_err("no calibration");
+            assert!(matches!(e, QualityError::NoCalibration(_)), "{e}");
+            assert!(e.to_string().contains("calibrate=true"), "{e}");
+        }
+    }
+}
+
+#[cfg(all(test, feature = "clap"))]
+mod clap_tests {
+    use clap::Parser;
+
+    use super::*;
+
+    #[derive(Debug, Parser)]
+    struct Cli {
+        #[command(flatten)]
+        quality: Quality,
+    }
+
+    fn parse(args: &[&str]) -> Quality {
+        Cli::try_parse_from(std::iter::once("lumigraph").chain(args.iter().copied()))
+            .unwrap_or_else(|e| panic!("{args:?}: {e}"))
+            .quality
+    }
+
+    #[test]
+    fn flags_keep_their_names_and_syntax() {
+        assert_eq!(parse(&[]), Quality::default());
+        assert_eq!(parse(&["--auto-lod"]).auto_lod, Some(1.0));
+        assert_eq!(parse(&["--auto-lod=2.5"]).auto_lod, Some(2.5));
+        let q = parse(&[
+            "--lod",
+            "42",
+            "--step",
+            "0.0625",
+            "--tolerance",
+            "0.03",
+            "--method",
+            "fixed",
+            "--guide",
+            "0",
+            "--target-psnr",
+            "27",
+            "--budget-ms",
+            "9",
+            "--lod-min-psnr",
+            "20",
+            "--lod-max-psnr-drop",
+            "inf",
+            "--lod-blend",
+            "0",
+        ]);
+        assert_eq!(q.method, Some(Method::Fixed));
+        assert_eq!(q.lod_max_psnr_drop, Some(f64::INFINITY));
+        // Conflicts are not clap's: the core decides them, with the same text everywhere.
+        assert!(matches!(q.validate(), Err(QualityError::BothGoals)));
+        assert!(
+            Cli::try_parse_from(["lumigraph", "--method", "fast"]).is_err(),
+            "unknown method"
+        );
+    }
+}
