@@ -24,6 +24,7 @@ use crate::frame::Frame;
 use crate::lod::{
     DEFAULT_BLEND_BAND, DEFAULT_MAX_PSNR_DROP, Ladder, LodDecision, LodError, LodPolicy,
 };
+use crate::refine::{self, RefineError};
 use crate::render::{GpuLightField, Method, RenderError, RenderOptions, Renderer, ResolvedOptions};
 use crate::view::View;
 
@@ -77,6 +78,9 @@ pub enum QualityError {
     /// An automatic-LOD policy out of range or with no level left.
     #[error(transparent)]
     Lod(#[from] LodError),
+    /// A still-refinement sample count out of range.
+    #[error(transparent)]
+    Refine(#[from] RefineError),
 }
 
 /// How to render: explicit knobs, a goal, or automatic LOD (see the module doc). Every field is
@@ -160,6 +164,15 @@ pub struct Quality {
         arg(long, value_name = "FRACTION", allow_hyphen_values = true)
     )]
     pub lod_blend: Option<f64>,
+    /// Still refinement: accumulate this many jittered sub-pixel samples per pixel into an
+    /// anti-aliased frame, rejecting stray wrong-surface samples (1..=256; default 1 = a single
+    /// sample). Frames of a moving stream view stay single-sample (docs/refine.md).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(
+        feature = "clap",
+        arg(long, value_name = "SAMPLES", allow_hyphen_values = true)
+    )]
+    pub refine: Option<u32>,
 }
 
 impl Quality {
@@ -177,6 +190,7 @@ impl Quality {
         "lod_min_psnr",
         "lod_max_psnr_drop",
         "lod_blend",
+        "refine",
     ];
 
     /// The request of a JSON object holding only quality keys (`null` = absent).
@@ -278,6 +292,9 @@ impl Quality {
             crate::lod::check_pinned(&options)?;
         }
         options.resolve(MAX_LEVEL)?;
+        if let Some(samples) = self.refine {
+            refine::validate_samples(samples)?;
+        }
         Ok(())
     }
 
@@ -288,6 +305,7 @@ impl Quality {
         Quality {
             target_psnr: None,
             budget_ms: None,
+            refine: None,
             ..self.clone()
         }
     }
@@ -506,9 +524,17 @@ impl Plan {
         view: &View,
     ) -> Result<Rendered, QualityError> {
         let (decision, job) = self.job(view)?;
-        let frame = match job {
-            Job::Single(options) => renderer.render(field, view, &options)?,
-            Job::Blend(a, b, weight) => renderer.render_blend(field, view, &a, &b, weight)?,
+        let (a, b, weight) = match job {
+            Job::Single(options) => (options, options, 0.0),
+            Job::Blend(a, b, weight) => (a, b, weight),
+        };
+        let frame = match self.quality.refine {
+            None | Some(1) => renderer.render_blend(field, view, &a, &b, weight)?,
+            Some(samples) => refine::refine(samples, |jitter| {
+                renderer
+                    .render_jittered(field, view, &a, &b, weight, jitter)
+                    .map_err(QualityError::from)
+            })?,
         };
         Ok(Rendered { frame, decision })
     }
@@ -541,7 +567,31 @@ mod tests {
             lod_min_psnr: Some(20.0),
             lod_max_psnr_drop: Some(2.0),
             lod_blend: Some(0.1),
+            refine: Some(4),
         }
+    }
+
+    #[test]
+    fn refine_is_checked_and_left_out_of_moving_frames() {
+        for bad in [0, refine::MAX_SAMPLES + 1] {
+            let q = Quality {
+                refine: Some(bad),
+                ..Quality::default()
+            };
+            assert!(
+                matches!(q.validate(), Err(QualityError::Refine(_))),
+                "{bad}"
+            );
+        }
+        let q = Quality {
+            lod: Some(42),
+            refine: Some(8),
+            ..Quality::default()
+        };
+        assert!(q.validate().is_ok());
+        let moving = q.for_motion();
+        assert_eq!(moving.refine, None);
+        assert_eq!(moving.lod, Some(42));
     }
 
     fn parse(json: serde_json::Value) -> Result<Quality, QualityError> {

@@ -29,6 +29,8 @@ class _Quality(TypedDict, total=False):
     lod_min_psnr: float | None
     lod_max_psnr_drop: float | None
     lod_blend: float | None
+    refine: int | None
+
 _Image = Frame | npt.ArrayLike
 
 class LumigraphError(Exception): ...
