@@ -20,6 +20,7 @@ CGAL_DEB=libcgal-demo=5.5.1-2
 SPOT_SDIST='robust-laplacian==1.1.0 --hash=sha256:1db9eeb1a7aa340c3da902b125d2f58c7138feda206a72c2402dd25e702290d2'
 
 mkdir -p "$DIR"
+DIR=$(cd "$DIR" && pwd)  # the steps below change directory
 if (cd "$DIR" && sha256sum -c --quiet --status <<<"$SUMS") 2>/dev/null; then
   touch "$DIR/.fetch-complete"
   echo "fixtures ready in $DIR"
