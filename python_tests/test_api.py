@@ -291,7 +291,7 @@ def test_calibrated_goals_choose_settings_and_render_them(
     ):
         with pytest.raises(ValueError):
             lf.choose(view, **bad)
-    with pytest.raises(ValueError, match="do not set them too"):
+    with pytest.raises(ValueError, match="do not send them too"):
         lf.render(view, target_psnr=20.0, step=1 / 16)
     # Without calibration the goals say how to get one; the default bake has none.
     plain = lg.bake_mesh(demo_mesh, cameras=12, resolution=32, progress=False)

@@ -200,8 +200,22 @@ impl Quality {
     pub fn from_json_map(
         map: serde_json::Map<String, serde_json::Value>,
     ) -> Result<Self, QualityError> {
-        serde_json::from_value(serde_json::Value::Object(map))
-            .map_err(|e| QualityError::Json(e.to_string()))
+        serde_json::from_value(serde_json::Value::Object(map.clone())).map_err(|whole| {
+            // serde's message does not say which key was bad: find it by parsing each alone.
+            for (key, value) in map {
+                let one = serde_json::Map::from_iter([(key.clone(), value)]);
+                if let Err(e) = serde_json::from_value::<Quality>(serde_json::Value::Object(one)) {
+                    let text = e.to_string();
+                    let named = format!("`{key}`");
+                    return QualityError::Json(if text.contains(&named) {
+                        text
+                    } else {
+                        format!("{named}: {text}")
+                    });
+                }
+            }
+            QualityError::Json(whole.to_string())
+        })
     }
 
     /// Removes the quality keys ([`Quality::FIELDS`]) from a flat JSON object (a request body,
@@ -658,6 +672,13 @@ mod tests {
                 "{bad}"
             );
         }
+        // The bad key is named, and a method gets the text its flag gets.
+        let text = |v: serde_json::Value| parse(v).map(|_| ()).unwrap_err().to_string();
+        assert!(text(serde_json::json!({"lod": 42, "step": "fine"})).contains("`step`"));
+        assert!(
+            text(serde_json::json!({"method": "fast"}))
+                .contains("unknown method `fast`: use fixed or default")
+        );
     }
 
     #[test]

@@ -34,7 +34,7 @@ pub enum RenderError {
 
 /// Marching method.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
+#[serde(rename_all = "lowercase", try_from = "String")]
 pub enum Method {
     /// Seed 000's fixed-step search with bilinear depth (baseline).
     Fixed,
@@ -51,6 +51,15 @@ impl std::str::FromStr for Method {
             "default" => Ok(Method::Default),
             _ => Err(format!("unknown method `{s}`: use fixed or default")),
         }
+    }
+}
+
+/// Parsed as [`std::str::FromStr`] does, so a bad name gets the same error text from JSON as
+/// from a command-line flag.
+impl TryFrom<String> for Method {
+    type Error = String;
+    fn try_from(name: String) -> Result<Self, String> {
+        name.parse()
     }
 }
 
