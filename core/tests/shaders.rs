@@ -3,7 +3,14 @@
 
 #[test]
 fn every_shader_validates_with_naga() {
-    for (name, source) in lumigraph_core::shaders::all() {
+    let marcher = [
+        ("render", lumigraph_core::render::shader_source(false)),
+        (
+            "render (subgroups)",
+            lumigraph_core::render::shader_source(true),
+        ),
+    ];
+    for (name, source) in lumigraph_core::shaders::all().into_iter().chain(marcher) {
         let source = source.as_str();
         let module = naga::front::wgsl::parse_str(source).unwrap_or_else(|e| {
             panic!("{name}.wgsl does not parse:\n{}", e.emit_to_string(source))
@@ -63,7 +70,7 @@ fn render_params_match_the_rust_layout() {
     // Every member of the WGSL `RenderParams`, in order, has the name and byte offset of the
     // Rust struct's member, and the struct's size matches: a field added, moved or retyped on
     // one side only fails here, without a GPU.
-    let source = lumigraph_core::shaders::render_source(false);
+    let source = lumigraph_core::render::shader_source(false);
     let module = naga::front::wgsl::parse_str(&source).expect("parses");
     let members = module
         .types
@@ -94,7 +101,7 @@ fn render_params_match_the_rust_layout() {
 fn marcher_constants_are_generated_once() {
     // The constants Rust and WGSL share come from the generated preamble only: no stage file
     // defines one of them again, and the stage files hold none of the values by hand.
-    let source = lumigraph_core::shaders::render_source(false);
+    let source = lumigraph_core::render::shader_source(false);
     let generated: Vec<&str> = source
         .lines()
         .filter_map(|line| line.strip_prefix("const "))
@@ -147,8 +154,8 @@ fn marcher_without_subgroups_needs_none() {
             .validate(&module)
             .is_ok()
     };
-    assert!(validates(&lumigraph_core::shaders::render_source(false)));
-    assert!(!validates(&lumigraph_core::shaders::render_source(true)));
+    assert!(validates(&lumigraph_core::render::shader_source(false)));
+    assert!(!validates(&lumigraph_core::render::shader_source(true)));
 }
 
 /// What an expression's value depends on: constants only, uniform-buffer values (and
@@ -416,7 +423,7 @@ fn marcher_has_no_branch_on_uniform_values_alone() {
     // Lavapipe (Mesa 22.3) inlines the uniform values such a branch reads and rebuilds the
     // shader every time its uniform buffer is bound (no cache): it cost every guided frame a
     // rebuild (~3 ms from Mesa's shader cache, 0.7 s without one) until `per_invocation`.
-    let source = lumigraph_core::shaders::render_source(false);
+    let source = lumigraph_core::render::shader_source(false);
     let found = uniform_branches(&source);
     assert!(
         found.is_empty(),

@@ -227,7 +227,7 @@ impl Gpu {
         // storage buffers, far above wgpu's portable defaults.
         let limits = adapter.limits();
         // Subgroup operations, where there are any, cut the marcher's counter atomics 8-fold
-        // (`shaders::render_source`).
+        // (`render::shader_source`).
         // On a CPU adapter "device" memory is host memory: results are mapped where the shaders
         // wrote them instead of copied to a staging buffer first (`maps_primary_buffers`). On a
         // discrete GPU that would make the shaders write across the bus, so it is not asked for.

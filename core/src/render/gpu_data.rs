@@ -186,7 +186,7 @@ impl Tiling {
 }
 
 /// The WGSL constants the marcher shares with this module, for the generated preamble
-/// ([`crate::shaders::render_source`]): written once, here.
+/// ([`shader_source`]): written once, here.
 pub(crate) fn wgsl_constants() -> String {
     use super::targets::{COUNTER_WORDS, TILE_DISPATCH_WORDS, TILE_LIST_LENGTHS};
     use super::upload::{EDGE_BASE, EDGE_CODES, EDGE_DEPTH_LEVELS, EDGE_E_LEVELS, edge_depth_step};
@@ -304,3 +304,54 @@ pub fn render_params_layout() -> Vec<(&'static str, usize)> {
         jitter,
     ]
 }
+
+/// The marcher's full source: a generated preamble, then the light-field helpers and
+/// [`crate::shaders::RENDER_FILES`]. The preamble holds the
+/// camera set's sizes (for the uniform arrays) and the direction lookup's from
+/// [`crate::geometry`], the constants Rust and WGSL share from this module (edge codes,
+/// bounding radius, method, role and tiling codes), and `count_work`, which adds an
+/// invocation's work to the frame's counters: with `subgroups` (the device has
+/// `wgpu::Features::SUBGROUP`), summed over the subgroup first, one atomic add per subgroup
+/// instead of one per invocation on both cores.
+pub fn shader_source(subgroups: bool) -> String {
+    use crate::geometry::{DIRECTION_LOOKUP_SIZE, MAX_LEVEL};
+    let set = crate::geometry::camera_set();
+    let mut out = format!(
+        "const CAMERA_COUNT: u32 = {}u;\nconst TRIANGLE_COUNT: u32 = {}u;\n\
+         const MAX_LEVEL: u32 = {MAX_LEVEL}u;\nconst DIRECTION_LOOKUP_SIZE: u32 = {DIRECTION_LOOKUP_SIZE}u;\n",
+        set.positions.len(),
+        set.triangles.len()
+    );
+    out.push_str(&wgsl_constants());
+    out.push_str(if subgroups {
+        COUNT_WORK_SUBGROUPS
+    } else {
+        COUNT_WORK_ATOMICS
+    });
+    out.push_str(crate::shaders::LIGHTFIELD);
+    for (_, source) in crate::shaders::RENDER_FILES {
+        out.push_str(source);
+    }
+    out
+}
+
+/// [`shader_source`]'s `count_work` with subgroup operations.
+const COUNT_WORK_SUBGROUPS: &str = "fn count_work(fetches: u32, steps: u32, rays: u32) {
+    let f = subgroupAdd(fetches);
+    let s = subgroupAdd(steps);
+    let r = subgroupAdd(rays);
+    if subgroupExclusiveAdd(1u) == 0u {
+        atomicAdd(&counters[0], f);
+        atomicAdd(&counters[1], s);
+        atomicAdd(&counters[2], r);
+    }
+}
+";
+
+/// [`shader_source`]'s `count_work` without them.
+const COUNT_WORK_ATOMICS: &str = "fn count_work(fetches: u32, steps: u32, rays: u32) {
+    atomicAdd(&counters[0], fetches);
+    atomicAdd(&counters[1], steps);
+    atomicAdd(&counters[2], rays);
+}
+";

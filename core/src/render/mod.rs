@@ -17,7 +17,7 @@ mod upload;
 
 #[doc(hidden)]
 pub use gpu_data::render_params_layout;
-pub(crate) use gpu_data::wgsl_constants;
+pub use gpu_data::shader_source;
 pub use options::{
     DEFAULT_FIXED_STEP, DEFAULT_GUIDE, DEFAULT_REFINED_STEP, InteriorBlocks, MAX_GUIDE, MIN_STEP,
     Method, RenderError, RenderOptions, ResolvedOptions, Switches, UploadOptions,
@@ -138,8 +138,7 @@ impl Renderer {
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("render"),
             source: wgpu::ShaderSource::Wgsl(
-                crate::shaders::render_source(device.features().contains(wgpu::Features::SUBGROUP))
-                    .into(),
+                shader_source(device.features().contains(wgpu::Features::SUBGROUP)).into(),
             ),
         });
         let storage = wgpu::BufferBindingType::Storage { read_only: false };
