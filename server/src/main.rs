@@ -36,10 +36,9 @@ fn quiet_broken_pipe() {
 /// frame allocates and frees buffers of a megabyte and more (a 512² frame's colour and depth,
 /// and the driver's per-submission allocations); above glibc's mmap threshold each is a fresh
 /// mapping whose every page faults on first touch, and freed memory at the top of the heap is
-/// returned once it exceeds the trim threshold. Both thresholds raised: a 512² frame with nothing
-/// in view renders in 1.72 ms instead of 2.63 (minima of 20, lavapipe), and copying a frame out
-/// of the mapped readback buffer takes 0.26 ms instead of 0.65. Allocations of 64 MiB and more
-/// (light-field textures) are still mapped, and the heap keeps at most 256 MiB it does not use.
+/// returned once it exceeds the trim threshold. Both thresholds raised, so that the per-frame
+/// buffers are reused (the gain is measured in docs/benchmarks-history.md). Allocations of
+/// 64 MiB and more (light-field textures) are still mapped, and the heap keeps at most 256 MiB it does not use.
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 #[allow(unsafe_code)]
 fn keep_freed_memory() {
