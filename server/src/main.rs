@@ -38,7 +38,8 @@ fn quiet_broken_pipe() {
 /// mapping whose every page faults on first touch, and freed memory at the top of the heap is
 /// returned once it exceeds the trim threshold. Both thresholds raised, so that the per-frame
 /// buffers are reused (the gain is measured in docs/benchmarks-history.md). Allocations of
-/// 64 MiB and more (light-field textures) are still mapped, and the heap keeps at most 256 MiB it does not use.
+/// 64 MiB and more (light-field textures) are still mapped, and the heap keeps at most 256 MiB
+/// it does not use.
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 #[allow(unsafe_code)]
 fn keep_freed_memory() {
