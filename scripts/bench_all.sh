@@ -21,6 +21,8 @@ bash scripts/bench_lod.sh "$OUT/lod"
 step "scenes (scripts/bench_scene.sh)" "$OUT/scene/times.txt: 'Scenes'"
 mkdir -p "$OUT/scene"
 bash scripts/bench_scene.sh "$OUT/scene" 2>&1 | tee "$OUT/scene/times.txt"
+step "still refinement (scripts/bench_refine.sh)" "$OUT/refine/tables.md: 'Still-frame refinement'"
+bash scripts/bench_refine.sh "$OUT/refine"
 step "render service (scripts/bench_service.py)" "$OUT/service.md: 'Render service streaming'"
 source scripts/common.sh
 make_venv .venv-bench 10
