@@ -3,12 +3,13 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use lumigraph_core::asset::Provenance;
 use lumigraph_core::bake::sha256_hex;
 use lumigraph_core::gpu::Gpu;
 use lumigraph_core::mesh::{Mesh, demo_mesh, demo_provenance, load_mesh};
+use lumigraph_core::view::View;
 
 pub(super) fn gpu() -> Result<Arc<Gpu>> {
     Ok(Gpu::shared()?)
@@ -46,4 +47,16 @@ pub(super) fn load_source(mesh: Option<&Path>, demo: bool) -> Result<(Mesh, Prov
             ..Default::default()
         },
     ))
+}
+
+/// The views of a view file (one view or a list, DESIGN §3 JSON); an empty list is an error.
+pub(super) fn read_view_file(path: &Path) -> Result<Vec<View>> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read view file {}", path.display()))?;
+    let views =
+        View::parse_many(&text).with_context(|| format!("bad view file {}", path.display()))?;
+    if views.is_empty() {
+        bail!("{} holds no views", path.display());
+    }
+    Ok(views)
 }

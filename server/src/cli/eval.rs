@@ -16,7 +16,7 @@ use lumigraph_core::render::Renderer;
 use super::args::{describe, describe_lod};
 use lumigraph_core::view::{View, evaluation_views};
 
-use super::common::{gpu, load_source, progress_bar};
+use super::common::{gpu, load_source, progress_bar, read_view_file};
 
 /// `lumigraph eval`.
 #[derive(Debug, Args)]
@@ -65,14 +65,7 @@ fn eval_views(args: &EvalArgs, asset: &AssetFile) -> Result<Vec<View>> {
         ));
     }
     let path = Path::new(&args.views);
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("cannot read view file {}", path.display()))?;
-    let views =
-        View::parse_many(&text).with_context(|| format!("bad view file {}", path.display()))?;
-    if views.is_empty() {
-        bail!("{} holds no views", path.display());
-    }
-    Ok(views)
+    read_view_file(path)
 }
 
 /// Per-view and mean results of `eval`.

@@ -14,7 +14,7 @@ use lumigraph_core::scene::Scene;
 use lumigraph_core::view::View;
 
 use super::args::{DepthArgs, ShadingArgs, ViewArgs, describe_decision};
-use super::common::{gpu, load_source};
+use super::common::{gpu, load_source, read_view_file};
 
 /// `lumigraph render`.
 #[derive(Debug, Args)]
@@ -66,13 +66,7 @@ fn read_views(args: &ViewArgs) -> Result<(Vec<View>, bool)> {
         (None, Some(p)) => (p, true),
         (None, None) => bail!("give --view VIEW.json or --views VIEWS.json"),
     };
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("cannot read view file {}", path.display()))?;
-    let views =
-        View::parse_many(&text).with_context(|| format!("bad view file {}", path.display()))?;
-    if views.is_empty() {
-        bail!("{} holds no views", path.display());
-    }
+    let views = read_view_file(path)?;
     if !many && views.len() != 1 {
         bail!(
             "{} holds {} views: use --views for a list",
