@@ -410,6 +410,20 @@ impl Calibration {
     }
 }
 
+/// A calibration point for unit tests: `cameras` × `step`, silhouette error `e` px, `ms` per
+/// megapixel, masked PSNR `psnr`.
+#[cfg(test)]
+pub(crate) fn test_point(cameras: u32, step: f32, e: f64, ms: f64, psnr: f64) -> CalibrationPoint {
+    CalibrationPoint {
+        cameras,
+        step,
+        ms_per_mpx: ms,
+        masked_psnr: psnr,
+        depth_median_r: 1e-3,
+        silhouette_error: Some(e),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -495,18 +495,7 @@ impl Ladder {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calibration::CalibrationPoint;
-
-    fn point(cameras: u32, step: f32, e: f64, ms: f64, psnr: f64) -> CalibrationPoint {
-        CalibrationPoint {
-            cameras,
-            step,
-            ms_per_mpx: ms,
-            masked_psnr: psnr,
-            depth_median_r: 1e-3,
-            silhouette_error: Some(e),
-        }
-    }
+    use crate::calibration::test_point as point;
 
     /// A calibration shaped like the measured ones: coarser steps are cheaper and less accurate,
     /// more cameras cost about the same and are more accurate.

@@ -566,7 +566,7 @@ enum Job {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calibration::CalibrationPoint;
+    use crate::calibration::test_point as point;
 
     fn full() -> Quality {
         Quality {
@@ -748,17 +748,6 @@ mod tests {
         assert_eq!(lod.for_motion(), lod);
         assert!(Quality::default().check_scene().is_ok());
         assert!(matches!(goal.check_scene(), Err(QualityError::Scene)));
-    }
-
-    fn point(cameras: u32, step: f32, e: f64, ms: f64, psnr: f64) -> CalibrationPoint {
-        CalibrationPoint {
-            cameras,
-            step,
-            ms_per_mpx: ms,
-            masked_psnr: psnr,
-            depth_median_r: 1e-3,
-            silhouette_error: Some(e),
-        }
     }
 
     /// A header of a 162-camera asset (unit sphere at the origin), with a calibration or not.
