@@ -1,7 +1,9 @@
 //! Measures still-frame refinement on an asset: for each of `--views` orbit views (as `lumigraph
 //! eval` chooses them), a single-sample frame and refined frames of each `--samples` count,
 //! measured against the supersampled reference (`--factor`² samples per pixel) and, for the
-//! single-sample frame, the plain reference; prints one JSON report.
+//! single-sample frame, the plain reference; prints one JSON report. Wrong-surface pixels are
+//! counted against the depth at the pixel's centre (`wrong_surface_px`) and against every
+//! sample inside the pixel (`wrong_surface_footprint_px`: a surface the pixel does not contain).
 //!
 //! ```text
 //! cargo run --release -p lumigraph_core --example refine_eval -- ASSET.lfa (--mesh MESH | --demo)
@@ -77,13 +79,15 @@ fn parse() -> Result<Args> {
 #[derive(Default)]
 struct Series {
     against_supersampled: Vec<Comparison>,
+    footprint_wrong: Vec<u64>,
     render_ms: Vec<f64>,
     total_ms: Vec<f64>,
 }
 
 impl Series {
-    fn push(&mut self, comparison: Comparison, frame: &Frame, total_ms: f64) {
+    fn push(&mut self, comparison: Comparison, footprint_wrong: u64, frame: &Frame, total_ms: f64) {
         self.against_supersampled.push(comparison);
+        self.footprint_wrong.push(footprint_wrong);
         self.render_ms.push(frame.stats.render_ms);
         self.total_ms.push(total_ms);
     }
@@ -96,6 +100,8 @@ impl Series {
             "render_ms": mean(&self.render_ms),
             "total_ms": mean(&self.total_ms),
             "wrong_surface_px": self.against_supersampled.iter().map(|c| c.wrong_surface_px).collect::<Vec<_>>(),
+            "wrong_surface_footprint_px": &self.footprint_wrong,
+            "mean_wrong_surface_footprint_px": mean(&self.footprint_wrong.iter().map(|&n| n as f64).collect::<Vec<_>>()),
             "mean": metrics::mean_comparison(&self.against_supersampled),
         })
     }
@@ -134,19 +140,33 @@ fn main() -> Result<()> {
     let mut refined: Vec<Series> = args.samples.iter().map(|_| Series::default()).collect();
     for view in &views {
         let truth = reference.render(&gpu_mesh, view, &shading)?;
-        let supersampled = reference.render_supersampled(&gpu_mesh, view, &shading, args.factor)?;
+        let (supersampled, footprint) =
+            reference.render_supersampled_footprint(&gpu_mesh, view, &shading, args.factor)?;
+        let off_footprint = |frame: &Frame| {
+            metrics::wrong_surface_footprint_px(&frame.depth, &supersampled.depth, &footprint)
+        };
         let start = Instant::now();
         let frame = renderer.render(&field, view, &options)?;
         let ms = start.elapsed().as_secs_f64() * 1e3;
         single_plain.push(metrics::compare(&frame, &truth)?);
-        single.push(metrics::compare(&frame, &supersampled)?, &frame, ms);
+        single.push(
+            metrics::compare(&frame, &supersampled)?,
+            off_footprint(&frame)?,
+            &frame,
+            ms,
+        );
         for (series, &samples) in refined.iter_mut().zip(&args.samples) {
             let start = Instant::now();
             let frame: Frame = refine::refine(samples, |jitter| -> Result<Frame> {
                 Ok(renderer.render_jittered(&field, view, &options, &options, 0.0, jitter)?)
             })?;
             let ms = start.elapsed().as_secs_f64() * 1e3;
-            series.push(metrics::compare(&frame, &supersampled)?, &frame, ms);
+            series.push(
+                metrics::compare(&frame, &supersampled)?,
+                off_footprint(&frame)?,
+                &frame,
+                ms,
+            );
         }
     }
     let report = json!({

@@ -454,6 +454,75 @@ pub fn wrong_surface_px(test: &[f32], reference: &[f32]) -> Result<u64, MetricsE
     Ok(wrong as u64)
 }
 
+/// The z-depths of a frame's sub-pixel samples: `factor`² per pixel on a regular grid, stored
+/// as one image of `factor`·`width` × `factor`·`height` pixels, row-major (`+inf` a miss). The
+/// supersampled reference keeps it ([`crate::reference::ReferenceRenderer::render_supersampled_footprint`])
+/// so that a depth can be checked against every surface a pixel covers.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DepthFootprint {
+    /// Width of the frame in pixels.
+    pub width: u32,
+    /// Height of the frame in pixels.
+    pub height: u32,
+    /// Samples per pixel side.
+    pub factor: u32,
+    /// The samples' z-depths, `(factor·width) × (factor·height)`.
+    pub depth: Vec<f32>,
+}
+
+/// Pixels covered in both frames whose test z-depth is off by more than
+/// [`WRONG_SURFACE_FRACTION`] from the z-depth of **every** hit sample inside the pixel: a
+/// surface the pixel does not contain. [`wrong_surface_px`] compares with the one depth at
+/// the pixel's centre, so a pixel on a limb or an occlusion edge, whose depth changes by more
+/// than 1 % within the pixel, counts there whenever the test frame hits its right surface a
+/// fraction of a pixel away; here it does not. `reference` (the supersampled frame's depth)
+/// decides which pixels the reference covers.
+pub fn wrong_surface_footprint_px(
+    test: &[f32],
+    reference: &[f32],
+    footprint: &DepthFootprint,
+) -> Result<u64, MetricsError> {
+    let (w, h, k) = (
+        footprint.width as usize,
+        footprint.height as usize,
+        footprint.factor as usize,
+    );
+    for (buffer, expected, actual) in [
+        ("test depth", w * h, test.len()),
+        ("reference depth", w * h, reference.len()),
+        ("footprint depth", w * h * k * k, footprint.depth.len()),
+    ] {
+        if expected != actual {
+            return Err(MetricsError::BufferLength {
+                buffer,
+                expected,
+                actual,
+            });
+        }
+    }
+    let mut wrong = 0;
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            let t = f64::from(test[i]);
+            if !(t.is_finite() && reference[i].is_finite()) {
+                continue;
+            }
+            let contains = (0..k).any(|b| {
+                let row = (y * k + b) * w * k + x * k;
+                footprint.depth[row..row + k].iter().any(|&z| {
+                    let z = f64::from(z);
+                    z.is_finite() && (t - z).abs() <= WRONG_SURFACE_FRACTION * z.abs()
+                })
+            });
+            if !contains {
+                wrong += 1;
+            }
+        }
+    }
+    Ok(wrong)
+}
+
 /// Count, median, mean, max and 95th percentile of `errors` (all finite); sorts `errors`.
 fn error_stats(errors: &mut [f64]) -> DepthErrorStats {
     let n = errors.len();
@@ -1355,6 +1424,50 @@ mod tests {
         assert_eq!(m.wrong_surface_px, 20.0);
         let json = serde_json::to_value(&c).unwrap();
         assert_eq!(json["wrong_surface_px"], 1);
+    }
+
+    #[test]
+    fn footprint_wrong_surface_needs_a_depth_no_sample_of_the_pixel_has() {
+        let inf = f32::INFINITY;
+        // Three pixels of 2×2 samples: a limb (depth 10 to 13 inside the pixel), an occlusion
+        // edge (10 in front of 20), a pixel whose samples all miss.
+        let footprint = DepthFootprint {
+            width: 3,
+            height: 1,
+            factor: 2,
+            #[rustfmt::skip]
+            depth: vec![
+                10.0, 11.0, 10.0, 20.0, inf, inf,
+                12.0, 13.0, 20.0, 20.0, inf, inf,
+            ],
+        };
+        let reference = [10.0, 20.0, inf];
+        // On the limb 3 % behind the centre's depth: a wrong surface by the centre, not here.
+        let test = [12.9, 10.05, 5.0];
+        assert_eq!(wrong_surface_px(&test, &reference), Ok(2));
+        assert_eq!(
+            wrong_surface_footprint_px(&test, &reference, &footprint),
+            Ok(0)
+        );
+        // Between the two layers of the edge, and beyond the limb's range: wrong everywhere.
+        let test = [13.2, 15.0, 5.0];
+        assert_eq!(
+            wrong_surface_footprint_px(&test, &reference, &footprint),
+            Ok(2)
+        );
+        assert_eq!(wrong_surface_px(&test, &reference), Ok(2));
+        // Never more than the centre count when the centre sample is in the footprint.
+        let test = [10.0, 20.0, 5.0];
+        assert_eq!(
+            wrong_surface_footprint_px(&test, &reference, &footprint),
+            Ok(0)
+        );
+        assert!(wrong_surface_footprint_px(&test[..2], &reference, &footprint).is_err());
+        let short = DepthFootprint {
+            depth: vec![10.0; 11],
+            ..footprint.clone()
+        };
+        assert!(wrong_surface_footprint_px(&test, &reference, &short).is_err());
     }
 
     proptest! {

@@ -10,6 +10,7 @@ use crate::frame::{Frame, FrameStats};
 use crate::gpu::mesh::{GpuMesh, mesh_bind_group, mesh_layout, mesh_sampler};
 use crate::gpu::{Gpu, GpuError};
 use crate::mesh::Mesh;
+use crate::metrics::DepthFootprint;
 use crate::shading::{GpuShading, Shading, ShadingError};
 use crate::view::{DEFAULT_MAX_VIEW_PX, View, ViewError};
 
@@ -350,6 +351,23 @@ impl ReferenceRenderer {
         shading: &Shading,
         factor: u32,
     ) -> Result<Frame, ReferenceError> {
+        Ok(self
+            .render_supersampled_footprint(mesh, view, shading, factor)?
+            .0)
+    }
+
+    /// [`ReferenceRenderer::render_supersampled`] and the z-depth of every sub-pixel sample
+    /// (for [`crate::metrics::wrong_surface_footprint_px`]).
+    ///
+    /// # Errors
+    /// As [`ReferenceRenderer::render_supersampled`].
+    pub fn render_supersampled_footprint(
+        &self,
+        mesh: &GpuMesh,
+        view: &View,
+        shading: &Shading,
+        factor: u32,
+    ) -> Result<(Frame, DepthFootprint), ReferenceError> {
         let max_px = DEFAULT_MAX_VIEW_PX.min(self.gpu.device.limits().max_texture_dimension_2d);
         view.basis(max_px)?;
         let scale = |side: u32| side.saturating_mul(factor);
@@ -394,12 +412,19 @@ impl ReferenceRenderer {
                 });
             }
         }
-        Ok(Frame {
+        let footprint = DepthFootprint {
+            width: view.width,
+            height: view.height,
+            factor,
+            depth: large.depth,
+        };
+        let frame = Frame {
             width: view.width,
             height: view.height,
             color,
             depth,
             stats: large.stats,
-        })
+        };
+        Ok((frame, footprint))
     }
 }

@@ -176,13 +176,22 @@ fn refined_stills_approach_the_supersampled_reference() {
         single_wrong >= 10,
         "too few wrong-surface pixels to test: {single_wrong}"
     );
-    let supersampled = c
+    let (supersampled, footprint) = c
         .reference
-        .render_supersampled(&c.mesh, &view, &shading, 5)
+        .render_supersampled_footprint(&c.mesh, &view, &shading, 5)
         .expect("supersampled reference");
+    assert_eq!(footprint.depth.len(), 25 * single.depth.len());
     let refined = refined(&view, &options, 16).expect("refine");
     let r = metrics::compare(&refined, &supersampled).expect("compare");
     let s = metrics::compare(&single, &supersampled).expect("compare");
+    // A surface the pixel does not contain is a subset of a depth off from the centre's (the
+    // supersampled depth is one of the footprint's samples).
+    for (frame, centre) in [(&single, &s), (&refined, &r)] {
+        let in_footprint =
+            metrics::wrong_surface_footprint_px(&frame.depth, &supersampled.depth, &footprint)
+                .expect("footprint");
+        assert!(in_footprint <= centre.wrong_surface_px);
+    }
     eprintln!(
         "wrong-surface px: single {single_wrong}, refined {}; SSIM vs supersampled: single {:.4}, refined {:.4}; PSNR {:.2} → {:.2} dB",
         r.wrong_surface_px, s.ssim, r.ssim, s.psnr, r.psnr
