@@ -55,6 +55,9 @@
   }
 
   function send(message) {
+    // A session the server closed for idleness (1008) reconnects at the next interaction; the
+    // hello then sends the current settings and view.
+    if (state.idleAsset) { const id = state.idleAsset; state.idleAsset = null; connect(id); return; }
     if (state.ws && state.ws.readyState === WebSocket.OPEN) state.ws.send(JSON.stringify(message));
   }
 
@@ -175,6 +178,7 @@
   }
 
   function connect(assetId) {
+    state.idleAsset = null;
     if (state.ws) { state.ws.onclose = null; state.ws.close(); }
     const proto = location.protocol === "https:" ? "wss:" : "ws:";
     const ws = new WebSocket(`${proto}//${location.host}/v1/stream?asset=${encodeURIComponent(assetId)}`);
@@ -188,10 +192,11 @@
       }
       const msg = JSON.parse(ev.data);
       if (msg.type === "hello") {
+        const same = state.asset && state.asset.id === msg.asset.id;
         state.asset = msg.asset;
         state.maxPx = msg.max_px;
         fillLod(msg.asset.camera_count);
-        resetCamera();
+        if (!same) resetCamera();
         sendSettings();
         sendView(true);
       } else if (msg.type === "error") {
@@ -200,6 +205,11 @@
     };
     ws.onclose = (ev) => {
       if (state.ws !== ws) return;
+      if (ev.code === 1008 && ev.reason.startsWith("idle")) {
+        state.idleAsset = assetId;
+        statsEl.textContent = "paused while idle; move the view to resume";
+        return;
+      }
       statsEl.textContent = `disconnected (${ev.code}${ev.reason ? " " + ev.reason : ""}); reconnecting…`;
       setTimeout(() => { if (state.ws === ws) connect(assetId); }, 1500);
     };

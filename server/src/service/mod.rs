@@ -13,6 +13,7 @@ pub mod codecs;
 pub mod error;
 pub mod http;
 pub mod jobs;
+pub mod listen;
 pub mod metrics;
 pub mod openapi;
 pub mod render_pool;
@@ -20,7 +21,7 @@ pub mod state;
 pub mod stream;
 pub mod viewer;
 
-use std::future::{Future, IntoFuture};
+use std::future::Future;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -31,7 +32,7 @@ use axum::http::StatusCode;
 use axum::routing::{get, post};
 use lumigraph_core::gpu::Gpu;
 use tokio::net::TcpListener;
-use tower_http::timeout::TimeoutLayer;
+use tower_http::timeout::{RequestBodyTimeoutLayer, TimeoutLayer};
 use tower_http::trace::TraceLayer;
 
 pub use state::{AppState, ServeConfig};
@@ -58,7 +59,13 @@ pub fn app(state: AppState) -> Router {
             "/v1/assets/{id}",
             get(http::get_asset).delete(http::delete_asset),
         )
-        .route("/v1/assets/{id}/render", post(http::render_asset))
+        .route(
+            "/v1/assets/{id}/render",
+            post(http::render_asset).layer(axum::middleware::from_fn_with_state(
+                state.clone(),
+                read_body_within_deadline,
+            )),
+        )
         .route(
             "/v1/bake",
             post(http::bake).layer(DefaultBodyLimit::max(mesh_limit)),
@@ -72,6 +79,7 @@ pub fn app(state: AppState) -> Router {
             http::count_errors,
         ))
         .layer(DefaultBodyLimit::max(json_limit))
+        .layer(RequestBodyTimeoutLayer::new(config.body_idle_timeout))
         .layer(tower::limit::ConcurrencyLimitLayer::new(1024))
         .layer(TimeoutLayer::with_status_code(
             StatusCode::REQUEST_TIMEOUT,
@@ -79,6 +87,51 @@ pub fn app(state: AppState) -> Router {
         ))
         .layer(TraceLayer::new_for_http())
         .with_state(state)
+}
+
+/// Reads a small (JSON) body whole within [`ServeConfig::body_deadline`] before the handler
+/// runs: a client that trickles its body cannot hold a request slot for longer than that.
+/// 408 past the deadline, 413 past the JSON size limit.
+async fn read_body_within_deadline(
+    axum::extract::State(state): axum::extract::State<AppState>,
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    use axum::response::IntoResponse as _;
+    let config = state.config();
+    let (parts, body) = request.into_parts();
+    let read =
+        http_body_util::BodyExt::collect(http_body_util::Limited::new(body, config.max_json_bytes));
+    match tokio::time::timeout(config.body_deadline, read).await {
+        Ok(Ok(collected)) => {
+            let body = axum::body::Body::from(collected.to_bytes());
+            next.run(axum::extract::Request::from_parts(parts, body))
+                .await
+        }
+        Ok(Err(err)) => {
+            let too_large = err.is::<http_body_util::LengthLimitError>();
+            if too_large {
+                error::AppError::TooLarge {
+                    limit: config.max_json_bytes as u64,
+                }
+                .into_response()
+            } else {
+                error::AppError::Rejected {
+                    status: StatusCode::REQUEST_TIMEOUT,
+                    message: format!("reading the request body failed: {err}"),
+                }
+                .into_response()
+            }
+        }
+        Err(_) => error::AppError::Rejected {
+            status: StatusCode::REQUEST_TIMEOUT,
+            message: format!(
+                "the request body did not arrive within {} s",
+                config.body_deadline.as_secs_f64()
+            ),
+        }
+        .into_response(),
+    }
 }
 
 /// How long in-flight HTTP requests may run on after a shutdown signal.
@@ -96,14 +149,17 @@ pub async fn run(
     let on_shutdown = state.clone();
     let shutdown_started = Arc::new(tokio::sync::Notify::new());
     let started = Arc::clone(&shutdown_started);
-    let server = axum::serve(listener, router)
-        .with_graceful_shutdown(async move {
-            shutdown.await;
-            tracing::info!("shutting down: finishing in-flight frames");
-            on_shutdown.begin_shutdown();
-            started.notify_one();
-        })
-        .into_future();
+    let config = state.config();
+    let limits = listen::ConnectionLimits {
+        header_timeout: config.header_timeout,
+        max_per_client: config.max_connections_per_client,
+    };
+    let server = listen::serve(listener, router, limits, async move {
+        shutdown.await;
+        tracing::info!("shutting down: finishing in-flight frames");
+        on_shutdown.begin_shutdown();
+        started.notify_one();
+    });
     // In-flight HTTP requests get a bounded grace period: a client stalled mid-upload must not
     // keep SIGTERM from ending the process until the request timeout.
     let deadline = async move {
@@ -111,7 +167,7 @@ pub async fn run(
         tokio::time::sleep(SHUTDOWN_GRACE).await;
     };
     tokio::select! {
-        result = server => result.context("serving HTTP")?,
+        () = server => {}
         () = deadline => tracing::warn!(
             "HTTP requests still open {} s after shutdown began: closing them",
             SHUTDOWN_GRACE.as_secs()

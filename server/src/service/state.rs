@@ -45,6 +45,18 @@ pub struct ServeConfig {
     pub max_json_bytes: usize,
     /// Per-request timeout (uploads included).
     pub request_timeout: Duration,
+    /// Longest wait for a request's headers (from the connection's start or its previous
+    /// response); a slower client is disconnected.
+    pub header_timeout: Duration,
+    /// Longest pause between two pieces of a request body (uploads included); past it the
+    /// request fails with 408.
+    pub body_idle_timeout: Duration,
+    /// Longest time to receive a whole JSON render body; past it the request fails with 408.
+    pub body_deadline: Duration,
+    /// Most connections one client address holds at once; more get 429.
+    pub max_connections_per_client: usize,
+    /// A stream session that receives no message for this long is closed (1008).
+    pub stream_idle_timeout: Duration,
     /// Default time a stream view must rest before the full-quality frame is sent.
     pub rest_delay: Duration,
     /// Bake the built-in demo scene into `demo.lfa` when the folder holds no asset.
@@ -68,6 +80,11 @@ impl ServeConfig {
             max_mesh_bytes: 512 << 20,
             max_json_bytes: 64 << 10,
             request_timeout: Duration::from_secs(600),
+            header_timeout: Duration::from_secs(10),
+            body_idle_timeout: Duration::from_secs(30),
+            body_deadline: Duration::from_secs(30),
+            max_connections_per_client: 128,
+            stream_idle_timeout: Duration::from_secs(300),
             rest_delay: Duration::from_millis(250),
             bake_demo_if_empty: true,
             demo_bake: BakeOptions::default(),
@@ -173,6 +190,11 @@ impl AppState {
     /// Tells stream sessions to finish their current frame and close.
     pub fn begin_shutdown(&self) {
         self.inner.shutdown.send_replace(true);
+    }
+
+    /// Whether [`Self::begin_shutdown`] was called.
+    pub(crate) fn is_shutting_down(&self) -> bool {
+        *self.inner.shutdown.borrow()
     }
 
     /// Checks the bearer token when one is configured.

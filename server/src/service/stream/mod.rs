@@ -25,7 +25,8 @@ use super::state::AppState;
 pub use protocol::{FRAME_HEADER_LEN, FrameHeader, PROTOCOL_VERSION};
 pub use settings::Settings;
 
-/// Largest client message in bytes.
+/// Largest client message (and frame) in bytes: a larger one closes the session with 1009
+/// before it is read whole.
 const MAX_CLIENT_MESSAGE: usize = 64 << 10;
 
 /// Query of `GET /v1/stream`.
@@ -34,6 +35,11 @@ const MAX_CLIENT_MESSAGE: usize = 64 << 10;
 #[into_params(parameter_in = Query)]
 pub struct StreamQuery {
     /// Asset to stream (default: the first asset in id order).
+    #[param(
+        pattern = "^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$",
+        min_length = 1,
+        max_length = 64
+    )]
     pub asset: Option<String>,
 }
 
@@ -42,7 +48,10 @@ pub struct StreamQuery {
 #[utoipa::path(get, path = "/v1/stream", tag = "stream",
     params(StreamQuery),
     responses((status = 101, description = "WebSocket; see docs/protocol.md"),
-        (status = 404, body = super::error::ErrorBody), (status = 503, body = super::error::ErrorBody)))]
+        (status = 400, body = super::error::ErrorBody, description = "not a WebSocket upgrade request"),
+        (status = 404, body = super::error::ErrorBody),
+        (status = 422, body = super::error::ErrorBody, description = "invalid query or asset id"),
+        (status = 503, body = super::error::ErrorBody)))]
 pub async fn stream(
     State(state): State<AppState>,
     query: Result<Query<StreamQuery>, QueryRejection>,
@@ -73,6 +82,7 @@ pub async fn stream(
         })?;
     Ok(upgrade
         .max_message_size(MAX_CLIENT_MESSAGE)
+        .max_frame_size(MAX_CLIENT_MESSAGE)
         .on_upgrade(move |socket| async move {
             state.metrics().sessions_add(1);
             session::run_session(socket, state.clone(), asset).await;

@@ -4,7 +4,7 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use axum::extract::ws::{Message, WebSocket};
+use axum::extract::ws::{CloseFrame, Message, WebSocket, close_code};
 use futures_util::{SinkExt as _, StreamExt as _};
 use lumigraph_core::frame::Frame;
 use lumigraph_core::view::View;
@@ -19,6 +19,8 @@ use crate::service::assets::LoadedAsset;
 use crate::service::codecs::{Encoding, encode_blocking, encode_color};
 use crate::service::error::AppError;
 use crate::service::state::AppState;
+
+use super::MAX_CLIENT_MESSAGE;
 
 /// Error messages buffered for the client; more are dropped.
 const ERROR_QUEUE: usize = 16;
@@ -91,14 +93,49 @@ pub(super) async fn run_session(socket: WebSocket, state: AppState, asset: Arc<L
         dropped: 0,
         ms_per_mpx: None,
     };
-    tokio::select! {
-        () = receiver => {}
-        () = sender.run() => {}
+    let close = tokio::select! {
+        close = receiver => close,
+        () = sender.run() => state
+            .is_shutting_down()
+            .then(|| close_frame(close_code::AWAY, "the server is shutting down")),
+    };
+    // A client that closed first has had its close frame answered by the WebSocket layer.
+    if let Some(close) = close {
+        let _ = sink.send(Message::Close(Some(close))).await;
     }
-    let _ = sink.send(Message::Close(None)).await;
     let _ = sink.close().await;
 }
 
+fn close_frame(code: u16, reason: &str) -> CloseFrame {
+    CloseFrame {
+        code,
+        reason: reason.into(),
+    }
+}
+
+/// The close frame that answers a failed read: 1009 for a message or frame over the limit,
+/// 1002 for a protocol violation, 1007 for text that is not UTF-8; none when the connection
+/// itself broke (nothing could be delivered).
+fn close_for_error(err: axum::Error) -> Option<CloseFrame> {
+    use tungstenite::error::{CapacityError, Error};
+    let inner = err.into_inner();
+    match inner.downcast_ref::<Error>()? {
+        Error::Capacity(CapacityError::MessageTooLong { .. }) => Some(close_frame(
+            close_code::SIZE,
+            &format!("messages are limited to {MAX_CLIENT_MESSAGE} bytes"),
+        )),
+        Error::Capacity(_) => Some(close_frame(close_code::SIZE, "message too large")),
+        Error::Protocol(e) => Some(close_frame(
+            close_code::PROTOCOL,
+            &format!("WebSocket protocol error: {e}"),
+        )),
+        Error::Utf8(_) => Some(close_frame(close_code::INVALID, "text is not UTF-8")),
+        _ => None,
+    }
+}
+
+/// Reads client messages until the client closes (`None`: nothing more to send), a read fails
+/// or the session goes idle for the configured time (the close frame to send).
 async fn receive_loop(
     source: &mut futures_util::stream::SplitStream<WebSocket>,
     state: &AppState,
@@ -106,16 +143,31 @@ async fn receive_loop(
     wanted: &watch::Sender<Wanted>,
     acked: &watch::Sender<u32>,
     errors: &mpsc::Sender<String>,
-) {
+) -> Option<CloseFrame> {
     let report = |request: Option<u32>, kind: &str, message: &str| {
         state.metrics().error(kind);
         // A client that does not read its errors loses some; it never grows a queue.
         let _ = errors.try_send(error_text(request, kind, message));
     };
-    while let Some(message) = source.next().await {
+    let idle = state.config().stream_idle_timeout;
+    loop {
+        let Ok(message) = tokio::time::timeout(idle, source.next()).await else {
+            return Some(close_frame(
+                close_code::POLICY,
+                &format!(
+                    "idle: no message for {} s; reconnect to continue",
+                    idle.as_secs_f64()
+                ),
+            ));
+        };
         let text = match message {
-            Ok(Message::Text(text)) => text,
-            Ok(Message::Binary(_)) => {
+            None | Some(Ok(Message::Close(_))) => return None,
+            Some(Err(err)) => return close_for_error(err),
+            Some(Ok(message)) => message,
+        };
+        let text = match text {
+            Message::Text(text) => text,
+            Message::Binary(_) => {
                 report(
                     None,
                     "bad_message",
@@ -123,8 +175,8 @@ async fn receive_loop(
                 );
                 continue;
             }
-            Ok(Message::Close(_)) | Err(_) => return,
-            Ok(Message::Ping(_) | Message::Pong(_)) => continue,
+            Message::Close(_) => return None,
+            Message::Ping(_) | Message::Pong(_) => continue,
         };
         let mut value: serde_json::Value = match serde_json::from_str(text.as_str()) {
             Ok(v) => v,
