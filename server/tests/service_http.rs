@@ -1243,3 +1243,297 @@ async fn websocket_goals_choose_full_quality_settings() {
     let _ = stop_tx.send(());
     server.await.expect("join").expect("server");
 }
+
+/// Starts `run` on a free loopback port; the sender stops it.
+async fn serve_on_loopback(
+    state: AppState,
+) -> (
+    std::net::SocketAddr,
+    tokio::sync::oneshot::Sender<()>,
+    tokio::task::JoinHandle<anyhow::Result<()>>,
+) {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let addr = listener.local_addr().expect("addr");
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let server = tokio::spawn(run(listener, state, async move {
+        let _ = stop_rx.await;
+    }));
+    (addr, stop_tx, server)
+}
+
+/// A TCP connection to `addr` from the loopback address `from` (any 127.x.y.z works on Linux).
+async fn connect_from(from: [u8; 4], addr: std::net::SocketAddr) -> tokio::net::TcpStream {
+    let socket = tokio::net::TcpSocket::new_v4().expect("socket");
+    socket
+        .bind((std::net::Ipv4Addr::from(from), 0).into())
+        .expect("bind the client address");
+    socket.connect(addr).await.expect("connect")
+}
+
+/// Reads until the server closes the connection (or `limit` passes: `None`).
+async fn read_to_close(stream: &mut tokio::net::TcpStream, limit: Duration) -> Option<String> {
+    use tokio::io::AsyncReadExt as _;
+    let mut reply = Vec::new();
+    let read = tokio::time::timeout(limit, stream.read_to_end(&mut reply)).await;
+    match read {
+        Ok(_) => Some(String::from_utf8_lossy(&reply).into_owned()),
+        Err(_) => None,
+    }
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn slow_clients_are_cut_off_and_cannot_hold_the_render_path() {
+    use tokio::io::AsyncWriteExt as _;
+    let (_dir, state) = setup(None, |c| {
+        c.header_timeout = Duration::from_secs(1);
+        c.body_idle_timeout = Duration::from_secs(1);
+        c.body_deadline = Duration::from_secs(1);
+        c.max_connections_per_client = 4;
+    })
+    .await;
+    let (addr, stop_tx, server) = serve_on_loopback(state).await;
+    let body = serde_json::json!({"view": view_json(32, 32)}).to_string();
+    let head = format!(
+        "POST /v1/assets/tiny/render HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
+         content-length: {}\r\nconnection: close\r\n\r\n",
+        body.len()
+    );
+
+    // Four stalled clients of one address: half a request line, headers without a body, and
+    // two that trickled one byte of the body.
+    let mut stalled = Vec::new();
+    for sent in [
+        "POST /v1/assets/tiny/render HTTP/1.1\r\nhost: x\r\n".to_owned(),
+        head.clone(),
+        format!("{head}{{"),
+        format!("{head}{{"),
+    ] {
+        let mut stream = connect_from([127, 0, 0, 1], addr).await;
+        stream.write_all(sent.as_bytes()).await.expect("send");
+        stalled.push(stream);
+    }
+    // A fifth connection of that address is refused at once with 429.
+    let mut fifth = connect_from([127, 0, 0, 1], addr).await;
+    let reply = read_to_close(&mut fifth, Duration::from_secs(5))
+        .await
+        .expect("the fifth connection is answered");
+    assert!(reply.starts_with("HTTP/1.1 429"), "{reply}");
+    assert!(reply.contains("at most 4"), "{reply}");
+    let json = reply.split_once("\r\n\r\n").map_or("", |(_, body)| body);
+    let json: serde_json::Value = serde_json::from_str(json).expect("a JSON error body");
+    assert_eq!(json["error"]["kind"], "too_many_connections");
+    // Another client renders meanwhile.
+    let mut other = connect_from([127, 0, 0, 2], addr).await;
+    other
+        .write_all(format!("{head}{body}").as_bytes())
+        .await
+        .expect("send");
+    let reply = read_to_close(&mut other, Duration::from_secs(30))
+        .await
+        .expect("the render is answered");
+    assert!(reply.starts_with("HTTP/1.1 200"), "{reply:.300}");
+    // The stalled ones are cut off within their deadlines: headers by closing, bodies by 408.
+    for (i, stream) in stalled.iter_mut().enumerate() {
+        let reply = read_to_close(stream, Duration::from_secs(10))
+            .await
+            .unwrap_or_else(|| panic!("stalled client {i} was not cut off"));
+        if i >= 1 {
+            assert!(reply.starts_with("HTTP/1.1 408"), "{i}: {reply}");
+        }
+    }
+    // Their slots are free again.
+    let mut again = connect_from([127, 0, 0, 1], addr).await;
+    again
+        .write_all(format!("{head}{body}").as_bytes())
+        .await
+        .expect("send");
+    let reply = read_to_close(&mut again, Duration::from_secs(30))
+        .await
+        .expect("answered");
+    assert!(reply.starts_with("HTTP/1.1 200"), "{reply:.300}");
+    stop_tx.send(()).expect("stop");
+    tokio::time::timeout(Duration::from_secs(20), server)
+        .await
+        .expect("server stops")
+        .expect("join")
+        .expect("serve");
+}
+
+/// The close frame that ends `ws` (within 10 s).
+async fn close_code_of(ws: &mut Ws) -> Option<u16> {
+    let wait = async {
+        while let Some(message) = ws.next().await {
+            match message {
+                Ok(Message::Close(frame)) => return frame.map(|f| u16::from(f.code)),
+                Ok(_) => {}
+                Err(e) => panic!("the session broke instead of closing: {e}"),
+            }
+        }
+        panic!("the session ended without a close frame")
+    };
+    tokio::time::timeout(Duration::from_secs(10), wait)
+        .await
+        .expect("the session was not closed")
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn idle_and_oversized_stream_sessions_are_closed_with_a_code() {
+    let (_dir, state) = setup(None, |c| {
+        c.stream_idle_timeout = Duration::from_secs(1);
+        c.max_sessions = 2;
+    })
+    .await;
+    let (addr, stop_tx, server) = serve_on_loopback(state).await;
+    let url = format!("ws://{addr}/v1/stream?asset=tiny");
+
+    // A silent session is closed with 1008 (policy) once idle, and frees its slot.
+    let (mut silent, _) = tokio_tungstenite::connect_async(&url)
+        .await
+        .expect("connect");
+    assert_eq!(next_json(&mut silent).await["type"], "hello");
+    assert_eq!(close_code_of(&mut silent).await, Some(1008));
+
+    // A message over 64 KiB is refused with 1009 (too big) before it is read whole, whether it
+    // comes as one frame or as fragments.
+    for fragmented in [false, true] {
+        let (mut big, _) = tokio_tungstenite::connect_async(&url)
+            .await
+            .expect("connect");
+        assert_eq!(next_json(&mut big).await["type"], "hello");
+        let text = format!(
+            "{{\"type\":\"view\",\"pad\":\"{}\"}}",
+            "x".repeat(100 << 10)
+        );
+        if fragmented {
+            use tokio_tungstenite::tungstenite::protocol::frame::Frame;
+            use tokio_tungstenite::tungstenite::protocol::frame::coding::{Data, OpCode};
+            let bytes = text.into_bytes();
+            let (a, b) = bytes.split_at(40 << 10);
+            let mut first = Frame::message(a.to_vec(), OpCode::Data(Data::Text), false);
+            first.header_mut().is_final = false;
+            big.send(Message::Frame(first)).await.expect("send");
+            let _ = big
+                .send(Message::Frame(Frame::message(
+                    b.to_vec(),
+                    OpCode::Data(Data::Continue),
+                    true,
+                )))
+                .await;
+        } else {
+            big.send(Message::text(text)).await.expect("send");
+        }
+        assert_eq!(close_code_of(&mut big).await, Some(1009), "{fragmented}");
+    }
+
+    // A session that keeps talking stays open past the idle time.
+    let (mut busy, _) = tokio_tungstenite::connect_async(&url)
+        .await
+        .expect("connect");
+    assert_eq!(next_json(&mut busy).await["type"], "hello");
+    for id in 0..4 {
+        send_json(&mut busy, serde_json::json!({"type": "ack", "frame": id})).await;
+        tokio::time::sleep(Duration::from_millis(400)).await;
+    }
+    send_json(
+        &mut busy,
+        serde_json::json!({"type": "view", "id": 7, "view": view_json(16, 16)}),
+    )
+    .await;
+    let (frame, _) = next_frame(&mut busy).await;
+    assert_eq!(frame.request_id, 7);
+    stop_tx.send(()).expect("stop");
+    assert_eq!(close_code_of(&mut busy).await, Some(1001));
+    tokio::time::timeout(Duration::from_secs(20), server)
+        .await
+        .expect("server stops")
+        .expect("join")
+        .expect("serve");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn openapi_documents_the_statuses_and_constraints_the_server_enforces() {
+    let (_dir, state) = setup(None, |_| {}).await;
+    let openapi = get(&state, "/openapi.json").await.json();
+    let documented = |path: &str, method: &str, status: StatusCode| {
+        openapi["paths"][path][method]["responses"][status.as_str()].is_object()
+    };
+    // Every status these requests get is in the document.
+    let delete = send(
+        &state,
+        Request::delete("/v1/assets/bad..id")
+            .body(Body::empty())
+            .expect("request"),
+    )
+    .await;
+    let cases = [
+        ("/v1/assets/{id}", "delete", delete.status),
+        (
+            "/v1/jobs/{id}",
+            "get",
+            get(&state, "/v1/jobs/bad..id").await.status,
+        ),
+        ("/v1/stream", "get", get(&state, "/v1/stream").await.status),
+        (
+            "/v1/stream",
+            "get",
+            get(&state, "/v1/stream?asset=bad..id").await.status,
+        ),
+        (
+            "/v1/stream",
+            "get",
+            get(&state, "/v1/stream?bogus=1").await.status,
+        ),
+        (
+            "/v1/assets/{id}",
+            "get",
+            get(&state, "/v1/assets/bad..id").await.status,
+        ),
+    ];
+    for (path, method, status) in cases {
+        assert!(status.is_client_error(), "{path} {method}: {status}");
+        assert!(
+            documented(path, method, status),
+            "{method} {path} answers {status}, which the OpenAPI document leaves out"
+        );
+    }
+    for (path, method) in [
+        ("/v1/assets/{id}/render", "post"),
+        ("/v1/assets", "post"),
+        ("/v1/bake", "post"),
+    ] {
+        assert!(
+            documented(path, method, StatusCode::REQUEST_TIMEOUT),
+            "{path}"
+        );
+    }
+    // The id pattern on every id parameter, the view's vector lengths and minimum sizes.
+    for (path, method) in [
+        ("/v1/assets/{id}", "get"),
+        ("/v1/assets/{id}", "delete"),
+        ("/v1/assets/{id}/render", "post"),
+        ("/v1/jobs/{id}", "get"),
+        ("/v1/stream", "get"),
+        ("/v1/assets", "post"),
+    ] {
+        let params = openapi["paths"][path][method]["parameters"]
+            .as_array()
+            .unwrap_or_else(|| panic!("{method} {path} has no parameters"));
+        for param in params {
+            assert_eq!(
+                param["schema"]["pattern"], "^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$",
+                "{method} {path}: {param}"
+            );
+            assert_eq!(param["schema"]["maxLength"], 64, "{method} {path}");
+        }
+    }
+    let view = &openapi["components"]["schemas"]["ViewSchema"]["properties"];
+    for field in ["eye", "target"] {
+        assert_eq!(view[field]["minItems"], 3, "{field}: {}", view[field]);
+        assert_eq!(view[field]["maxItems"], 3, "{field}");
+    }
+    for field in ["width", "height"] {
+        assert_eq!(view[field]["minimum"], 1, "{field}: {}", view[field]);
+    }
+}

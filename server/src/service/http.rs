@@ -133,7 +133,7 @@ fn detail(asset: &LoadedAsset) -> Result<AssetDetail, AppError> {
 
 /// One asset: header (kind, cameras, resolution, layers, states, quality report).
 #[utoipa::path(get, path = "/v1/assets/{id}", tag = "assets",
-    params(("id" = String, Path, description = "asset id")),
+    params(("id" = String, Path, description = "asset id", pattern = "^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$", min_length = 1, max_length = 64)),
     responses((status = 200, body = AssetDetail), (status = 404, body = ErrorBody), (status = 422, body = ErrorBody)))]
 pub async fn get_asset(
     State(state): State<AppState>,
@@ -145,9 +145,10 @@ pub async fn get_asset(
 
 /// Deletes an asset and its file (token-protected when a token is configured).
 #[utoipa::path(delete, path = "/v1/assets/{id}", tag = "assets",
-    params(("id" = String, Path, description = "asset id")),
+    params(("id" = String, Path, description = "asset id", pattern = "^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$", min_length = 1, max_length = 64)),
     security(("bearer" = [])),
-    responses((status = 204), (status = 401, body = ErrorBody), (status = 404, body = ErrorBody)))]
+    responses((status = 204), (status = 401, body = ErrorBody), (status = 404, body = ErrorBody),
+        (status = 422, body = ErrorBody, description = "invalid id")))]
 pub async fn delete_asset(
     State(state): State<AppState>,
     headers: HeaderMap,
@@ -176,6 +177,11 @@ pub async fn delete_asset(
 #[into_params(parameter_in = Query)]
 pub struct UploadQuery {
     /// Id of the new asset (default: a random `asset-…` id).
+    #[param(
+        pattern = "^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$",
+        min_length = 1,
+        max_length = 64
+    )]
     pub id: Option<String>,
 }
 
@@ -203,7 +209,8 @@ impl Drop for TempFile {
     params(UploadQuery),
     request_body(content = Vec<u8>, content_type = "application/octet-stream", description = "an .lfa file"),
     security(("bearer" = [])),
-    responses((status = 201, body = AssetSummary), (status = 401, body = ErrorBody), (status = 409, body = ErrorBody),
+    responses((status = 201, body = AssetSummary), (status = 401, body = ErrorBody),
+        (status = 408, body = ErrorBody, description = "the body stalled"), (status = 409, body = ErrorBody),
         (status = 413, body = ErrorBody), (status = 422, body = ErrorBody)))]
 pub async fn upload_asset(
     State(state): State<AppState>,
@@ -285,16 +292,22 @@ pub async fn upload_asset(
 #[allow(dead_code)]
 pub struct ViewSchema {
     /// Eye position `[x, y, z]`, world units.
+    #[schema(min_items = 3, max_items = 3)]
     pub eye: [f64; 3],
     /// Point looked at.
+    #[schema(min_items = 3, max_items = 3)]
     pub target: [f64; 3],
     /// Up direction (default `[0, 1, 0]`); not zero, not parallel to `target - eye`.
+    #[schema(min_items = 3, max_items = 3)]
     pub up: Option<[f64; 3]>,
     /// Vertical field of view in degrees, in (0, 180).
+    #[schema(exclusive_minimum = 0.0, exclusive_maximum = 180.0)]
     pub yfov_deg: f64,
     /// Width in pixels, 1..=max_px.
+    #[schema(minimum = 1)]
     pub width: u32,
     /// Height in pixels, 1..=max_px.
+    #[schema(minimum = 1)]
     pub height: u32,
 }
 
@@ -312,6 +325,7 @@ pub struct RenderRequest {
     #[schema(value_type = ViewSchema)]
     pub view: View,
     /// RGBA8 background where nothing is hit; default transparent black.
+    #[schema(min_items = 4, max_items = 4)]
     pub background: Option<[u8; 4]>,
     /// Colour codec; default `png`. `none` returns only the depth image.
     pub format: Option<ColorFormat>,
@@ -347,12 +361,14 @@ fn ms_header(value: f64) -> HeaderValue {
 /// `X-Frame-Width`, `X-Frame-Height` come with every answer; `X-Depth-Near`/`X-Depth-Far` with
 /// `png16` depth.
 #[utoipa::path(post, path = "/v1/assets/{id}/render", tag = "render",
-    params(("id" = String, Path, description = "asset id")),
+    params(("id" = String, Path, description = "asset id", pattern = "^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$", min_length = 1, max_length = 64)),
     request_body = RenderRequest,
     responses(
         (status = 200, description = "image/png, image/jpeg, image/webp, a depth image or multipart/mixed"),
         (status = 400, body = ErrorBody, description = "malformed JSON"),
-        (status = 404, body = ErrorBody), (status = 413, body = ErrorBody),
+        (status = 404, body = ErrorBody),
+        (status = 408, body = ErrorBody, description = "the body stalled or did not arrive in time"),
+        (status = 413, body = ErrorBody),
         (status = 422, body = ErrorBody, description = "invalid view or knobs"),
         (status = 503, body = ErrorBody, description = "render queue full")))]
 pub async fn render_asset(
@@ -513,6 +529,7 @@ pub struct BakeForm {
     request_body(content = BakeForm, content_type = "multipart/form-data"),
     security(("bearer" = [])),
     responses((status = 202, body = JobStatus), (status = 400, body = ErrorBody), (status = 401, body = ErrorBody),
+        (status = 408, body = ErrorBody, description = "the body stalled"),
         (status = 409, body = ErrorBody), (status = 413, body = ErrorBody), (status = 422, body = ErrorBody)))]
 pub async fn bake(
     State(state): State<AppState>,
@@ -677,8 +694,9 @@ pub async fn bake(
 
 /// Progress and result of a bake job.
 #[utoipa::path(get, path = "/v1/jobs/{id}", tag = "bake",
-    params(("id" = String, Path, description = "job id")),
-    responses((status = 200, body = JobStatus), (status = 404, body = ErrorBody)))]
+    params(("id" = String, Path, description = "job id", pattern = "^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$", min_length = 1, max_length = 64)),
+    responses((status = 200, body = JobStatus), (status = 404, body = ErrorBody),
+        (status = 422, body = ErrorBody, description = "invalid id")))]
 pub async fn get_job(
     State(state): State<AppState>,
     Path(id): Path<String>,
