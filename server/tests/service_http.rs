@@ -726,6 +726,34 @@ async fn the_memory_budget_refuses_uploads_and_bakes_and_deleting_frees_it_at_on
     );
 }
 
+#[tokio::test(flavor = "multi_thread")]
+async fn temporary_files_left_by_a_killed_server_are_removed_at_start_up() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    std::fs::write(dir.path().join("tiny.lfa"), tiny_asset()).expect("writing the asset");
+    for planted in [
+        ".upload-tmp-3f9c0a12b4d5e6f7.part",
+        ".tiny.lfa.tmp-4242-0",
+        ".mesh-1.lfa.tmp-77-3",
+    ] {
+        std::fs::write(dir.path().join(planted), b"half written").expect("planting");
+    }
+    for kept in ["notes.txt", ".keep"] {
+        std::fs::write(dir.path().join(kept), b"not ours").expect("planting");
+    }
+    let mut config = ServeConfig::new(dir.path(), "127.0.0.1:0".parse().expect("addr"));
+    config.bake_demo_if_empty = false;
+    let state = tokio::task::spawn_blocking(move || AppState::new(config, gpu()))
+        .await
+        .expect("join")
+        .expect("state");
+    state.load_assets().await.expect("loading");
+    assert_eq!(
+        dir_names(dir.path()),
+        vec![".keep", "notes.txt", "tiny.lfa"]
+    );
+    assert_eq!(state.assets().len(), 1);
+}
+
 fn bake_form(fields: &[(&str, Option<&str>, &[u8])]) -> (String, Vec<u8>) {
     let boundary = "XtestBoundaryX".to_owned();
     let mut body = Vec::new();

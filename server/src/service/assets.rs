@@ -387,6 +387,38 @@ impl AssetStore {
             .remove(id)
     }
 
+    /// Deletes the temporary files an upload (`.upload-*.part`) or an atomic write of an asset
+    /// (`.ID.lfa.tmp-*`) leaves behind when the server is killed mid-write, logging each; returns
+    /// how many were removed. Call at start-up only: a folder is served by one server, and a
+    /// running server's files of the same names are writes in progress.
+    ///
+    /// # Errors
+    /// The folder cannot be listed.
+    pub fn remove_leftovers(&self) -> std::io::Result<usize> {
+        let mut removed = 0;
+        for entry in std::fs::read_dir(&self.dir)? {
+            let entry = entry?;
+            let name = entry.file_name();
+            let Some(name) = name.to_str() else {
+                continue;
+            };
+            if !is_leftover_name(name) || !entry.file_type()?.is_file() {
+                continue;
+            }
+            let path = entry.path();
+            match std::fs::remove_file(&path) {
+                Ok(()) => {
+                    tracing::warn!(path = %path.display(), "removed a temporary file left by an interrupted upload or bake");
+                    removed += 1;
+                }
+                Err(err) => {
+                    tracing::warn!(path = %path.display(), error = %err, "cannot remove a leftover temporary file");
+                }
+            }
+        }
+        Ok(removed)
+    }
+
     /// `(id, path)` of every `*.lfa` file in the folder whose stem is a valid id, sorted.
     pub fn scan(&self) -> std::io::Result<Vec<(String, PathBuf)>> {
         let mut found = Vec::new();
@@ -409,9 +441,45 @@ impl AssetStore {
     }
 }
 
+/// Whether `name` is one of the temporary names the server writes: `.upload-<id>.part`
+/// (uploads) or `.<file>.lfa.tmp-<pid>-<n>` (`lumigraph_core::atomic_write` of an asset).
+fn is_leftover_name(name: &str) -> bool {
+    // Exactly the names the server writes, so the comparison is case-sensitive.
+    let upload = name
+        .strip_prefix(".upload-")
+        .and_then(|rest| rest.strip_suffix(".part"))
+        .is_some();
+    let atomic = name.starts_with('.')
+        && name
+            .split_once(".lfa.tmp-")
+            .is_some_and(|(stem, _)| stem.len() > 1);
+    upload || atomic
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn leftover_names_are_the_temporary_names_only() {
+        for leftover in [
+            ".upload-tmp-3f9c0a12b4d5e6f7.part",
+            ".demo.lfa.tmp-1234-0",
+            ".mesh-00ff.lfa.tmp-99-17",
+        ] {
+            assert!(is_leftover_name(leftover), "{leftover}");
+        }
+        for kept in [
+            "demo.lfa",
+            "upload-x.part",
+            ".upload-x.lfa",
+            ".lfa.tmp-1-0",
+            "notes.txt",
+            ".hidden",
+        ] {
+            assert!(!is_leftover_name(kept), "{kept}");
+        }
+    }
 
     #[test]
     fn ids_cannot_escape_the_folder() {

@@ -227,13 +227,18 @@ impl AppState {
         }
     }
 
-    /// Loads every `*.lfa` in the assets folder (files that fail or exceed a limit are logged
-    /// and skipped), bakes the demo scene first when configured and the folder holds none, then
-    /// marks the service ready.
+    /// Removes temporary files an interrupted upload or bake left in the assets folder, loads
+    /// every `*.lfa` there (files that fail or exceed a limit are logged and skipped), bakes the
+    /// demo scene first when configured and the folder holds none, then marks the service
+    /// ready.
     pub async fn load_assets(&self) -> anyhow::Result<()> {
         let dir = self.inner.config.assets_dir.clone();
         std::fs::create_dir_all(&dir)
             .with_context(|| format!("creating the assets folder {}", dir.display()))?;
+        self.inner
+            .assets
+            .remove_leftovers()
+            .with_context(|| format!("reading {}", dir.display()))?;
         let mut found = self
             .inner
             .assets
