@@ -754,6 +754,44 @@ async fn temporary_files_left_by_a_killed_server_are_removed_at_start_up() {
     assert_eq!(state.assets().len(), 1);
 }
 
+#[tokio::test(flavor = "multi_thread")]
+async fn a_bake_that_cannot_be_calibrated_fails_with_the_reason() {
+    // One vertex at 1e20: the calibration views around the huge bounding sphere see nothing.
+    let (dir, state) = setup(Some(TOKEN), |_| {}).await;
+    let off = b"OFF\n5 5 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n1e20 0 0\n\
+3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n3 1 4 2\n";
+    let accepted = post_bake(
+        &state,
+        Some(TOKEN),
+        &[
+            ("mesh", Some("far.off"), off),
+            ("options", None, br#"{"cameras": 12, "resolution": 16}"#),
+            ("id", None, b"far"),
+        ],
+    )
+    .await;
+    assert_eq!(accepted.status, StatusCode::ACCEPTED);
+    let job_uri = accepted.header("location").to_owned();
+    let mut status = serde_json::Value::Null;
+    for _ in 0..600 {
+        status = get(&state, &job_uri).await.json();
+        if status["state"] == "done" || status["state"] == "failed" {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert_eq!(status["state"], "failed", "{status}");
+    assert!(
+        status.to_string().contains("could not measure any setting"),
+        "{status}"
+    );
+    assert_eq!(dir_names(dir.path()), vec!["tiny.lfa"]);
+    assert_eq!(
+        get(&state, "/v1/assets/far").await.status,
+        StatusCode::NOT_FOUND
+    );
+}
+
 fn bake_form(fields: &[(&str, Option<&str>, &[u8])]) -> (String, Vec<u8>) {
     let boundary = "XtestBoundaryX".to_owned();
     let mut body = Vec::new();
