@@ -104,7 +104,17 @@ fn happy_path_bake_info_render_reference_eval() {
     let asset = demo_asset();
     let info = lumigraph(&["info", s(asset)]);
     assert!(info.status.success());
-    assert!(String::from_utf8_lossy(&info.stdout).contains("12 cameras"));
+    let text = String::from_utf8_lossy(&info.stdout);
+    assert!(text.contains("12 cameras"));
+    // 12 cameras × 64² × (4 + 2) bytes; on the GPU 13 layers (padded) × 64² × 12 bytes.
+    assert!(
+        text.contains("decoded size: 294912 bytes (288.0 KiB)"),
+        "{text}"
+    );
+    assert!(
+        text.contains("GPU memory when served: 638976 bytes"),
+        "{text}"
+    );
 
     let view = write("view.json", VIEW.as_bytes());
     let png = path("one.png");
