@@ -1481,3 +1481,63 @@ async fn websocket_goals_choose_full_quality_settings() {
     let _ = stop_tx.send(());
     server.await.expect("join").expect("server");
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn deleting_an_asset_a_stream_shows_frees_it_at_once() {
+    let (_dir, state) = setup(None, |_| {}).await;
+    let created = send(
+        &state,
+        upload("/v1/assets?id=shown", None, tiny_asset().to_vec()),
+    )
+    .await;
+    assert_eq!(created.status, StatusCode::CREATED);
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let addr = listener.local_addr().expect("addr");
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let server = tokio::spawn(run(listener, state.clone(), async move {
+        let _ = stop_rx.await;
+    }));
+    let (mut ws, _) =
+        tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset=shown"))
+            .await
+            .expect("connect");
+    assert_eq!(next_json(&mut ws).await["type"], "hello");
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "view", "id": 1, "view": view_json(16, 16), "still": true}),
+    )
+    .await;
+    let (frame, _) = next_frame(&mut ws).await;
+    assert_eq!(frame.request_id, 1);
+    assert_eq!(metric(&state, "lumigraph_gpu_light_fields").await, 2);
+
+    // The open session does not keep the deleted asset on the device.
+    let deleted = send(
+        &state,
+        Request::delete("/v1/assets/shown")
+            .body(Body::empty())
+            .expect("request"),
+    )
+    .await;
+    assert_eq!(deleted.status, StatusCode::NO_CONTENT);
+    assert_eq!(metric(&state, "lumigraph_gpu_light_fields").await, 1);
+    assert_eq!(
+        metric(&state, "lumigraph_asset_memory_bytes").await,
+        TINY_GPU
+    );
+
+    // Its next view is answered with an error, then the session closes.
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "view", "id": 2, "view": view_json(16, 16), "still": true}),
+    )
+    .await;
+    let error = next_json(&mut ws).await;
+    assert_eq!(error["kind"], "not_found", "{error}");
+    assert_eq!(error["request"], 2);
+    assert!(matches!(next_message(&mut ws).await, Message::Close(_)));
+    let _ = stop_tx.send(());
+    server.await.expect("join").expect("server");
+}
