@@ -36,6 +36,20 @@ pub enum CalibrationError {
     /// The asset's quality report holds a calibration that does not parse.
     #[error("malformed calibration: {0}")]
     Malformed(String),
+    /// No setting could be measured: every error came out undefined, because the calibration
+    /// views, framed on the bounding sphere, see none of the mesh's surface (e.g. one vertex far
+    /// from the rest makes the sphere so large that the object covers no pixel).
+    #[error(
+        "the calibration could not measure any setting: its views around the bounding sphere \
+         (centre {center:?}, radius {radius} world units) see no surface of the mesh; remove \
+         outlying vertices, or bake without calibration"
+    )]
+    Unmeasurable {
+        /// Bounding-sphere centre, world units.
+        center: [f64; 3],
+        /// Bounding-sphere radius, world units.
+        radius: f64,
+    },
     /// The calibration sweep failed.
     #[error(transparent)]
     Sweep(#[from] TradeoffError),
@@ -154,6 +168,16 @@ pub struct CalibrationPoint {
     /// calibrations made before it was measured.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub silhouette_error: Option<f64>,
+}
+
+impl CalibrationPoint {
+    /// Whether every value of the point is a finite number (what JSON can store and goals use).
+    pub fn is_measured(&self) -> bool {
+        self.ms_per_mpx.is_finite()
+            && self.masked_psnr.is_finite()
+            && self.depth_median_r.is_finite()
+            && self.silhouette_error.is_none_or(f64::is_finite)
+    }
 }
 
 /// What a render should meet.
@@ -280,7 +304,10 @@ impl Calibration {
             .basis(u32::MAX)
             .map_err(RenderError::from)?
             .projected_diameter_px(frame.center.into(), frame.radius);
-        let points = sweep(&inputs, &grid, progress)?
+        // A setting whose error is undefined (nothing seen) is left out: JSON has no NaN, and
+        // no goal could use it. With none left, the asset would carry a calibration no render
+        // can use, so the bake is refused instead.
+        let points: Vec<CalibrationPoint> = sweep(&inputs, &grid, progress)?
             .into_iter()
             .map(|p| CalibrationPoint {
                 cameras: p.setting.cameras,
@@ -288,9 +315,16 @@ impl Calibration {
                 ms_per_mpx: p.ms_per_frame / mpx,
                 masked_psnr: p.masked_psnr,
                 depth_median_r: p.depth_median_r,
-                silhouette_error: Some(p.silhouette_error_px / projected),
+                silhouette_error: Some(p.silhouette_error_px / projected).filter(|e| e.is_finite()),
             })
+            .filter(CalibrationPoint::is_measured)
             .collect();
+        if points.is_empty() {
+            return Err(CalibrationError::Unmeasurable {
+                center: frame.center,
+                radius: frame.radius,
+            });
+        }
         Ok(Calibration {
             size: CALIBRATION_SIZE,
             views: CALIBRATION_VIEWS,
@@ -334,9 +368,12 @@ impl Calibration {
     ) -> Result<Option<Calibration>, CalibrationError> {
         match quality.and_then(|q| q.get("calibration")) {
             None => Ok(None),
-            Some(value) => serde_json::from_value(value.clone())
-                .map(Some)
-                .map_err(|e| CalibrationError::Malformed(e.to_string())),
+            Some(value) => {
+                check_no_unmeasured_values(value)?;
+                serde_json::from_value(value.clone())
+                    .map(Some)
+                    .map_err(|e| CalibrationError::Malformed(e.to_string()))
+            }
         }
     }
 
@@ -410,6 +447,38 @@ impl Calibration {
     }
 }
 
+/// Names the first required value stored as `null` in a calibration's points: what earlier
+/// versions wrote for an error they could not measure (NaN), which no goal can use.
+fn check_no_unmeasured_values(calibration: &serde_json::Value) -> Result<(), CalibrationError> {
+    let Some(points) = calibration
+        .get("points")
+        .and_then(serde_json::Value::as_array)
+    else {
+        return Ok(());
+    };
+    for (i, point) in points.iter().enumerate() {
+        let Some(fields) = point.as_object() else {
+            continue;
+        };
+        // `silhouette_error` is optional: null there reads as absent.
+        let missing: Vec<&str> = fields
+            .iter()
+            .filter(|(name, value)| value.is_null() && name.as_str() != "silhouette_error")
+            .map(|(name, _)| name.as_str())
+            .collect();
+        if !missing.is_empty() {
+            return Err(CalibrationError::Malformed(format!(
+                "point {i} ({} cameras, step {}) has no {}: the bake could not measure it; bake \
+                 the asset again (this version refuses such a bake)",
+                fields.get("cameras").unwrap_or(&serde_json::Value::Null),
+                fields.get("step").unwrap_or(&serde_json::Value::Null),
+                missing.join(" and "),
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// A calibration point for unit tests: `cameras` × `step`, silhouette error `e` px, `ms` per
 /// megapixel, masked PSNR `psnr`.
 #[cfg(test)]
@@ -427,6 +496,33 @@ pub(crate) fn test_point(cameras: u32, step: f32, e: f64, ms: f64, psnr: f64) ->
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn unmeasured_values_are_named_on_read_and_never_written() {
+        let mut value = serde_json::to_value(calibration()).unwrap();
+        value["points"][1]["masked_psnr"] = serde_json::Value::Null;
+        value["points"][1]["depth_median_r"] = serde_json::Value::Null;
+        let quality = serde_json::json!({ "calibration": value });
+        let err = Calibration::from_quality(Some(&quality)).unwrap_err();
+        let message = err.to_string();
+        assert!(matches!(err, CalibrationError::Malformed(_)), "{message}");
+        for part in ["point 1", "masked_psnr", "bake the asset again"] {
+            assert!(message.contains(part), "{part:?} not in {message:?}");
+        }
+        // A null silhouette error is an absent one.
+        let mut value = serde_json::to_value(calibration()).unwrap();
+        value["points"][0]["silhouette_error"] = serde_json::Value::Null;
+        let quality = serde_json::json!({ "calibration": value });
+        assert!(Calibration::from_quality(Some(&quality)).unwrap().is_some());
+        // What measure keeps is what JSON can hold.
+        let mut point = calibration().points[0];
+        assert!(point.is_measured());
+        point.masked_psnr = f64::NAN;
+        assert!(!point.is_measured());
+        point.masked_psnr = 30.0;
+        point.silhouette_error = Some(f64::INFINITY);
+        assert!(!point.is_measured());
+    }
 
     fn calibration() -> Calibration {
         let point = |cameras, step, ms_per_mpx, masked_psnr| CalibrationPoint {

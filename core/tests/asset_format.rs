@@ -566,6 +566,37 @@ fn header_json_uses_the_documented_field_names() {
 }
 
 #[test]
+fn decoded_size_counts_every_declared_image_without_overflow() {
+    // 12 cameras × 40² texels × (4 colour + 2 depth bytes), one layer, one state.
+    let small = header(0, 40, 16, Encoding::R16);
+    assert_eq!(small.decoded_bytes(), 12 * 40 * 40 * 6);
+    // The largest header the format accepts: 642 cameras at 8192 px, 256 layers × 256 states,
+    // R32F depth, about 2.2e16 bytes; it validates, so a reader must check its size first.
+    let mut largest = header(3, 8192, 4096, Encoding::R32F);
+    largest.layers = (0..256)
+        .map(|i| LayerDesc {
+            name: format!("l{i}"),
+            default_opacity: 1.0,
+        })
+        .collect();
+    largest.states = (0..256)
+        .map(|i| StateDesc {
+            name: format!("s{i}"),
+            params: serde_json::Map::new(),
+        })
+        .collect();
+    largest.validate().unwrap();
+    assert_eq!(
+        largest.decoded_bytes(),
+        642 * 8192 * 8192 * 8 * 256 * 256_u64
+    );
+    // Fields beyond what validation allows saturate instead of wrapping to a small number.
+    largest.geometry.camera_count = u32::MAX;
+    largest.geometry.resolution_px = u32::MAX;
+    assert_eq!(largest.decoded_bytes(), u64::MAX);
+}
+
+#[test]
 fn header_constructor_and_frame() {
     let h = AssetHeader::new_spherical(2, 256, frame(), Encoding::R16, provenance()).unwrap();
     assert_eq!(h.camera_count(), 162);

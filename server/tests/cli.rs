@@ -104,7 +104,17 @@ fn happy_path_bake_info_render_reference_eval() {
     let asset = demo_asset();
     let info = lumigraph(&["info", s(asset)]);
     assert!(info.status.success());
-    assert!(String::from_utf8_lossy(&info.stdout).contains("12 cameras"));
+    let text = String::from_utf8_lossy(&info.stdout);
+    assert!(text.contains("12 cameras"));
+    // 12 cameras × 64² × (4 + 2) bytes; on the GPU 13 layers (padded) × 64² × 12 bytes.
+    assert!(
+        text.contains("decoded size: 294912 bytes (288.0 KiB)"),
+        "{text}"
+    );
+    assert!(
+        text.contains("GPU memory when served: 638976 bytes"),
+        "{text}"
+    );
 
     let view = write("view.json", VIEW.as_bytes());
     let png = path("one.png");
@@ -229,6 +239,32 @@ fn malformed_meshes_fail_cleanly() {
         "missing.obj",
     );
     assert!(!out.exists(), "a failed bake left a file behind");
+}
+
+/// A unit tetrahedron plus one triangle reaching a vertex at 1e20: finite, valid, extreme.
+pub const FAR_VERTEX_OFF: &[u8] = b"OFF\n5 5 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n1e20 0 0\n\
+3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n3 1 4 2\n";
+
+#[test]
+fn extreme_meshes_are_refused_at_a_calibrated_bake() {
+    // Its bounding sphere (radius 5e19) is so large that the calibration views see nothing:
+    // the bake used to store every error as null, and every goal or automatic-LOD render of
+    // the asset then failed. Now the bake itself says why.
+    let mesh = write("far.off", FAR_VERTEX_OFF);
+    let out = path("far.lfa");
+    let args = [
+        "bake",
+        s(&mesh),
+        "-o",
+        s(&out),
+        "--cameras",
+        "12",
+        "--resolution",
+        "32",
+    ];
+    assert_fails(&args, "could not measure any setting");
+    assert_fails(&args, "radius 5");
+    assert!(!out.exists(), "a refused bake left a file behind");
 }
 
 #[test]

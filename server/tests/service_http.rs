@@ -554,6 +554,244 @@ async fn upload_and_delete_assets() {
     assert_eq!(dir_names(dir.path()), vec!["tiny.lfa"]);
 }
 
+/// The tiny asset with `states` states declared of which only the base state is stored (the
+/// others fall back to it): a valid file of a few kilobytes whose declared decoded size is
+/// `states` times the tiny asset's.
+fn asset_declaring_states(states: usize) -> Vec<u8> {
+    let tiny = lumigraph_core::asset::AssetFile::from_bytes(tiny_asset().to_vec()).expect("tiny");
+    let mut header = tiny.header().clone();
+    header.states = (0..states)
+        .map(|i| lumigraph_core::asset::StateDesc {
+            name: format!("state-{i}"),
+            params: serde_json::Map::new(),
+        })
+        .collect();
+    let images: Vec<_> = tiny
+        .index()
+        .iter()
+        .filter(|e| e.page == 0)
+        .map(|e| (e.key, tiny.read_image(e.key).expect("image")))
+        .collect();
+    lumigraph_core::asset::encode_asset(header, images).expect("encoding")
+}
+
+/// The value of an unlabelled metric in a `/metrics` text.
+async fn metric(state: &AppState, name: &str) -> u64 {
+    let text = String::from_utf8(get(state, "/metrics").await.body).expect("utf-8");
+    text.lines()
+        .find_map(|l| l.strip_prefix(name)?.strip_prefix(' ')?.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no metric {name} in:\n{text}"))
+}
+
+/// Decoded size of the tiny asset: 12 cameras × 32² × (4 + 2) bytes.
+const TINY_DECODED: u64 = 12 * 32 * 32 * 6;
+/// Its texture bytes: 12 cameras, padded to 13 layers, × 32² × (4 + 8) bytes.
+const TINY_GPU: u64 = 13 * 32 * 32 * 12;
+
+#[tokio::test(flavor = "multi_thread")]
+async fn assets_over_the_decoded_size_limit_are_refused_before_decoding() {
+    // A 4 KB upload declaring 256 states decodes (as declared) to 256 × the tiny asset.
+    let (dir, state) = setup(Some(TOKEN), |c| {
+        c.max_asset_decoded_bytes = 1 << 20;
+    })
+    .await;
+    let forged = asset_declaring_states(256);
+    assert!(forged.len() < 64 << 10, "{} bytes", forged.len());
+    lumigraph_core::asset::AssetFile::from_bytes(forged.clone()).expect("a valid asset");
+    let reply = send(
+        &state,
+        upload("/v1/assets?id=forged", Some(TOKEN), forged.clone()),
+    )
+    .await;
+    assert_eq!(reply.status, StatusCode::PAYLOAD_TOO_LARGE);
+    assert_eq!(reply.error_kind(), "too_large");
+    let message = reply.json()["error"]["message"]
+        .as_str()
+        .unwrap_or_default()
+        .to_owned();
+    let decoded = (TINY_DECODED * 256).to_string();
+    for part in [
+        decoded.as_str(),
+        "1048576 bytes",
+        "--max-asset-decoded-bytes",
+        "256 states",
+    ] {
+        assert!(message.contains(part), "{part:?} not in {message:?}");
+    }
+    assert_eq!(dir_names(dir.path()), vec!["tiny.lfa"]);
+
+    // The same file in the folder at start-up is skipped, the others load.
+    std::fs::write(dir.path().join("forged.lfa"), &forged).expect("writing");
+    let mut config = state.config().clone();
+    config.max_asset_decoded_bytes = 1 << 20;
+    let restarted = tokio::task::spawn_blocking(move || AppState::new(config, gpu()))
+        .await
+        .expect("join")
+        .expect("state");
+    restarted.load_assets().await.expect("loading");
+    let ids: Vec<String> = restarted
+        .assets()
+        .list()
+        .into_iter()
+        .map(|a| a.id)
+        .collect();
+    assert_eq!(ids, vec!["tiny"]);
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn the_memory_budget_refuses_uploads_and_bakes_and_deleting_frees_it_at_once() {
+    // Room for the tiny asset and one more.
+    let (_dir, state) = setup(Some(TOKEN), |c| {
+        c.asset_memory_budget = 2 * TINY_GPU + TINY_GPU / 2;
+    })
+    .await;
+    assert_eq!(metric(&state, "lumigraph_gpu_light_fields").await, 1);
+    assert_eq!(
+        metric(&state, "lumigraph_asset_memory_bytes").await,
+        TINY_GPU
+    );
+    let asset = tiny_asset().to_vec();
+    let delete = |id: &str| {
+        Request::delete(format!("/v1/assets/{id}"))
+            .header(header::AUTHORIZATION, format!("Bearer {TOKEN}"))
+            .body(Body::empty())
+            .expect("request")
+    };
+    // Upload and delete, never rendering in between: each delete must give the memory back,
+    // or the next upload would not fit.
+    for round in 0..3 {
+        let created = send(
+            &state,
+            upload("/v1/assets?id=second", Some(TOKEN), asset.clone()),
+        )
+        .await;
+        assert_eq!(created.status, StatusCode::CREATED, "round {round}");
+        assert_eq!(created.json()["gpu_bytes"], TINY_GPU);
+        let refused = send(
+            &state,
+            upload("/v1/assets?id=third", Some(TOKEN), asset.clone()),
+        )
+        .await;
+        assert_eq!(
+            refused.status,
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "round {round}"
+        );
+        let message = refused.json()["error"]["message"]
+            .as_str()
+            .unwrap_or_default()
+            .to_owned();
+        assert!(message.contains("--asset-memory-budget"), "{message}");
+        assert!(
+            message.contains(&(2 * TINY_GPU + TINY_GPU / 2).to_string()),
+            "{message}"
+        );
+        assert_eq!(metric(&state, "lumigraph_gpu_light_fields").await, 2);
+        assert_eq!(
+            send(&state, delete("second")).await.status,
+            StatusCode::NO_CONTENT
+        );
+        assert_eq!(
+            metric(&state, "lumigraph_gpu_light_fields").await,
+            1,
+            "round {round}"
+        );
+        assert_eq!(
+            metric(&state, "lumigraph_asset_memory_bytes").await,
+            TINY_GPU
+        );
+    }
+    assert_eq!(
+        metric(&state, "lumigraph_asset_memory_budget_bytes").await,
+        2 * TINY_GPU + TINY_GPU / 2
+    );
+    // A bake whose asset could not fit is refused before any work.
+    let obj = icosahedron_obj();
+    let reply = post_bake(
+        &state,
+        Some(TOKEN),
+        &[
+            ("mesh", Some("ico.obj"), obj.as_bytes()),
+            ("options", None, br#"{"cameras": 162, "resolution": 256}"#),
+        ],
+    )
+    .await;
+    assert_eq!(reply.status, StatusCode::PAYLOAD_TOO_LARGE);
+    assert!(
+        reply.json()["error"]["message"]
+            .as_str()
+            .is_some_and(|m| m.contains("--asset-memory-budget")),
+        "{}",
+        String::from_utf8_lossy(&reply.body)
+    );
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn temporary_files_left_by_a_killed_server_are_removed_at_start_up() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    std::fs::write(dir.path().join("tiny.lfa"), tiny_asset()).expect("writing the asset");
+    for planted in [
+        ".upload-tmp-3f9c0a12b4d5e6f7.part",
+        ".tiny.lfa.tmp-4242-0",
+        ".mesh-1.lfa.tmp-77-3",
+    ] {
+        std::fs::write(dir.path().join(planted), b"half written").expect("planting");
+    }
+    for kept in ["notes.txt", ".keep"] {
+        std::fs::write(dir.path().join(kept), b"not ours").expect("planting");
+    }
+    let mut config = ServeConfig::new(dir.path(), "127.0.0.1:0".parse().expect("addr"));
+    config.bake_demo_if_empty = false;
+    let state = tokio::task::spawn_blocking(move || AppState::new(config, gpu()))
+        .await
+        .expect("join")
+        .expect("state");
+    state.load_assets().await.expect("loading");
+    assert_eq!(
+        dir_names(dir.path()),
+        vec![".keep", "notes.txt", "tiny.lfa"]
+    );
+    assert_eq!(state.assets().len(), 1);
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_bake_that_cannot_be_calibrated_fails_with_the_reason() {
+    // One vertex at 1e20: the calibration views around the huge bounding sphere see nothing.
+    let (dir, state) = setup(Some(TOKEN), |_| {}).await;
+    let off = b"OFF\n5 5 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n1e20 0 0\n\
+3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n3 1 4 2\n";
+    let accepted = post_bake(
+        &state,
+        Some(TOKEN),
+        &[
+            ("mesh", Some("far.off"), off),
+            ("options", None, br#"{"cameras": 12, "resolution": 16}"#),
+            ("id", None, b"far"),
+        ],
+    )
+    .await;
+    assert_eq!(accepted.status, StatusCode::ACCEPTED);
+    let job_uri = accepted.header("location").to_owned();
+    let mut status = serde_json::Value::Null;
+    for _ in 0..600 {
+        status = get(&state, &job_uri).await.json();
+        if status["state"] == "done" || status["state"] == "failed" {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert_eq!(status["state"], "failed", "{status}");
+    assert!(
+        status.to_string().contains("could not measure any setting"),
+        "{status}"
+    );
+    assert_eq!(dir_names(dir.path()), vec!["tiny.lfa"]);
+    assert_eq!(
+        get(&state, "/v1/assets/far").await.status,
+        StatusCode::NOT_FOUND
+    );
+}
+
 fn bake_form(fields: &[(&str, Option<&str>, &[u8])]) -> (String, Vec<u8>) {
     let boundary = "XtestBoundaryX".to_owned();
     let mut body = Vec::new();
@@ -1240,6 +1478,66 @@ async fn websocket_goals_choose_full_quality_settings() {
         "{error}"
     );
     ws.close(None).await.expect("close");
+    let _ = stop_tx.send(());
+    server.await.expect("join").expect("server");
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn deleting_an_asset_a_stream_shows_frees_it_at_once() {
+    let (_dir, state) = setup(None, |_| {}).await;
+    let created = send(
+        &state,
+        upload("/v1/assets?id=shown", None, tiny_asset().to_vec()),
+    )
+    .await;
+    assert_eq!(created.status, StatusCode::CREATED);
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let addr = listener.local_addr().expect("addr");
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let server = tokio::spawn(run(listener, state.clone(), async move {
+        let _ = stop_rx.await;
+    }));
+    let (mut ws, _) =
+        tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset=shown"))
+            .await
+            .expect("connect");
+    assert_eq!(next_json(&mut ws).await["type"], "hello");
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "view", "id": 1, "view": view_json(16, 16), "still": true}),
+    )
+    .await;
+    let (frame, _) = next_frame(&mut ws).await;
+    assert_eq!(frame.request_id, 1);
+    assert_eq!(metric(&state, "lumigraph_gpu_light_fields").await, 2);
+
+    // The open session does not keep the deleted asset on the device.
+    let deleted = send(
+        &state,
+        Request::delete("/v1/assets/shown")
+            .body(Body::empty())
+            .expect("request"),
+    )
+    .await;
+    assert_eq!(deleted.status, StatusCode::NO_CONTENT);
+    assert_eq!(metric(&state, "lumigraph_gpu_light_fields").await, 1);
+    assert_eq!(
+        metric(&state, "lumigraph_asset_memory_bytes").await,
+        TINY_GPU
+    );
+
+    // Its next view is answered with an error, then the session closes.
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "view", "id": 2, "view": view_json(16, 16), "still": true}),
+    )
+    .await;
+    let error = next_json(&mut ws).await;
+    assert_eq!(error["kind"], "not_found", "{error}");
+    assert_eq!(error["request"], 2);
+    assert!(matches!(next_message(&mut ws).await, Message::Close(_)));
     let _ = stop_tx.send(());
     server.await.expect("join").expect("server");
 }

@@ -340,6 +340,30 @@ impl AssetHeader {
         side.checked_mul(side)?.checked_mul(bpp)
     }
 
+    /// Bytes of every image the header declares once decoded: cameras × `resolution_px`² ×
+    /// (bytes per texel of every channel) × layers × states. States may omit images (they fall
+    /// back to state 0), so this is an upper bound of what reading the whole file decodes; it
+    /// is what a reader must be ready for before it trusts the file. Saturates at `u64::MAX`
+    /// instead of overflowing, so a forged header cannot wrap it to a small number.
+    pub fn decoded_bytes(&self) -> u64 {
+        let side = u64::from(self.geometry.resolution_px);
+        let texel_bytes: u64 = self
+            .channels
+            .iter()
+            .map(|c| u64::from(c.encoding.bytes_per_texel()))
+            .fold(0, u64::saturating_add);
+        [
+            u64::from(self.geometry.camera_count),
+            side,
+            side,
+            texel_bytes,
+            self.layers.len() as u64,
+            self.states.len() as u64,
+        ]
+        .into_iter()
+        .fold(1, u64::saturating_mul)
+    }
+
     /// Checks every rule of format version 1 (see `docs/format.md`, "Validation").
     pub fn validate(&self) -> Result<()> {
         let bad = |msg: String| Err(AssetError::Header(msg));

@@ -23,7 +23,9 @@ pub use options::{
     Method, RenderError, RenderOptions, ResolvedOptions, Switches, UploadOptions,
 };
 pub use passes::PASS_TIMING_VARIABLE;
+pub use upload::field_bytes;
 
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
@@ -68,6 +70,46 @@ pub struct GpuLightField {
     /// was seen).
     pub visible_box: [[f32; 3]; 2],
     group: wgpu::BindGroup,
+    /// The colour and depth texture arrays, destroyed on drop.
+    textures: [wgpu::Texture; 2],
+    /// The device, polled on drop so that wgpu reclaims the textures at once.
+    gpu: Arc<Gpu>,
+    /// The renderer's count of resident fields, decremented on drop.
+    resident: Arc<ResidentCounter>,
+}
+
+impl Drop for GpuLightField {
+    fn drop(&mut self) {
+        // Dropping the handles alone leaves the memory to wgpu's next maintenance, which runs
+        // only when some later frame is submitted: an asset deleted on an idle service would
+        // stay resident. `destroy` frees the textures now, or as soon as the last submission
+        // that reads them completes, whoever else still holds a handle to them.
+        for texture in &self.textures {
+            texture.destroy();
+        }
+        // A non-blocking poll reclaims what completed submissions held. Its only error is a
+        // lost device, whose memory is gone anyway; a drop has no one to report to.
+        let _ = self.gpu.device.poll(wgpu::PollType::Poll);
+        self.resident.fields.fetch_sub(1, Ordering::AcqRel);
+        self.resident
+            .bytes
+            .fetch_sub(self.gpu_bytes, Ordering::AcqRel);
+    }
+}
+
+/// The light fields a [`Renderer`] has on the device: uploaded and not yet dropped.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ResidentFields {
+    /// Number of [`GpuLightField`]s alive.
+    pub fields: usize,
+    /// Their texture bytes ([`GpuLightField::gpu_bytes`] summed).
+    pub bytes: u64,
+}
+
+#[derive(Debug, Default)]
+struct ResidentCounter {
+    fields: AtomicUsize,
+    bytes: AtomicU64,
 }
 
 /// One coarse pass of a guided frame: its buffers, size, focal length (pixels) and jitter (its
@@ -97,6 +139,8 @@ pub struct Renderer {
     /// Reusable targets; the lock also serializes frames on the one queue.
     targets: Mutex<Option<Targets>>,
     max_px: u32,
+    /// Light fields uploaded by this renderer and still alive.
+    resident: Arc<ResidentCounter>,
 }
 
 fn buffer_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
@@ -273,6 +317,7 @@ impl Renderer {
             lookup_view,
             targets: Mutex::new(None),
             max_px,
+            resident: Arc::default(),
         };
         // The default method's guided pipelines serve most frames: build them now, not in the
         // first frame.
@@ -312,6 +357,14 @@ impl Renderer {
     /// The device.
     pub fn gpu(&self) -> &Arc<Gpu> {
         &self.gpu
+    }
+
+    /// The light fields this renderer uploaded that are still alive, and their texture bytes.
+    pub fn resident(&self) -> ResidentFields {
+        ResidentFields {
+            fields: self.resident.fields.load(Ordering::Acquire),
+            bytes: self.resident.bytes.load(Ordering::Acquire),
+        }
     }
 
     /// Renders `view` (world coordinates) from `field`.

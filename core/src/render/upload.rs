@@ -1,14 +1,36 @@
 //! Preparing an asset's maps for the marcher at upload: depth codes with sub-texel silhouettes,
 //! footprint texels, the visible box, and the direction lookup texture.
 
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+
 use glam::DVec3;
 
-use crate::asset::{AssetError, AssetFile, Channel, Encoding, ImageKey};
+use crate::asset::{AssetError, AssetFile, AssetHeader, Channel, Encoding, ImageKey};
 use crate::geometry;
 use crate::gpu::{Gpu, GpuError, array_view, texture_array};
 
 use super::options::{RenderError, UploadOptions};
 use super::{GpuLightField, Renderer};
+
+/// Texture bytes [`Renderer::upload`] allocates on the device for an asset: one colour
+/// (RGBA8, 4 bytes) and one depth-footprint (RGBA16, 8 bytes) texel per map texel, for every
+/// camera (padded as [`Gpu::padded_layers`] does) of the base state and first layer. The upload
+/// stages as much again on the host while it runs. Saturates instead of overflowing.
+pub fn field_bytes(header: &AssetHeader) -> u64 {
+    let side = u64::from(header.geometry.resolution_px);
+    [
+        u64::from(Gpu::padded_layers(header.geometry.camera_count)),
+        side,
+        side,
+        FIELD_TEXEL_BYTES,
+    ]
+    .into_iter()
+    .fold(1, u64::saturating_mul)
+}
+
+/// Bytes per map texel on the device: RGBA8 colour plus RGBA16 depth footprint.
+const FIELD_TEXEL_BYTES: u64 = 4 + 8;
 
 impl Renderer {
     /// Uploads an asset's base state and first layer (all cameras) as texture arrays.
@@ -119,7 +141,13 @@ impl Renderer {
             n,
             &depth_refs,
         );
-        let gpu_bytes = u64::from(Gpu::padded_layers(cameras)) * u64::from(n) * u64::from(n) * 12;
+        // Submitting flushes the texture writes, which wgpu otherwise holds (with a staging copy
+        // of every byte) until the next frame is submitted; waiting frees that copy and turns an
+        // allocation failure into an error here rather than in some later frame.
+        self.gpu.queue.submit(std::iter::empty());
+        drop((colors, depths));
+        self.gpu.wait()?;
+        let gpu_bytes = field_bytes(header);
         let color_view = array_view(&color_tex);
         let depth_view = array_view(&depth_tex);
         let group = self
@@ -156,6 +184,9 @@ impl Renderer {
                 ],
             });
         let frame = &header.frame;
+        // Decremented by the field's drop.
+        self.resident.fields.fetch_add(1, Ordering::AcqRel);
+        self.resident.bytes.fetch_add(gpu_bytes, Ordering::AcqRel);
         Ok(GpuLightField {
             scale: frame.world_from_lf_scale(),
             center: DVec3::from(frame.center),
@@ -165,6 +196,9 @@ impl Renderer {
             gpu_bytes,
             visible_box: visible.finish(n, requantize_8 || depth_encoding == Encoding::R8),
             group,
+            textures: [color_tex, depth_tex],
+            gpu: Arc::clone(&self.gpu),
+            resident: Arc::clone(&self.resident),
         })
     }
 }

@@ -6,6 +6,8 @@ use anyhow::{Context, Result};
 use clap::Args;
 use lumigraph_core::asset::AssetFile;
 
+use crate::service::assets::describe_bytes;
+
 /// `lumigraph info`.
 #[derive(Debug, Args)]
 pub struct InfoArgs {
@@ -33,6 +35,13 @@ pub(super) fn info(args: &InfoArgs) -> Result<()> {
         h.geometry.camera_level,
         h.geometry.resolution_px,
         h.geometry.resolution_px
+    );
+    println!(
+        "decoded size: {} (every image of {} layer(s) × {} state(s)); GPU memory when served: {}",
+        describe_bytes(h.decoded_bytes()),
+        h.layers.len(),
+        h.states.len(),
+        describe_bytes(lumigraph_core::render::field_bytes(h))
     );
     println!(
         "bounding sphere: centre {:?}, radius {}",

@@ -33,6 +33,16 @@ pub struct ServeArgs {
     /// Seconds a stream session may go without a client message before it is closed (1008).
     #[arg(long, default_value = "300", value_parser = parse_seconds)]
     pub stream_idle_secs: std::time::Duration,
+    /// Most GPU memory the loaded assets may take together (host memory on a software
+    /// adapter), in bytes or with a K, M, G or T suffix (powers of 1024); uploads and bakes
+    /// beyond it are refused with 413. Default: half of the machine's memory. On a discrete GPU
+    /// set it at most to the GPU's memory.
+    #[arg(long, value_parser = parse_bytes)]
+    pub asset_memory_budget: Option<u64>,
+    /// Most bytes one asset may decode to (every image of every layer and state, read from its
+    /// header before anything is decoded), same units. Default: the memory budget.
+    #[arg(long, value_parser = parse_bytes)]
+    pub max_asset_decoded_bytes: Option<u64>,
 }
 
 /// A positive, finite number of seconds, at most a day.
@@ -45,6 +55,36 @@ fn parse_seconds(s: &str) -> Result<std::time::Duration, String> {
     }
 }
 
+/// A byte count: digits with an optional K, M, G or T suffix (powers of 1024; `KiB`, `KB`
+/// and `k` are read the same).
+fn parse_bytes(text: &str) -> Result<u64, String> {
+    let text = text.trim();
+    let digits = text
+        .find(|c: char| !c.is_ascii_digit())
+        .unwrap_or(text.len());
+    let (number, suffix) = text.split_at(digits);
+    let number: u64 = number
+        .parse()
+        .map_err(|_| format!("{text:?} is not a byte count such as 8G or 1073741824"))?;
+    let shift = match suffix
+        .trim()
+        .trim_end_matches(['B', 'b'])
+        .trim_end_matches('i')
+        .to_ascii_uppercase()
+        .as_str()
+    {
+        "" => 0,
+        "K" => 10,
+        "M" => 20,
+        "G" => 30,
+        "T" => 40,
+        _ => return Err(format!("{text:?}: the unit must be K, M, G or T")),
+    };
+    number
+        .checked_mul(1 << shift)
+        .ok_or_else(|| format!("{text:?} is too large"))
+}
+
 pub(super) fn serve(args: &ServeArgs) -> Result<()> {
     let mut config = crate::service::ServeConfig::from_env(&args.assets, args.addr);
     config.max_sessions = args.max_sessions;
@@ -54,9 +94,40 @@ pub(super) fn serve(args: &ServeArgs) -> Result<()> {
     config.body_idle_timeout = args.body_timeout_secs;
     config.body_deadline = args.body_timeout_secs;
     config.stream_idle_timeout = args.stream_idle_secs;
+    if let Some(budget) = args.asset_memory_budget {
+        config.asset_memory_budget = budget;
+    }
+    config.max_asset_decoded_bytes = args
+        .max_asset_decoded_bytes
+        .unwrap_or(config.asset_memory_budget);
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
         .context("cannot start the async runtime")?;
     runtime.block_on(crate::service::serve(config))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_bytes;
+
+    #[test]
+    fn byte_counts() {
+        assert_eq!(parse_bytes("1073741824"), Ok(1 << 30));
+        assert_eq!(parse_bytes("8G"), Ok(8 << 30));
+        assert_eq!(parse_bytes("512MiB"), Ok(512 << 20));
+        assert_eq!(parse_bytes("3k"), Ok(3 << 10));
+        assert_eq!(parse_bytes("2 TB"), Ok(2 << 40));
+        for bad in [
+            "",
+            "G",
+            "1.5G",
+            "-1",
+            "4X",
+            "99999999999999999999",
+            "20000000T",
+        ] {
+            assert!(parse_bytes(bad).is_err(), "{bad:?}");
+        }
+    }
 }

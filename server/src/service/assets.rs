@@ -6,10 +6,11 @@
 
 use std::collections::{BTreeMap, HashSet};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError, RwLock};
 
 use lumigraph_core::asset::{AssetFile, AssetHeader};
-use lumigraph_core::render::{GpuLightField, Renderer};
+use lumigraph_core::render::{GpuLightField, Renderer, field_bytes};
 use serde::Serialize;
 
 use super::error::AppError;
@@ -55,6 +56,30 @@ pub struct LoadedAsset {
     pub file_bytes: u64,
     /// Colour and depth texture arrays.
     pub field: GpuLightField,
+    /// The asset's share of the memory budget, given back when the last holder drops it (the
+    /// moment its textures are freed).
+    _charge: MemoryCharge,
+}
+
+/// A share of the store's memory budget, released on drop.
+pub struct MemoryCharge {
+    bytes: u64,
+    charged: Arc<AtomicU64>,
+}
+
+impl Drop for MemoryCharge {
+    fn drop(&mut self) {
+        self.charged.fetch_sub(self.bytes, Ordering::AcqRel);
+    }
+}
+
+/// What the store lets an asset take.
+#[derive(Clone, Copy, Debug)]
+pub struct AssetLimits {
+    /// Most bytes one asset may decode to ([`AssetHeader::decoded_bytes`]).
+    pub max_decoded_bytes: u64,
+    /// Most texture bytes ([`field_bytes`]) all loaded assets may hold together.
+    pub memory_budget: u64,
 }
 
 /// One line of `GET /v1/assets`.
@@ -78,6 +103,8 @@ pub struct AssetSummary {
     pub radius: f64,
     /// File size in bytes.
     pub file_bytes: u64,
+    /// GPU memory the asset takes, in bytes, charged to the asset memory budget.
+    pub gpu_bytes: u64,
 }
 
 impl LoadedAsset {
@@ -97,6 +124,7 @@ impl LoadedAsset {
             center: h.frame.center,
             radius: h.frame.radius,
             file_bytes: self.file_bytes,
+            gpu_bytes: self.field.gpu_bytes,
         }
     }
 }
@@ -111,11 +139,41 @@ pub enum LoadError {
     /// The asset could not be uploaded to the GPU.
     #[error(transparent)]
     Render(#[from] lumigraph_core::render::RenderError),
+    /// The asset is valid but larger than a limit of the service.
+    #[error("{0}")]
+    OverLimit(String),
 }
 
-/// Opens, fully verifies and uploads one file (blocking: call from `spawn_blocking`).
-pub fn load_file(renderer: &Renderer, id: &str, path: &Path) -> Result<LoadedAsset, LoadError> {
+/// `1234 bytes (1.2 KiB)`.
+pub fn describe_bytes(bytes: u64) -> String {
+    const UNITS: [&str; 6] = ["KiB", "MiB", "GiB", "TiB", "PiB", "EiB"];
+    let mut value = bytes as f64;
+    let mut unit = "";
+    for next in UNITS {
+        if value < 1024.0 {
+            break;
+        }
+        value /= 1024.0;
+        unit = next;
+    }
+    if unit.is_empty() {
+        format!("{bytes} bytes")
+    } else {
+        format!("{bytes} bytes ({value:.1} {unit})")
+    }
+}
+
+/// Opens one file, checks it against the store's limits, then fully verifies and uploads it
+/// (blocking: call from `spawn_blocking`). The limits are checked from the header alone, before
+/// any page is decoded.
+pub fn load_file(
+    store: &AssetStore,
+    renderer: &Renderer,
+    id: &str,
+    path: &Path,
+) -> Result<LoadedAsset, LoadError> {
     let file = AssetFile::open(path)?;
+    let charge = store.admit(file.header())?;
     file.verify_all()?;
     let field = renderer.upload(&file)?;
     Ok(LoadedAsset {
@@ -124,12 +182,17 @@ pub fn load_file(renderer: &Renderer, id: &str, path: &Path) -> Result<LoadedAss
         header: file.header().clone(),
         file_bytes: file.file_len(),
         field,
+        _charge: charge,
     })
 }
 
 /// The loaded assets, by id.
 pub struct AssetStore {
     dir: PathBuf,
+    limits: AssetLimits,
+    /// Texture bytes of the assets alive (loaded, or deleted but still held by a render or a
+    /// stream) plus those being loaded.
+    charged: Arc<AtomicU64>,
     assets: RwLock<BTreeMap<String, Arc<LoadedAsset>>>,
     /// Ids an upload or bake is writing right now.
     reserved: Arc<Mutex<HashSet<String>>>,
@@ -159,9 +222,11 @@ impl Drop for Reservation {
 
 impl AssetStore {
     /// An empty store over `dir`.
-    pub fn new(dir: PathBuf) -> Self {
+    pub fn new(dir: PathBuf, limits: AssetLimits) -> Self {
         Self {
             dir,
+            limits,
+            charged: Arc::default(),
             assets: RwLock::new(BTreeMap::new()),
             reserved: Arc::default(),
         }
@@ -180,6 +245,67 @@ impl AssetStore {
         Ok(Reservation {
             id: id.to_owned(),
             reserved: Arc::clone(&self.reserved),
+        })
+    }
+
+    /// The store's limits.
+    pub fn limits(&self) -> AssetLimits {
+        self.limits
+    }
+
+    /// Texture bytes charged to the memory budget now.
+    pub fn charged_bytes(&self) -> u64 {
+        self.charged.load(Ordering::Acquire)
+    }
+
+    /// Checks an asset's header against the limits and charges its texture bytes to the memory
+    /// budget, or says which limit it exceeds.
+    ///
+    /// # Errors
+    /// [`LoadError::OverLimit`] naming the limit and the asset's size.
+    pub fn admit(&self, header: &AssetHeader) -> Result<MemoryCharge, LoadError> {
+        let decoded = header.decoded_bytes();
+        let max_decoded = self.limits.max_decoded_bytes;
+        if decoded > max_decoded {
+            let g = &header.geometry;
+            return Err(LoadError::OverLimit(format!(
+                "the asset decodes to {} ({} cameras × {}² px × {} layers × {} states), above the \
+                 limit of {} per asset (--max-asset-decoded-bytes)",
+                describe_bytes(decoded),
+                g.camera_count,
+                g.resolution_px,
+                header.layers.len(),
+                header.states.len(),
+                describe_bytes(max_decoded),
+            )));
+        }
+        let bytes = field_bytes(header);
+        let budget = self.limits.memory_budget;
+        let mut charged = self.charged.load(Ordering::Acquire);
+        loop {
+            let total = charged.saturating_add(bytes);
+            if total > budget {
+                return Err(LoadError::OverLimit(format!(
+                    "the asset needs {} of GPU memory, but {} of the asset memory budget of {} \
+                     (--asset-memory-budget) are taken: delete an asset or raise the budget",
+                    describe_bytes(bytes),
+                    describe_bytes(charged),
+                    describe_bytes(budget),
+                )));
+            }
+            match self.charged.compare_exchange_weak(
+                charged,
+                total,
+                Ordering::AcqRel,
+                Ordering::Acquire,
+            ) {
+                Ok(_) => break,
+                Err(now) => charged = now,
+            }
+        }
+        Ok(MemoryCharge {
+            bytes,
+            charged: Arc::clone(&self.charged),
         })
     }
 
@@ -261,6 +387,38 @@ impl AssetStore {
             .remove(id)
     }
 
+    /// Deletes the temporary files an upload (`.upload-*.part`) or an atomic write of an asset
+    /// (`.ID.lfa.tmp-*`) leaves behind when the server is killed mid-write, logging each; returns
+    /// how many were removed. Call at start-up only: a folder is served by one server, and a
+    /// running server's files of the same names are writes in progress.
+    ///
+    /// # Errors
+    /// The folder cannot be listed.
+    pub fn remove_leftovers(&self) -> std::io::Result<usize> {
+        let mut removed = 0;
+        for entry in std::fs::read_dir(&self.dir)? {
+            let entry = entry?;
+            let name = entry.file_name();
+            let Some(name) = name.to_str() else {
+                continue;
+            };
+            if !is_leftover_name(name) || !entry.file_type()?.is_file() {
+                continue;
+            }
+            let path = entry.path();
+            match std::fs::remove_file(&path) {
+                Ok(()) => {
+                    tracing::warn!(path = %path.display(), "removed a temporary file left by an interrupted upload or bake");
+                    removed += 1;
+                }
+                Err(err) => {
+                    tracing::warn!(path = %path.display(), error = %err, "cannot remove a leftover temporary file");
+                }
+            }
+        }
+        Ok(removed)
+    }
+
     /// `(id, path)` of every `*.lfa` file in the folder whose stem is a valid id, sorted.
     pub fn scan(&self) -> std::io::Result<Vec<(String, PathBuf)>> {
         let mut found = Vec::new();
@@ -283,9 +441,45 @@ impl AssetStore {
     }
 }
 
+/// Whether `name` is one of the temporary names the server writes: `.upload-<id>.part`
+/// (uploads) or `.<file>.lfa.tmp-<pid>-<n>` (`lumigraph_core::atomic_write` of an asset).
+fn is_leftover_name(name: &str) -> bool {
+    // Exactly the names the server writes, so the comparison is case-sensitive.
+    let upload = name
+        .strip_prefix(".upload-")
+        .and_then(|rest| rest.strip_suffix(".part"))
+        .is_some();
+    let atomic = name.starts_with('.')
+        && name
+            .split_once(".lfa.tmp-")
+            .is_some_and(|(stem, _)| stem.len() > 1);
+    upload || atomic
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn leftover_names_are_the_temporary_names_only() {
+        for leftover in [
+            ".upload-tmp-3f9c0a12b4d5e6f7.part",
+            ".demo.lfa.tmp-1234-0",
+            ".mesh-00ff.lfa.tmp-99-17",
+        ] {
+            assert!(is_leftover_name(leftover), "{leftover}");
+        }
+        for kept in [
+            "demo.lfa",
+            "upload-x.part",
+            ".upload-x.lfa",
+            ".lfa.tmp-1-0",
+            "notes.txt",
+            ".hidden",
+        ] {
+            assert!(!is_leftover_name(kept), "{kept}");
+        }
+    }
 
     #[test]
     fn ids_cannot_escape_the_folder() {

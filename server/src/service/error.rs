@@ -34,6 +34,10 @@ pub enum AppError {
         /// The limit in bytes.
         limit: u64,
     },
+    /// An asset exceeds a limit of the service (its decoded size or the memory budget); the
+    /// message names the limit.
+    #[error("{0}")]
+    OverLimit(String),
     /// Capacity is exhausted (session limit, render queue full) or the service is not ready.
     #[error("{0}")]
     Unavailable(String),
@@ -74,7 +78,7 @@ impl AppError {
             AppError::NotFound(_) => StatusCode::NOT_FOUND,
             AppError::Conflict(_) => StatusCode::CONFLICT,
             AppError::Unauthorized => StatusCode::UNAUTHORIZED,
-            AppError::TooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
+            AppError::TooLarge { .. } | AppError::OverLimit(_) => StatusCode::PAYLOAD_TOO_LARGE,
             AppError::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
             AppError::Rejected { status, .. } => *status,
             AppError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
@@ -90,7 +94,7 @@ impl AppError {
             AppError::NotFound(_) => "not_found",
             AppError::Conflict(_) => "conflict",
             AppError::Unauthorized => "unauthorized",
-            AppError::TooLarge { .. } => "too_large",
+            AppError::TooLarge { .. } | AppError::OverLimit(_) => "too_large",
             AppError::Unavailable(_) => "unavailable",
             AppError::Rejected { .. } => "rejected",
             AppError::Internal(_) => "internal",

@@ -19,7 +19,7 @@ use lumigraph_core::view::View;
 use serde::{Deserialize, Serialize};
 use tokio::io::AsyncWriteExt as _;
 
-use super::assets::{AssetSummary, LoadedAsset, load_file, validate_id};
+use super::assets::{AssetSummary, LoadError, LoadedAsset, load_file, validate_id};
 use super::codecs::{
     ColorFormat, DepthFormat, Encoding, encode_blocking, encode_color, encode_depth,
 };
@@ -97,6 +97,12 @@ pub async fn readyz(State(state): State<AppState>) -> Result<Json<Readiness>, Ap
 /// Prometheus metrics in the OpenMetrics text format.
 #[utoipa::path(get, path = "/metrics", tag = "ops", responses((status = 200, content_type = "application/openmetrics-text", body = String)))]
 pub async fn metrics(State(state): State<AppState>) -> impl IntoResponse {
+    let resident = state.pool().renderer().resident();
+    state.metrics().set_asset_memory(
+        resident.fields,
+        state.assets().charged_bytes(),
+        state.assets().limits().memory_budget,
+    );
     (
         [(
             header::CONTENT_TYPE,
@@ -257,21 +263,27 @@ pub async fn upload_asset(
     let check_path = temp_path.clone();
     let check_id = id.clone();
     let loaded = tokio::task::spawn_blocking(move || {
-        load_file(loader.pool().renderer(), &check_id, &check_path)
+        load_file(
+            loader.assets(),
+            loader.pool().renderer(),
+            &check_id,
+            &check_path,
+        )
     })
     .await
     .map_err(|e| AppError::Internal(e.into()))?
-    .map_err(|e| AppError::BadUpload(format!("not a usable .lfa asset: {e}")))?;
+    .map_err(|e| match e {
+        LoadError::OverLimit(message) => AppError::OverLimit(message),
+        other => AppError::BadUpload(format!("not a usable .lfa asset: {other}")),
+    })?;
     let final_path = state.assets().path_for(&id);
     tokio::fs::rename(&temp_path, &final_path)
         .await
         .map_err(internal)?;
     let mut temp = temp;
     temp.0 = None;
-    let asset = LoadedAsset {
-        path: final_path,
-        ..loaded
-    };
+    let mut asset = loaded;
+    asset.path = final_path;
     let summary = asset.summary();
     state.assets().insert(asset);
     drop(reservation);
@@ -594,6 +606,7 @@ pub async fn bake(
     options
         .validate()
         .map_err(|e| AppError::Invalid(format!("invalid bake options: {e}")))?;
+    check_bake_fits(&state, &options)?;
     let format_name = format.or_else(|| {
         file_name
             .as_deref()
@@ -660,8 +673,16 @@ pub async fn bake(
                     .map_err(|e| format!("bake failed: {e}"))?;
                 serde_json::to_value(&report).unwrap_or_default()
             };
-            let asset = load_file(baker.pool().renderer(), &progress_job.asset, &path)
-                .map_err(|e| format!("the baked asset cannot be loaded: {e}"))?;
+            let asset = load_file(
+                baker.assets(),
+                baker.pool().renderer(),
+                &progress_job.asset,
+                &path,
+            )
+            .map_err(|e| {
+                // The file stays in the folder, where a restart with a larger budget loads it.
+                format!("the baked asset cannot be loaded: {e}")
+            })?;
             Ok::<_, String>((report, asset))
         })
         .await;
@@ -707,6 +728,37 @@ pub async fn get_job(
         .get(&id)
         .ok_or_else(|| AppError::NotFound(format!("no job with id {id:?}")))?;
     Ok(Json(job.status()))
+}
+
+/// Refuses a bake whose asset could not be loaded under the store's limits, before any work:
+/// the header the bake will write is checked as an upload's would be (the charge is dropped at
+/// once; the finished asset is admitted again when it is loaded).
+fn check_bake_fits(state: &AppState, options: &BakeOptions) -> Result<(), AppError> {
+    let level = lumigraph_core::geometry::level_for_camera_count(options.cameras)
+        .and_then(|l| u8::try_from(l).ok())
+        .ok_or_else(|| AppError::Invalid(format!("{} is not a camera count", options.cameras)))?;
+    let depth = if options.depth_bits == 8 {
+        lumigraph_core::asset::Encoding::R8
+    } else {
+        lumigraph_core::asset::Encoding::R16
+    };
+    let frame = lumigraph_core::asset::LfFrame {
+        center: [0.0; 3],
+        radius: 1.0,
+    };
+    let header = lumigraph_core::asset::AssetHeader::new_spherical(
+        level,
+        options.resolution,
+        frame,
+        depth,
+        lumigraph_core::asset::Provenance::default(),
+    )
+    .map_err(|e| AppError::Invalid(format!("invalid bake options: {e}")))?;
+    match state.assets().admit(&header) {
+        Ok(_charge) => Ok(()),
+        Err(LoadError::OverLimit(message)) => Err(AppError::OverLimit(message)),
+        Err(other) => Err(AppError::Invalid(format!("invalid bake options: {other}"))),
+    }
 }
 
 /// The request's declared `Content-Length`, if any and well-formed.

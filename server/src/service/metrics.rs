@@ -25,6 +25,9 @@ pub struct Metrics {
     bytes_sent: Family<Labels, Counter>,
     errors: Family<Labels, Counter>,
     assets: Gauge,
+    light_fields: Gauge,
+    asset_memory: Gauge,
+    asset_memory_budget: Gauge,
 }
 
 impl Default for Metrics {
@@ -47,6 +50,9 @@ impl Metrics {
         let bytes_sent = Family::<Labels, Counter>::default();
         let errors = Family::<Labels, Counter>::default();
         let assets = Gauge::default();
+        let light_fields = Gauge::default();
+        let asset_memory = Gauge::default();
+        let asset_memory_budget = Gauge::default();
         registry.register(
             "frames",
             "Frames rendered and sent, by source (http, stream) and quality (interactive, full)",
@@ -83,6 +89,21 @@ impl Metrics {
             errors.clone(),
         );
         registry.register("assets", "Assets loaded and servable", assets.clone());
+        registry.register(
+            "gpu_light_fields",
+            "Assets resident on the GPU: loaded, or deleted and still held by a render or stream",
+            light_fields.clone(),
+        );
+        registry.register(
+            "asset_memory_bytes",
+            "Texture bytes of the resident assets, charged to the asset memory budget",
+            asset_memory.clone(),
+        );
+        registry.register(
+            "asset_memory_budget_bytes",
+            "The asset memory budget (--asset-memory-budget)",
+            asset_memory_budget.clone(),
+        );
         Self {
             registry,
             frames,
@@ -93,6 +114,9 @@ impl Metrics {
             bytes_sent,
             errors,
             assets,
+            light_fields,
+            asset_memory,
+            asset_memory_budget,
         }
     }
 
@@ -143,6 +167,14 @@ impl Metrics {
     /// Sets the number of loaded assets.
     pub fn set_assets(&self, count: usize) {
         self.assets.set(count as i64);
+    }
+
+    /// Sets the resident light fields, their texture bytes and the budget they are charged to.
+    pub fn set_asset_memory(&self, light_fields: usize, bytes: u64, budget: u64) {
+        let gauge = |v: u64| i64::try_from(v).unwrap_or(i64::MAX);
+        self.light_fields.set(gauge(light_fields as u64));
+        self.asset_memory.set(gauge(bytes));
+        self.asset_memory_budget.set(gauge(budget));
     }
 
     /// The text exposition of every metric.

@@ -14,7 +14,7 @@ use lumigraph_core::gpu::Gpu;
 use lumigraph_core::render::Renderer;
 use tokio::sync::{Semaphore, watch};
 
-use super::assets::{self, AssetStore};
+use super::assets::{self, AssetLimits, AssetStore};
 use super::error::AppError;
 use super::jobs::Jobs;
 use super::metrics::Metrics;
@@ -43,6 +43,12 @@ pub struct ServeConfig {
     pub max_mesh_bytes: u64,
     /// Largest JSON body in bytes.
     pub max_json_bytes: usize,
+    /// Most bytes one asset may decode to (every image of every layer and state, from its
+    /// header); larger uploads get 413 and larger files in the folder are skipped.
+    pub max_asset_decoded_bytes: u64,
+    /// Most texture memory, in bytes, the loaded assets may take together (GPU memory; host
+    /// memory on a software adapter); an upload or bake beyond it gets 413 or fails.
+    pub asset_memory_budget: u64,
     /// Per-request timeout (uploads included).
     pub request_timeout: Duration,
     /// Longest wait for a request's headers (from the connection's start or its previous
@@ -79,6 +85,8 @@ impl ServeConfig {
             max_upload_bytes: 4 << 30,
             max_mesh_bytes: 512 << 20,
             max_json_bytes: 64 << 10,
+            max_asset_decoded_bytes: default_asset_memory_budget(),
+            asset_memory_budget: default_asset_memory_budget(),
             request_timeout: Duration::from_secs(600),
             header_timeout: Duration::from_secs(10),
             body_idle_timeout: Duration::from_secs(30),
@@ -98,6 +106,28 @@ impl ServeConfig {
             .ok()
             .filter(|t| !t.is_empty());
         config
+    }
+}
+
+/// Half of the machine's memory (`MemTotal` in `/proc/meminfo`), or 4 GiB where it cannot be
+/// read: the default memory budget of the loaded assets and the default largest decoded asset.
+pub fn default_asset_memory_budget() -> u64 {
+    const FALLBACK: u64 = 4 << 30;
+    std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|text| mem_total_bytes(&text))
+        .map_or(FALLBACK, |total| total / 2)
+}
+
+/// `MemTotal` of a `/proc/meminfo` text, in bytes.
+fn mem_total_bytes(meminfo: &str) -> Option<u64> {
+    let line = meminfo.lines().find(|l| l.starts_with("MemTotal:"))?;
+    let mut words = line.split_whitespace().skip(1);
+    let value: u64 = words.next()?.parse().ok()?;
+    match words.next() {
+        Some("kB") => value.checked_mul(1024),
+        None => Some(value),
+        Some(_) => None,
     }
 }
 
@@ -139,7 +169,13 @@ impl AppState {
         let (shutdown, _) = watch::channel(false);
         Ok(Self {
             inner: Arc::new(Inner {
-                assets: AssetStore::new(config.assets_dir.clone()),
+                assets: AssetStore::new(
+                    config.assets_dir.clone(),
+                    AssetLimits {
+                        max_decoded_bytes: config.max_asset_decoded_bytes,
+                        memory_budget: config.asset_memory_budget,
+                    },
+                ),
                 sessions: Arc::new(Semaphore::new(config.max_sessions)),
                 config,
                 adapter,
@@ -213,13 +249,18 @@ impl AppState {
         }
     }
 
-    /// Loads every `*.lfa` in the assets folder (files that fail are logged and skipped), bakes
-    /// the demo scene first when configured and the folder holds none, then marks the service
+    /// Removes temporary files an interrupted upload or bake left in the assets folder, loads
+    /// every `*.lfa` there (files that fail or exceed a limit are logged and skipped), bakes the
+    /// demo scene first when configured and the folder holds none, then marks the service
     /// ready.
     pub async fn load_assets(&self) -> anyhow::Result<()> {
         let dir = self.inner.config.assets_dir.clone();
         std::fs::create_dir_all(&dir)
             .with_context(|| format!("creating the assets folder {}", dir.display()))?;
+        self.inner
+            .assets
+            .remove_leftovers()
+            .with_context(|| format!("reading {}", dir.display()))?;
         let mut found = self
             .inner
             .assets
@@ -233,7 +274,7 @@ impl AppState {
         for (id, path) in found {
             let state = self.clone();
             let loaded = tokio::task::spawn_blocking(move || {
-                assets::load_file(state.inner.pool.renderer(), &id, &path)
+                assets::load_file(&state.inner.assets, state.inner.pool.renderer(), &id, &path)
                     .map_err(|e| (id, path, e))
             })
             .await?;
@@ -323,6 +364,15 @@ pub(crate) fn random_id(prefix: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn memory_total_from_meminfo() {
+        let text = "MemTotal:       131072000 kB\nMemFree:        1000 kB\n";
+        assert_eq!(mem_total_bytes(text), Some(131_072_000 * 1024));
+        assert_eq!(mem_total_bytes("MemFree: 1 kB\n"), None);
+        assert_eq!(mem_total_bytes("MemTotal: many kB\n"), None);
+        assert!(default_asset_memory_budget() > 0);
+    }
 
     #[test]
     fn token_comparison() {

@@ -1,11 +1,12 @@
 //! One session's tasks: the receiver that parses client messages into the wanted frame, and the
 //! sender that renders, encodes and sends frames.
 
-use std::sync::Arc;
+use std::sync::{Arc, Weak};
 use std::time::{Duration, Instant};
 
 use axum::extract::ws::{CloseFrame, Message, WebSocket, close_code};
 use futures_util::{SinkExt as _, StreamExt as _};
+use lumigraph_core::asset::AssetHeader;
 use lumigraph_core::frame::Frame;
 use lumigraph_core::view::View;
 use tokio::sync::{mpsc, watch};
@@ -44,8 +45,15 @@ struct Wanted {
 
 pub(super) async fn run_session(socket: WebSocket, state: AppState, asset: Arc<LoadedAsset>) {
     let (mut sink, mut source) = socket.split();
+    // The session keeps the header and a weak reference: an asset deleted while a viewer is
+    // open is freed at once, and the session ends at its next frame.
+    let header = asset.header.clone();
+    let summary = asset.summary();
+    let weak = Arc::downgrade(&asset);
+    drop(asset);
+    let asset = weak;
     let defaults = Settings::defaults(state.config().rest_delay);
-    let effective = match validate_settings(defaults, &asset) {
+    let effective = match validate_settings(defaults, &header) {
         Ok(e) => Arc::new(e),
         Err(message) => {
             let _ = sink
@@ -57,7 +65,7 @@ pub(super) async fn run_session(socket: WebSocket, state: AppState, asset: Arc<L
     let hello = Hello {
         r#type: "hello",
         protocol: PROTOCOL_VERSION,
-        asset: asset.summary(),
+        asset: summary,
         settings: effective.settings.to_json(),
         max_px: state.config().max_px,
         header_len: FRAME_HEADER_LEN,
@@ -80,7 +88,7 @@ pub(super) async fn run_session(socket: WebSocket, state: AppState, asset: Arc<L
     let (wanted_tx, wanted_rx) = watch::channel(wanted);
     let (ack_tx, ack_rx) = watch::channel(0u32);
     let (error_tx, error_rx) = mpsc::channel::<String>(ERROR_QUEUE);
-    let receiver = receive_loop(&mut source, &state, &asset, &wanted_tx, &ack_tx, &error_tx);
+    let receiver = receive_loop(&mut source, &state, &header, &wanted_tx, &ack_tx, &error_tx);
     let sender = Sender {
         state: &state,
         asset: &asset,
@@ -139,7 +147,7 @@ fn close_for_error(err: axum::Error) -> Option<CloseFrame> {
 async fn receive_loop(
     source: &mut futures_util::stream::SplitStream<WebSocket>,
     state: &AppState,
-    asset: &LoadedAsset,
+    header: &AssetHeader,
     wanted: &watch::Sender<Wanted>,
     acked: &watch::Sender<u32>,
     errors: &mpsc::Sender<String>,
@@ -213,7 +221,7 @@ async fn receive_loop(
             },
             Some("settings") => {
                 let current = wanted.borrow().effective.settings.clone();
-                match merge_settings(&current, value).and_then(|s| validate_settings(s, asset)) {
+                match merge_settings(&current, value).and_then(|s| validate_settings(s, header)) {
                     Ok(effective) => wanted.send_modify(|w| {
                         w.seq += 1;
                         w.arrived = Instant::now();
@@ -250,7 +258,7 @@ async fn receive_loop(
 
 struct Sender<'a> {
     state: &'a AppState,
-    asset: &'a Arc<LoadedAsset>,
+    asset: &'a Weak<LoadedAsset>,
     sink: &'a mut futures_util::stream::SplitSink<WebSocket, Message>,
     wanted: watch::Receiver<Wanted>,
     acked: watch::Receiver<u32>,
@@ -388,12 +396,16 @@ impl Sender<'_> {
             view.width = ((f64::from(view.width) * scale).round() as u32).max(1);
             view.height = ((f64::from(view.height) * scale).round() as u32).max(1);
         }
-        let rendered = match self
-            .state
-            .pool()
-            .render(Arc::clone(self.asset), view, plan)
-            .await
-        {
+        let Some(asset) = self.asset.upgrade() else {
+            let text = error_text(
+                Some(want.request_id),
+                "not_found",
+                "the asset was deleted; the session ends",
+            );
+            let _ = self.sink.send(Message::Text(text.into())).await;
+            return false;
+        };
+        let rendered = match self.state.pool().render(asset, view, plan).await {
             Ok(r) => r,
             Err(err) => {
                 self.state.metrics().error(err.kind());

@@ -6,8 +6,8 @@ use std::time::Duration;
 use lumigraph_core::quality::{Plan, Quality};
 use serde::{Deserialize, Serialize};
 
-use crate::service::assets::LoadedAsset;
 use crate::service::codecs::ColorFormat;
+use lumigraph_core::asset::AssetHeader;
 
 /// Sticky per-session settings; each `settings` message overrides the fields it names.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -82,7 +82,7 @@ pub(super) struct Effective {
 
 pub(super) fn validate_settings(
     settings: Settings,
-    asset: &LoadedAsset,
+    header: &AssetHeader,
 ) -> Result<Effective, String> {
     let s = &settings;
     for (name, codec) in [
@@ -123,7 +123,6 @@ pub(super) fn validate_settings(
             s.max_in_flight
         ));
     }
-    let header = &asset.header;
     let mut opacity = header.layers.first().map_or(1.0, |l| l.default_opacity);
     for (name, &value) in &s.layers {
         let Some(index) = header.layers.iter().position(|l| &l.name == name) else {
@@ -158,12 +157,12 @@ pub(super) fn validate_settings(
         }
     }
     let quality = Quality::from_json_map(s.quality.clone()).map_err(|e| e.to_string())?;
-    let still = quality.plan(&asset.header).map_err(|e| e.to_string())?;
+    let still = quality.plan(header).map_err(|e| e.to_string())?;
     let mut moving = quality.for_motion();
     if moving.auto_lod.is_none() {
         moving.lod = s.interactive_lod.or(moving.lod);
     }
-    let motion = moving.plan(&asset.header).map_err(|e| e.to_string())?;
+    let motion = moving.plan(header).map_err(|e| e.to_string())?;
     Ok(Effective {
         settings,
         still,
