@@ -34,6 +34,14 @@ where
     result
 }
 
+/// The target file name of a temporary name [`temp_path_for`] makes (`.name.tmp-<pid>-<n>` →
+/// `name`), or `None` when `file_name` is not one: how a folder's owner finds the temporary
+/// files a killed writer left.
+pub fn temp_target(file_name: &str) -> Option<&str> {
+    let (name, _) = file_name.strip_prefix('.')?.rsplit_once(".tmp-")?;
+    (!name.is_empty()).then_some(name)
+}
+
 /// `dir/.name.tmp-<pid>-<n>` beside `path`: same file system, so the rename is atomic.
 pub fn temp_path_for(path: &Path) -> PathBuf {
     use std::sync::atomic::{AtomicU64, Ordering};
@@ -67,5 +75,16 @@ mod tests {
         // The old content survives and no temp file is left behind.
         assert_eq!(std::fs::read(&target).unwrap(), b"hello");
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn temporary_names_lead_back_to_their_target() {
+        let tmp = temp_path_for(Path::new("dir/a.lfa"));
+        let name = tmp.file_name().and_then(|n| n.to_str()).unwrap();
+        assert_eq!(temp_target(name), Some("a.lfa"));
+        assert_eq!(temp_target(".x.tmp-1.lfa.tmp-2-3"), Some("x.tmp-1.lfa"));
+        for other in ["a.lfa", ".hidden", ".tmp-1-0", "a.lfa.tmp-1-0"] {
+            assert_eq!(temp_target(other), None, "{other}");
+        }
     }
 }

@@ -441,18 +441,24 @@ impl AssetStore {
     }
 }
 
-/// Whether `name` is one of the temporary names the server writes: `.upload-<id>.part`
-/// (uploads) or `.<file>.lfa.tmp-<pid>-<n>` (`lumigraph_core::atomic_write` of an asset).
+/// Prefix and suffix of the hidden temporary file an upload streams into.
+const UPLOAD_TEMP: (&str, &str) = (".upload-", ".part");
+
+/// The hidden temporary file an upload streams into before it is verified and renamed.
+pub fn upload_temp_name(tag: &str) -> String {
+    format!("{}{tag}{}", UPLOAD_TEMP.0, UPLOAD_TEMP.1)
+}
+
+/// Whether `name` is one of the temporary names the server writes: [`upload_temp_name`]
+/// (uploads) or an atomic write of an asset ([`lumigraph_core::temp_target`] ending `.lfa`).
 fn is_leftover_name(name: &str) -> bool {
     // Exactly the names the server writes, so the comparison is case-sensitive.
     let upload = name
-        .strip_prefix(".upload-")
-        .and_then(|rest| rest.strip_suffix(".part"))
+        .strip_prefix(UPLOAD_TEMP.0)
+        .and_then(|rest| rest.strip_suffix(UPLOAD_TEMP.1))
         .is_some();
-    let atomic = name.starts_with('.')
-        && name
-            .split_once(".lfa.tmp-")
-            .is_some_and(|(stem, _)| stem.len() > 1);
+    let atomic = lumigraph_core::temp_target(name)
+        .is_some_and(|target| Path::new(target).extension().is_some_and(|e| e == "lfa"));
     upload || atomic
 }
 

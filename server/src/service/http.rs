@@ -19,7 +19,9 @@ use lumigraph_core::view::View;
 use serde::{Deserialize, Serialize};
 use tokio::io::AsyncWriteExt as _;
 
-use super::assets::{AssetSummary, LoadError, LoadedAsset, load_file, validate_id};
+use super::assets::{
+    AssetSummary, LoadError, LoadedAsset, load_file, upload_temp_name, validate_id,
+};
 use super::codecs::{
     ColorFormat, DepthFormat, Encoding, encode_blocking, encode_color, encode_depth,
 };
@@ -236,7 +238,7 @@ pub async fn upload_asset(
         state
             .assets()
             .dir()
-            .join(format!(".upload-{}.part", random_id("tmp"))),
+            .join(upload_temp_name(&random_id("tmp"))),
     ));
     let temp_path = temp.path().map(FsPath::to_path_buf).unwrap_or_default();
     let internal =
