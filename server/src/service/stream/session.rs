@@ -171,11 +171,8 @@ async fn receive_loop(
         let text = match message {
             None | Some(Ok(Message::Close(_))) => return None,
             Some(Err(err)) => return close_for_error(err),
-            Some(Ok(message)) => message,
-        };
-        let text = match text {
-            Message::Text(text) => text,
-            Message::Binary(_) => {
+            Some(Ok(Message::Text(text))) => text,
+            Some(Ok(Message::Binary(_))) => {
                 report(
                     None,
                     "bad_message",
@@ -183,8 +180,7 @@ async fn receive_loop(
                 );
                 continue;
             }
-            Message::Close(_) => return None,
-            Message::Ping(_) | Message::Pong(_) => continue,
+            Some(Ok(Message::Ping(_) | Message::Pong(_))) => continue,
         };
         let mut value: serde_json::Value = match serde_json::from_str(text.as_str()) {
             Ok(v) => v,
