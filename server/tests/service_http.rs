@@ -772,14 +772,7 @@ async fn a_bake_that_cannot_be_calibrated_fails_with_the_reason() {
     .await;
     assert_eq!(accepted.status, StatusCode::ACCEPTED);
     let job_uri = accepted.header("location").to_owned();
-    let mut status = serde_json::Value::Null;
-    for _ in 0..600 {
-        status = get(&state, &job_uri).await.json();
-        if status["state"] == "done" || status["state"] == "failed" {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
+    let status = finished_job(&state, &job_uri).await;
     assert_eq!(status["state"], "failed", "{status}");
     assert!(
         status.to_string().contains("could not measure any setting"),
@@ -790,6 +783,20 @@ async fn a_bake_that_cannot_be_calibrated_fails_with_the_reason() {
         get(&state, "/v1/assets/far").await.status,
         StatusCode::NOT_FOUND
     );
+}
+
+/// The status of the job at `job_uri` once it is done or failed (polled for up to 30 s; the
+/// last status seen otherwise).
+async fn finished_job(state: &AppState, job_uri: &str) -> serde_json::Value {
+    let mut status = serde_json::Value::Null;
+    for _ in 0..600 {
+        status = get(state, job_uri).await.json();
+        if status["state"] == "done" || status["state"] == "failed" {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    status
 }
 
 fn bake_form(fields: &[(&str, Option<&str>, &[u8])]) -> (String, Vec<u8>) {
@@ -914,14 +921,7 @@ async fn bake_jobs() {
         post_bake(&state, Some(TOKEN), &fields).await.status,
         StatusCode::CONFLICT
     );
-    let mut status = serde_json::Value::Null;
-    for _ in 0..600 {
-        status = get(&state, &job_uri).await.json();
-        if status["state"] == "done" || status["state"] == "failed" {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
+    let status = finished_job(&state, &job_uri).await;
     assert_eq!(status["state"], "done", "{status}");
     assert_eq!(status["cameras_done"], 12);
     assert!(status["report"]["asset_bytes"].as_u64().unwrap_or(0) > 0);
