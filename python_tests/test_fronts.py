@@ -28,7 +28,8 @@ from websockets.asyncio import client as websockets
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILE = "debug" if os.environ.get("LUMIGRAPH_PROFILE") == "dev" else "release"
-BIN = Path(os.environ.get("LUMIGRAPH_BIN") or ROOT / "target" / PROFILE / "lumigraph")
+TARGET = Path(os.environ.get("CARGO_TARGET_DIR") or ROOT / "target")
+BIN = Path(os.environ.get("LUMIGRAPH_BIN") or TARGET / PROFILE / "lumigraph")
 VIEW = {"eye": [0.5, 0.6, 2.4], "target": [0, 0, 0], "up": [0, 1, 0], "yfov_deg": 40,
         "width": 96, "height": 80}
 # Knobs away from their defaults, and a refined still: every part of the request must reach core.
