@@ -727,6 +727,99 @@ async fn the_memory_budget_refuses_uploads_and_bakes_and_deleting_frees_it_at_on
 }
 
 #[tokio::test(flavor = "multi_thread")]
+async fn the_server_memory_budget_makes_renders_wait_or_get_503_with_retry_after() {
+    use lumigraph_server::service::budget::frame_bytes;
+    // The tiny asset plus one 64×64 frame: a 128×128 frame can never fit (413), and a 64×64
+    // frame fits only while nothing else is charged.
+    let budget = TINY_GPU + frame_bytes(64, 64);
+    let (_dir, state) = setup(Some(TOKEN), |c| {
+        c.memory_budget = budget;
+        c.asset_memory_budget = budget;
+        c.memory_wait = std::time::Duration::from_millis(200);
+    })
+    .await;
+    assert_eq!(
+        state.budget().used(),
+        TINY_GPU,
+        "the loaded asset is charged"
+    );
+    let ok = render(&state, &serde_json::json!({"view": view_json(64, 64)})).await;
+    assert_eq!(ok.status, StatusCode::OK);
+    assert_eq!(
+        state.budget().used(),
+        TINY_GPU,
+        "the frame's charge is given back"
+    );
+    let never = render(&state, &serde_json::json!({"view": view_json(128, 128)})).await;
+    assert_eq!(never.status, StatusCode::PAYLOAD_TOO_LARGE);
+    assert!(
+        never.json()["error"]["message"]
+            .as_str()
+            .is_some_and(|m| m.contains("--memory-budget"))
+    );
+    // Memory taken by something else (another frame in flight): the render waits, then 503.
+    let held = state
+        .budget()
+        .try_charge(frame_bytes(64, 64))
+        .expect("fits");
+    let busy = render(&state, &serde_json::json!({"view": view_json(64, 64)})).await;
+    assert_eq!(busy.status, StatusCode::SERVICE_UNAVAILABLE);
+    assert_eq!(
+        busy.headers
+            .get(header::RETRY_AFTER)
+            .map(axum::http::HeaderValue::as_bytes),
+        Some(&b"1"[..])
+    );
+    assert_eq!(busy.error_kind(), "unavailable");
+    // An upload that fits the asset budget but not the server's memory now: 503, not 413.
+    let upload_busy = send(
+        &state,
+        upload("/v1/assets?id=second", Some(TOKEN), tiny_asset().to_vec()),
+    )
+    .await;
+    assert!(
+        upload_busy.status == StatusCode::SERVICE_UNAVAILABLE
+            || upload_busy.status == StatusCode::PAYLOAD_TOO_LARGE,
+        "{}",
+        String::from_utf8_lossy(&upload_busy.body)
+    );
+    // Given back while a render waits: that render goes through.
+    let waiting = {
+        let state = state.clone();
+        tokio::spawn(async move {
+            render(&state, &serde_json::json!({"view": view_json(64, 64)})).await
+        })
+    };
+    tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    drop(held);
+    assert_eq!(waiting.await.expect("join").status, StatusCode::OK);
+    assert_eq!(
+        metric(&state, "lumigraph_memory_used_bytes").await,
+        TINY_GPU
+    );
+    assert_eq!(
+        metric(&state, "lumigraph_memory_budget_bytes").await,
+        budget
+    );
+    // The render path moved: ready.
+    assert_eq!(get(&state, "/readyz").await.status, StatusCode::OK);
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn an_asset_budget_above_the_server_budget_is_refused_at_start() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut config = ServeConfig::new(dir.path(), "127.0.0.1:0".parse().expect("addr"));
+    config.memory_budget = 1 << 30;
+    config.asset_memory_budget = 2 << 30;
+    let err = tokio::task::spawn_blocking(move || AppState::new(config, gpu()))
+        .await
+        .expect("join")
+        .err()
+        .expect("refused");
+    assert!(format!("{err:#}").contains("--memory-budget"), "{err:#}");
+}
+
+#[tokio::test(flavor = "multi_thread")]
 async fn temporary_files_left_by_a_killed_server_are_removed_at_start_up() {
     let dir = tempfile::tempdir().expect("temp dir");
     std::fs::write(dir.path().join("tiny.lfa"), tiny_asset()).expect("writing the asset");

@@ -35,10 +35,20 @@ pub struct ServeArgs {
     pub stream_idle_secs: std::time::Duration,
     /// Most GPU memory the loaded assets may take together (host memory on a software
     /// adapter), in bytes or with a K, M, G or T suffix (powers of 1024); uploads and bakes
-    /// beyond it are refused with 413. Default: half of the machine's memory. On a discrete GPU
-    /// set it at most to the GPU's memory.
+    /// beyond it are refused with 413. At most the memory budget. Default: two thirds of the
+    /// memory budget. On a discrete GPU set it at most to the GPU's memory.
     #[arg(long, value_parser = parse_bytes)]
     pub asset_memory_budget: Option<u64>,
+    /// Most bytes the whole server may hold in loaded assets, frames in flight and their encode
+    /// buffers, same units; a render beyond it waits up to 2 s, then gets 503 with
+    /// `Retry-After`. Default: three quarters of the machine's memory (or of the container's
+    /// cgroup limit).
+    #[arg(long, value_parser = parse_bytes)]
+    pub memory_budget: Option<u64>,
+    /// Seconds requests may wait for a render with no render completing before `/readyz`
+    /// reports the render path as stuck (503).
+    #[arg(long, default_value = "60", value_parser = parse_seconds)]
+    pub render_stall_secs: std::time::Duration,
     /// Most bytes one asset may decode to (every image of every layer and state, read from its
     /// header before anything is decoded), same units. Default: the memory budget.
     #[arg(long, value_parser = parse_bytes)]
@@ -94,9 +104,15 @@ pub(super) fn serve(args: &ServeArgs) -> Result<()> {
     config.body_idle_timeout = args.body_timeout_secs;
     config.body_deadline = args.body_timeout_secs;
     config.stream_idle_timeout = args.stream_idle_secs;
-    if let Some(budget) = args.asset_memory_budget {
-        config.asset_memory_budget = budget;
+    if let Some(budget) = args.memory_budget {
+        config.memory_budget = budget;
     }
+    // The asset budget defaults to two thirds of the server's (half the machine's memory when
+    // neither is given).
+    config.asset_memory_budget = args
+        .asset_memory_budget
+        .unwrap_or(config.memory_budget / 3 * 2);
+    config.render_stall_timeout = args.render_stall_secs;
     config.max_asset_decoded_bytes = args
         .max_asset_decoded_bytes
         .unwrap_or(config.asset_memory_budget);

@@ -13,6 +13,7 @@ use lumigraph_core::asset::{AssetFile, AssetHeader};
 use lumigraph_core::render::{GpuLightField, Renderer, field_bytes};
 use serde::Serialize;
 
+use super::budget::{Charge, MemoryBudget};
 use super::error::AppError;
 
 /// Longest accepted asset id.
@@ -61,10 +62,11 @@ pub struct LoadedAsset {
     _charge: MemoryCharge,
 }
 
-/// A share of the store's memory budget, released on drop.
+/// A share of the store's memory budget and of the server's, released on drop.
 pub struct MemoryCharge {
     bytes: u64,
     charged: Arc<AtomicU64>,
+    _server: Charge,
 }
 
 impl Drop for MemoryCharge {
@@ -142,6 +144,10 @@ pub enum LoadError {
     /// The asset is valid but larger than a limit of the service.
     #[error("{0}")]
     OverLimit(String),
+    /// The asset fits the limits, but the server's memory budget is taken by frames in flight
+    /// and other loads now: retry shortly.
+    #[error("{0}")]
+    Busy(String),
 }
 
 /// `1234 bytes (1.2 KiB)`.
@@ -190,6 +196,8 @@ pub fn load_file(
 pub struct AssetStore {
     dir: PathBuf,
     limits: AssetLimits,
+    /// The server's budget, which every asset's texture bytes are charged to as well.
+    budget: Arc<MemoryBudget>,
     /// Texture bytes of the assets alive (loaded, or deleted but still held by a render or a
     /// stream) plus those being loaded.
     charged: Arc<AtomicU64>,
@@ -221,11 +229,13 @@ impl Drop for Reservation {
 }
 
 impl AssetStore {
-    /// An empty store over `dir`.
-    pub fn new(dir: PathBuf, limits: AssetLimits) -> Self {
+    /// An empty store over `dir`, charging loaded assets to `budget` as well as to its own
+    /// asset memory budget.
+    pub fn new(dir: PathBuf, limits: AssetLimits, budget: Arc<MemoryBudget>) -> Self {
         Self {
             dir,
             limits,
+            budget,
             charged: Arc::default(),
             assets: RwLock::new(BTreeMap::new()),
             reserved: Arc::default(),
@@ -303,9 +313,25 @@ impl AssetStore {
                 Err(now) => charged = now,
             }
         }
+        // Checked after the asset budget, so that an asset that can never fit gets 413, not
+        // a retry; the asset budget's share is given back when the server's is refused.
+        let server = match self.budget.try_charge(bytes) {
+            Ok(server) => server,
+            Err(used) => {
+                self.charged.fetch_sub(bytes, Ordering::AcqRel);
+                return Err(LoadError::Busy(format!(
+                    "the asset needs {}, but {} of the server's memory budget of {} are in use \
+                     by assets and frames in flight: retry shortly",
+                    describe_bytes(bytes),
+                    describe_bytes(used),
+                    describe_bytes(self.budget.total()),
+                )));
+            }
+        };
         Ok(MemoryCharge {
             bytes,
             charged: Arc::clone(&self.charged),
+            _server: server,
         })
     }
 

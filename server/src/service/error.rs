@@ -140,6 +140,13 @@ impl IntoResponse for AppError {
             },
         };
         let mut response = (status, Json(body)).into_response();
+        if matches!(self, AppError::Unavailable(_)) {
+            // Every 503 is transient (a full queue, a taken memory budget, loading, a stalled
+            // render path): clients are told when to try again.
+            response
+                .headers_mut()
+                .insert(header::RETRY_AFTER, HeaderValue::from_static("1"));
+        }
         if matches!(self, AppError::Unauthorized) {
             response
                 .headers_mut()

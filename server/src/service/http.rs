@@ -80,14 +80,28 @@ pub struct Readiness {
     pub adapter: String,
 }
 
-/// Readiness: 200 once the device is up and the assets are loaded (the demo baked if needed).
+/// Readiness: 200 once the device is up and the assets are loaded (the demo baked if needed),
+/// while the render path moves; 503 while loading, and when requests have waited longer than
+/// `--render-stall-secs` with no render completing (a stuck device or driver).
 #[utoipa::path(get, path = "/readyz", tag = "ops", responses(
-    (status = 200, body = Readiness), (status = 503, body = ErrorBody)))]
+    (status = 200, body = Readiness),
+    (status = 503, body = ErrorBody, description = "loading, or the render path is stuck")))]
 pub async fn readyz(State(state): State<AppState>) -> Result<Json<Readiness>, AppError> {
     if !state.is_ready() {
         return Err(AppError::Unavailable(
             "loading assets (baking the demo scene on first start)".to_owned(),
         ));
+    }
+    let health = state.pool().health();
+    let bound = state.config().render_stall_timeout;
+    if let Some(stalled) = health.stalled_for.filter(|s| *s > bound) {
+        return Err(AppError::Unavailable(format!(
+            "the render path is stuck: {} requests have waited {:.0} s with no render \
+             completing (bound {:.0} s, --render-stall-secs)",
+            health.in_flight,
+            stalled.as_secs_f64(),
+            bound.as_secs_f64(),
+        )));
     }
     Ok(Json(Readiness {
         ready: true,
@@ -105,6 +119,9 @@ pub async fn metrics(State(state): State<AppState>) -> impl IntoResponse {
         state.assets().charged_bytes(),
         state.assets().limits().memory_budget,
     );
+    state
+        .metrics()
+        .set_memory(state.budget().used(), state.budget().total());
     (
         [(
             header::CONTENT_TYPE,
@@ -276,6 +293,7 @@ pub async fn upload_asset(
     .map_err(|e| AppError::Internal(e.into()))?
     .map_err(|e| match e {
         LoadError::OverLimit(message) => AppError::OverLimit(message),
+        LoadError::Busy(message) => AppError::Unavailable(message),
         other => AppError::BadUpload(format!("not a usable .lfa asset: {other}")),
     })?;
     let final_path = state.assets().path_for(&id);
@@ -365,6 +383,50 @@ struct RenderFields {
     depth: Option<DepthFormat>,
 }
 
+/// A render request body, parsed and checked as far as it can be without its asset.
+#[derive(Debug)]
+pub struct RenderBody {
+    fields: RenderFields,
+    /// Colour quality, 1..=100.
+    quality: u8,
+    knobs: Quality,
+}
+
+impl RenderBody {
+    /// Parses a `POST /v1/assets/{id}/render` body and checks its view against `max_px`, its
+    /// quality and formats, and its quality keys' shape (the plan needs the asset).
+    ///
+    /// # Errors
+    /// [`AppError::MalformedJson`] for malformed JSON, [`AppError::Invalid`] for bad values.
+    pub fn parse(body: &[u8], max_px: u32) -> Result<Self, AppError> {
+        let mut body: serde_json::Map<String, serde_json::Value> =
+            serde_json::from_slice(body).map_err(|e| AppError::from_json(&e))?;
+        let knobs = Quality::take_from(&mut body).map_err(quality_error)?;
+        let fields: RenderFields = serde_json::from_value(serde_json::Value::Object(body))
+            .map_err(|e| AppError::from_json(&e))?;
+        fields
+            .view
+            .basis(max_px)
+            .map_err(|e| AppError::Invalid(e.to_string()))?;
+        let quality = fields.quality.unwrap_or(90);
+        if !(1..=100).contains(&quality) {
+            return Err(AppError::Invalid(format!(
+                "quality must be in 1..=100, got {quality}"
+            )));
+        }
+        if fields.format == ColorFormat::None && fields.depth.is_none() {
+            return Err(AppError::Invalid(
+                "format `none` needs a `depth` format".to_owned(),
+            ));
+        }
+        Ok(Self {
+            fields,
+            quality,
+            knobs,
+        })
+    }
+}
+
 fn ms_header(value: f64) -> HeaderValue {
     HeaderValue::from_str(&format!("{value:.3}")).unwrap_or(HeaderValue::from_static("0"))
 }
@@ -392,26 +454,11 @@ pub async fn render_asset(
 ) -> Result<Response, AppError> {
     let body = body.map_err(|e| body_error(&e, state.config().max_json_bytes))?;
     let asset = state.assets().get(&id)?;
-    let mut body: serde_json::Map<String, serde_json::Value> =
-        serde_json::from_slice(&body).map_err(|e| AppError::from_json(&e))?;
-    let render_quality = Quality::take_from(&mut body).map_err(quality_error)?;
-    let request: RenderFields = serde_json::from_value(serde_json::Value::Object(body))
-        .map_err(|e| AppError::from_json(&e))?;
-    request
-        .view
-        .basis(state.config().max_px)
-        .map_err(|e| AppError::Invalid(e.to_string()))?;
-    let quality = request.quality.unwrap_or(90);
-    if !(1..=100).contains(&quality) {
-        return Err(AppError::Invalid(format!(
-            "quality must be in 1..=100, got {quality}"
-        )));
-    }
-    if request.format == ColorFormat::None && request.depth.is_none() {
-        return Err(AppError::Invalid(
-            "format `none` needs a `depth` format".to_owned(),
-        ));
-    }
+    let RenderBody {
+        fields: request,
+        quality,
+        knobs: render_quality,
+    } = RenderBody::parse(&body, state.config().max_px)?;
     let plan = plan(&render_quality, &asset)?;
     let rendered = state
         .pool()
@@ -759,6 +806,7 @@ fn check_bake_fits(state: &AppState, options: &BakeOptions) -> Result<(), AppErr
     match state.assets().admit(&header) {
         Ok(_charge) => Ok(()),
         Err(LoadError::OverLimit(message)) => Err(AppError::OverLimit(message)),
+        Err(LoadError::Busy(message)) => Err(AppError::Unavailable(message)),
         Err(other) => Err(AppError::Invalid(format!("invalid bake options: {other}"))),
     }
 }

@@ -28,6 +28,8 @@ pub struct Metrics {
     light_fields: Gauge,
     asset_memory: Gauge,
     asset_memory_budget: Gauge,
+    memory_used: Gauge,
+    memory_budget: Gauge,
 }
 
 impl Default for Metrics {
@@ -53,6 +55,8 @@ impl Metrics {
         let light_fields = Gauge::default();
         let asset_memory = Gauge::default();
         let asset_memory_budget = Gauge::default();
+        let memory_used = Gauge::default();
+        let memory_budget = Gauge::default();
         registry.register(
             "frames",
             "Frames rendered and sent, by source (http, stream) and quality (interactive, full)",
@@ -104,6 +108,16 @@ impl Metrics {
             "The asset memory budget (--asset-memory-budget)",
             asset_memory_budget.clone(),
         );
+        registry.register(
+            "memory_used_bytes",
+            "Bytes charged to the server's memory budget: resident assets and frames in flight",
+            memory_used.clone(),
+        );
+        registry.register(
+            "memory_budget_bytes",
+            "The server's memory budget (--memory-budget)",
+            memory_budget.clone(),
+        );
         Self {
             registry,
             frames,
@@ -117,6 +131,8 @@ impl Metrics {
             light_fields,
             asset_memory,
             asset_memory_budget,
+            memory_used,
+            memory_budget,
         }
     }
 
@@ -175,6 +191,13 @@ impl Metrics {
         self.light_fields.set(gauge(light_fields as u64));
         self.asset_memory.set(gauge(bytes));
         self.asset_memory_budget.set(gauge(budget));
+    }
+
+    /// Sets the server memory budget's gauges.
+    pub fn set_memory(&self, used: u64, budget: u64) {
+        let gauge = |v: u64| i64::try_from(v).unwrap_or(i64::MAX);
+        self.memory_used.set(gauge(used));
+        self.memory_budget.set(gauge(budget));
     }
 
     /// The text exposition of every metric.

@@ -9,6 +9,7 @@
 //!   `docs/protocol.md`), [`viewer`] the page at `/`.
 
 pub mod assets;
+pub mod budget;
 pub mod codecs;
 pub mod error;
 pub mod http;

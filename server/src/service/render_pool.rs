@@ -1,8 +1,8 @@
 //! Rendering off the async runtime: a bounded pool shared by HTTP requests and stream sessions,
 //! each render a core quality [`Plan`] applied to one view.
 
-use std::sync::Arc;
-use std::time::Instant;
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::{Duration, Instant};
 
 use lumigraph_core::frame::Frame;
 use lumigraph_core::lod::LodError;
@@ -12,6 +12,7 @@ use lumigraph_core::view::View;
 use tokio::sync::Semaphore;
 
 use super::assets::LoadedAsset;
+use super::budget::{Charge, MemoryBudget, frame_bytes};
 use super::error::AppError;
 
 /// The plan of `quality` for `asset`; a conflict or a missing calibration is a 422 with the
@@ -28,11 +29,15 @@ pub fn quality_error(err: QualityError) -> AppError {
     }
 }
 
-/// Renders on a bounded number of blocking threads; queued work beyond a cap is refused.
+/// Renders on a bounded number of blocking threads; queued work beyond a cap is refused, and
+/// every frame is charged to the server's memory budget while it is served.
 pub struct RenderPool {
     renderer: Arc<Renderer>,
     workers: Arc<Semaphore>,
     queue: Arc<Semaphore>,
+    budget: Arc<MemoryBudget>,
+    memory_wait: Duration,
+    activity: Arc<Mutex<Activity>>,
 }
 
 /// A rendered frame with its timing.
@@ -43,15 +48,94 @@ pub struct Rendered {
     pub render_ms: f64,
     /// What the plan decided for the view.
     pub decision: Decision,
+    /// The frame's share of the memory budget: keep it until the frame is encoded.
+    pub memory: Charge,
+}
+
+/// Whether the render path moves: requests in the pool and when it last made progress.
+#[derive(Debug, Default)]
+struct Activity {
+    /// Requests queued or rendering.
+    in_flight: usize,
+    /// When `in_flight` last rose from zero.
+    busy_since: Option<Instant>,
+    /// When a render last completed (successfully or not).
+    last_done: Option<Instant>,
+}
+
+impl Activity {
+    /// How long requests have waited with no render completing, at `now`; `None` when idle.
+    fn stalled_for(&self, now: Instant) -> Option<Duration> {
+        if self.in_flight == 0 {
+            return None;
+        }
+        let since = match (self.busy_since, self.last_done) {
+            (Some(busy), Some(done)) => busy.max(done),
+            (Some(t), None) | (None, Some(t)) => t,
+            (None, None) => return None,
+        };
+        Some(now.saturating_duration_since(since))
+    }
+}
+
+/// A request counted in [`Activity`] until dropped (also when its future is cancelled).
+struct InFlight {
+    activity: Arc<Mutex<Activity>>,
+}
+
+impl InFlight {
+    fn enter(activity: &Arc<Mutex<Activity>>, now: Instant) -> Self {
+        let mut a = activity.lock().unwrap_or_else(PoisonError::into_inner);
+        if a.in_flight == 0 {
+            a.busy_since = Some(now);
+        }
+        a.in_flight += 1;
+        Self {
+            activity: Arc::clone(activity),
+        }
+    }
+
+    fn completed(&self, now: Instant) {
+        self.activity
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .last_done = Some(now);
+    }
+}
+
+impl Drop for InFlight {
+    fn drop(&mut self) {
+        let mut a = self.activity.lock().unwrap_or_else(PoisonError::into_inner);
+        a.in_flight = a.in_flight.saturating_sub(1);
+    }
+}
+
+/// The render path's state for readiness.
+#[derive(Clone, Copy, Debug)]
+pub struct PoolHealth {
+    /// Requests queued or rendering now.
+    pub in_flight: usize,
+    /// How long they have waited with no render completing (`None` when idle).
+    pub stalled_for: Option<Duration>,
 }
 
 impl RenderPool {
-    /// A pool running at most `workers` renders at once with at most `max_queued` waiting.
-    pub fn new(renderer: Arc<Renderer>, workers: usize, max_queued: usize) -> Self {
+    /// A pool running at most `workers` renders at once with at most `max_queued` waiting,
+    /// charging each frame to `budget` (waiting up to `memory_wait` for it).
+    pub fn new(
+        renderer: Arc<Renderer>,
+        workers: usize,
+        max_queued: usize,
+        budget: Arc<MemoryBudget>,
+        memory_wait: Duration,
+    ) -> Self {
         Self {
             renderer,
             workers: Arc::new(Semaphore::new(workers.max(1))),
             queue: Arc::new(Semaphore::new(workers.max(1) + max_queued)),
+            budget,
+            memory_wait,
+            activity: Arc::default(),
         }
     }
 
@@ -60,7 +144,17 @@ impl RenderPool {
         &self.renderer
     }
 
-    /// Renders `view` of `asset` as `plan` says; 503 when the queue is full.
+    /// Requests in the pool and how long they have waited without progress.
+    pub fn health(&self) -> PoolHealth {
+        let a = self.activity.lock().unwrap_or_else(PoisonError::into_inner);
+        PoolHealth {
+            in_flight: a.in_flight,
+            stalled_for: a.stalled_for(Instant::now()),
+        }
+    }
+
+    /// Renders `view` of `asset` as `plan` says; 503 when the queue is full or the memory
+    /// budget stays taken, 413 when the frame alone exceeds the budget.
     pub async fn render(
         &self,
         asset: Arc<LoadedAsset>,
@@ -70,6 +164,15 @@ impl RenderPool {
         let _queued = self.queue.clone().try_acquire_owned().map_err(|_| {
             AppError::Unavailable("the render queue is full; retry shortly".to_owned())
         })?;
+        let in_flight = InFlight::enter(&self.activity, Instant::now());
+        let memory = self
+            .budget
+            .charge(
+                frame_bytes(view.width, view.height),
+                self.memory_wait,
+                &format!("a {}×{} frame", view.width, view.height),
+            )
+            .await?;
         let _worker = self
             .workers
             .clone()
@@ -86,12 +189,14 @@ impl RenderPool {
         })
         .await
         .map_err(|e| AppError::Internal(anyhow::Error::new(e).context("render task failed")))?;
+        in_flight.completed(Instant::now());
         let (rendered, render_ms) = result;
         let rendered = rendered?;
         Ok(Rendered {
             frame: rendered.frame,
             render_ms,
             decision: rendered.decision,
+            memory,
         })
     }
 }
@@ -103,5 +208,61 @@ pub fn render_error(err: lumigraph_core::render::RenderError) -> AppError {
         RenderError::View(e) => AppError::Invalid(e.to_string()),
         RenderError::Option(message) => AppError::Invalid(message),
         other => AppError::Internal(anyhow::Error::new(other).context("render failed")),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_idle_pool_is_never_stalled() {
+        let now = Instant::now();
+        let idle = Activity {
+            in_flight: 0,
+            busy_since: Some(now),
+            last_done: None,
+        };
+        assert_eq!(idle.stalled_for(now + Duration::from_secs(3600)), None);
+    }
+
+    #[test]
+    fn a_stall_counts_from_the_later_of_busy_and_last_completion() {
+        let t0 = Instant::now();
+        let s = Duration::from_secs;
+        // Idle for an hour, then a request: the stall counts from its arrival.
+        let a = Activity {
+            in_flight: 1,
+            busy_since: Some(t0 + s(3600)),
+            last_done: Some(t0),
+        };
+        assert_eq!(a.stalled_for(t0 + s(3605)), Some(s(5)));
+        // Busy for a minute with a render completing 2 s ago: moving.
+        let b = Activity {
+            in_flight: 3,
+            busy_since: Some(t0),
+            last_done: Some(t0 + s(58)),
+        };
+        assert_eq!(b.stalled_for(t0 + s(60)), Some(s(2)));
+    }
+
+    #[test]
+    fn in_flight_guards_count_requests_and_completions() {
+        let activity = Arc::new(Mutex::new(Activity::default()));
+        let t0 = Instant::now();
+        let first = InFlight::enter(&activity, t0);
+        let second = InFlight::enter(&activity, t0 + Duration::from_secs(1));
+        {
+            let a = activity.lock().expect("lock");
+            assert_eq!(a.in_flight, 2);
+            assert_eq!(a.busy_since, Some(t0), "busy since the first request");
+        }
+        first.completed(t0 + Duration::from_secs(2));
+        drop(first);
+        drop(second);
+        let a = activity.lock().expect("lock");
+        assert_eq!(a.in_flight, 0);
+        assert_eq!(a.last_done, Some(t0 + Duration::from_secs(2)));
+        assert_eq!(a.stalled_for(t0 + Duration::from_secs(100)), None);
     }
 }

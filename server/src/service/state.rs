@@ -15,6 +15,7 @@ use lumigraph_core::render::Renderer;
 use tokio::sync::{Semaphore, watch};
 
 use super::assets::{self, AssetLimits, AssetStore};
+use super::budget::MemoryBudget;
 use super::error::AppError;
 use super::jobs::Jobs;
 use super::metrics::Metrics;
@@ -49,6 +50,16 @@ pub struct ServeConfig {
     /// Most texture memory, in bytes, the loaded assets may take together (GPU memory; host
     /// memory on a software adapter); an upload or bake beyond it gets 413 or fails.
     pub asset_memory_budget: u64,
+    /// Most bytes the whole server may hold in the accounted uses: loaded assets' textures,
+    /// frames in flight and their encode buffers. A render that would exceed it waits up to
+    /// `memory_wait`, then gets 503 with `Retry-After`; must be at least
+    /// `asset_memory_budget`.
+    pub memory_budget: u64,
+    /// Longest wait for the memory budget before a request is refused with 503.
+    pub memory_wait: Duration,
+    /// Readiness fails when requests have waited for a render this long without any render
+    /// completing (a stuck render path).
+    pub render_stall_timeout: Duration,
     /// Per-request timeout (uploads included).
     pub request_timeout: Duration,
     /// Longest wait for a request's headers (from the connection's start or its previous
@@ -87,6 +98,9 @@ impl ServeConfig {
             max_json_bytes: 64 << 10,
             max_asset_decoded_bytes: default_asset_memory_budget(),
             asset_memory_budget: default_asset_memory_budget(),
+            memory_budget: default_memory_budget(),
+            memory_wait: Duration::from_secs(2),
+            render_stall_timeout: Duration::from_secs(60),
             request_timeout: Duration::from_secs(600),
             header_timeout: Duration::from_secs(10),
             body_idle_timeout: Duration::from_secs(30),
@@ -109,14 +123,35 @@ impl ServeConfig {
     }
 }
 
-/// Half of the machine's memory (`MemTotal` in `/proc/meminfo`), or 4 GiB where it cannot be
-/// read: the default memory budget of the loaded assets and the default largest decoded asset.
-pub fn default_asset_memory_budget() -> u64 {
-    const FALLBACK: u64 = 4 << 30;
-    std::fs::read_to_string("/proc/meminfo")
+/// The machine's memory as this process may use it: `MemTotal` of `/proc/meminfo`, or the
+/// cgroup's `memory.max` (a container's limit) where that is lower; 8 GiB where neither can be
+/// read.
+pub fn machine_memory_bytes() -> u64 {
+    const FALLBACK: u64 = 8 << 30;
+    let total = std::fs::read_to_string("/proc/meminfo")
         .ok()
-        .and_then(|text| mem_total_bytes(&text))
-        .map_or(FALLBACK, |total| total / 2)
+        .and_then(|text| mem_total_bytes(&text));
+    let cgroup = std::fs::read_to_string("/sys/fs/cgroup/memory.max")
+        .ok()
+        .and_then(|text| text.trim().parse::<u64>().ok());
+    match (total, cgroup) {
+        (Some(t), Some(c)) => t.min(c),
+        (Some(t), None) => t,
+        (None, Some(c)) => c,
+        (None, None) => FALLBACK,
+    }
+}
+
+/// Half of [`machine_memory_bytes`]: the default memory budget of the loaded assets and the
+/// default largest decoded asset.
+pub fn default_asset_memory_budget() -> u64 {
+    machine_memory_bytes() / 2
+}
+
+/// Three quarters of [`machine_memory_bytes`]: the default memory budget of the whole server
+/// (the rest is left to the process's code, the driver and the system).
+pub fn default_memory_budget() -> u64 {
+    machine_memory_bytes() / 4 * 3
 }
 
 /// `MemTotal` of a `/proc/meminfo` text, in bytes.
@@ -142,6 +177,7 @@ pub(super) struct Inner {
     pub(super) adapter: String,
     pub(super) assets: AssetStore,
     pub(super) pool: RenderPool,
+    pub(super) budget: Arc<MemoryBudget>,
     pub(super) baker: Baker,
     /// Rasterizes source meshes for the calibration of each bake.
     pub(super) reference: lumigraph_core::reference::ReferenceRenderer,
@@ -161,10 +197,20 @@ impl AppState {
         let renderer = Renderer::new(Arc::clone(&gpu));
         let reference = lumigraph_core::reference::ReferenceRenderer::new(Arc::clone(&gpu));
         let baker = Baker::new(gpu);
+        anyhow::ensure!(
+            config.asset_memory_budget <= config.memory_budget,
+            "the asset memory budget ({}) must not exceed the server's memory budget ({}): \
+             lower --asset-memory-budget or raise --memory-budget",
+            assets::describe_bytes(config.asset_memory_budget),
+            assets::describe_bytes(config.memory_budget),
+        );
+        let budget = MemoryBudget::new(config.memory_budget);
         let pool = RenderPool::new(
             Arc::new(renderer),
             config.render_workers,
             config.max_queued_renders,
+            Arc::clone(&budget),
+            config.memory_wait,
         );
         let (shutdown, _) = watch::channel(false);
         Ok(Self {
@@ -175,7 +221,9 @@ impl AppState {
                         max_decoded_bytes: config.max_asset_decoded_bytes,
                         memory_budget: config.asset_memory_budget,
                     },
+                    Arc::clone(&budget),
                 ),
+                budget,
                 sessions: Arc::new(Semaphore::new(config.max_sessions)),
                 config,
                 adapter,
@@ -199,6 +247,11 @@ impl AppState {
     /// The asset store.
     pub fn assets(&self) -> &AssetStore {
         &self.inner.assets
+    }
+
+    /// The server's memory budget.
+    pub fn budget(&self) -> &Arc<MemoryBudget> {
+        &self.inner.budget
     }
 
     /// The metrics.
