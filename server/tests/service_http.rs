@@ -806,6 +806,77 @@ async fn the_server_memory_budget_makes_renders_wait_or_get_503_with_retry_after
 }
 
 #[tokio::test(flavor = "multi_thread")]
+async fn a_lost_device_is_replaced_and_the_assets_uploaded_again() {
+    // A device of its own: the injected loss must not reach the device the other tests share.
+    let own = tokio::task::spawn_blocking(|| Gpu::new().map(Arc::new))
+        .await
+        .expect("join")
+        .expect("a GPU adapter");
+    let dir = tempfile::tempdir().expect("temp dir");
+    std::fs::write(dir.path().join("tiny.lfa"), tiny_asset()).expect("writing the asset");
+    let mut config = ServeConfig::new(dir.path(), "127.0.0.1:0".parse().expect("addr"));
+    config.bake_demo_if_empty = false;
+    config.max_px = 512;
+    let device = Arc::clone(&own);
+    let state = tokio::task::spawn_blocking(move || AppState::new(config, device))
+        .await
+        .expect("join")
+        .expect("state");
+    state.load_assets().await.expect("loading assets");
+    let body = serde_json::json!({"view": view_json(64, 48)});
+    let before = render(&state, &body).await;
+    assert_eq!(before.status, StatusCode::OK);
+
+    own.inject_device_loss("test");
+    // The request in flight on the lost device fails at once with 503, never hangs.
+    let during = tokio::time::timeout(std::time::Duration::from_secs(30), render(&state, &body))
+        .await
+        .expect("a render on a lost device must not hang");
+    assert_eq!(during.status, StatusCode::SERVICE_UNAVAILABLE);
+    assert_eq!(
+        during
+            .headers
+            .get(header::RETRY_AFTER)
+            .map(axum::http::HeaderValue::as_bytes),
+        Some(&b"1"[..])
+    );
+    let message = during.json()["error"]["message"]
+        .as_str()
+        .unwrap_or_default()
+        .to_owned();
+    assert!(message.contains("device was lost"), "{message}");
+
+    // The server opens a new device, uploads the asset again and is ready again.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    loop {
+        let ready = get(&state, "/readyz").await.status == StatusCode::OK;
+        let replaced = state.pool().engine().generation == 1;
+        if ready && replaced && state.assets().len() == 1 {
+            break;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "no recovery within 120 s"
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    assert!(
+        !Arc::ptr_eq(state.pool().engine().gpu(), &own),
+        "a new device"
+    );
+    let after = render(&state, &body).await;
+    assert_eq!(after.status, StatusCode::OK);
+    // Same asset, same renderer code, a device of the same adapter: the same image.
+    assert_eq!(after.body, before.body, "the frame after recovery differs");
+    assert_eq!(metric(&state, "lumigraph_gpu_devices_lost_total").await, 1);
+    assert_eq!(
+        state.pool().renderer().resident().fields,
+        1,
+        "the asset lives on the new device"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread")]
 async fn an_asset_budget_above_the_server_budget_is_refused_at_start() {
     let dir = tempfile::tempdir().expect("temp dir");
     let mut config = ServeConfig::new(dir.path(), "127.0.0.1:0".parse().expect("addr"));

@@ -37,6 +37,10 @@ pub enum GpuError {
     /// A readback or submission failed.
     #[error("GPU operation failed: {0}")]
     Operation(String),
+    /// The device is lost (driver reset, GPU removed, or [`Gpu::inject_device_loss`]): nothing
+    /// more can run on it; open a new one and upload again.
+    #[error("the GPU device is lost: {0}")]
+    DeviceLost(String),
     /// A request exceeds what the device supports.
     #[error("{what} needs {needed} but the device allows at most {limit}")]
     Limit {
@@ -61,6 +65,9 @@ pub struct Gpu {
     pub is_software: bool,
     /// The first uncaptured device error since the last check (wgpu would otherwise panic).
     device_error: Arc<std::sync::Mutex<Option<String>>>,
+    /// Why the device is lost, once it is: set by wgpu's device-lost callback or by
+    /// [`Gpu::inject_device_loss`]; never cleared.
+    lost: Arc<std::sync::Mutex<Option<String>>>,
 }
 
 /// Unmaps buffers when dropped ([`Gpu::map_read_many`]), so no path out, a failed wait
@@ -261,12 +268,22 @@ impl Gpu {
                 *slot = Some(error.to_string());
             }
         }));
+        let lost: Arc<std::sync::Mutex<Option<String>>> = Arc::default();
+        let lost_sink = lost.clone();
+        device.set_device_lost_callback(move |reason, message| {
+            tracing::error!(?reason, message, "the GPU device is lost");
+            lost_sink
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .get_or_insert_with(|| format!("{reason:?}: {message}"));
+        });
         let gpu = Gpu {
             device,
             queue,
             adapter_info,
             is_software,
             device_error,
+            lost,
         };
         tracing::info!("{}", gpu.adapter_summary());
         if gpu.is_software {
@@ -302,14 +319,39 @@ impl Gpu {
             .contains(wgpu::Features::MAPPABLE_PRIMARY_BUFFERS)
     }
 
+    /// Why the device is lost, or `None` while it works.
+    pub fn lost(&self) -> Option<String> {
+        self.lost
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
+    }
+
+    /// Marks the device lost, as a driver reset would: every later wait (so every render,
+    /// upload, bake and readback) fails with [`GpuError::DeviceLost`]. A software adapter cannot
+    /// lose its device, so recovery paths are tested with this hook.
+    pub fn inject_device_loss(&self, why: &str) {
+        tracing::warn!(why, "device loss injected");
+        self.lost
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .get_or_insert_with(|| format!("injected: {why}"));
+    }
+
     /// Blocks until the submitted work is done.
     ///
     /// # Errors
-    /// [`GpuError::Operation`] when the device is lost.
+    /// [`GpuError::DeviceLost`] when the device is lost; [`GpuError::Operation`] when the wait
+    /// or earlier work failed.
     pub fn wait(&self) -> Result<(), GpuError> {
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Operation(e.to_string()))?;
+        if let Some(why) = self.lost() {
+            return Err(GpuError::DeviceLost(why));
+        }
+        let polled = self.device.poll(wgpu::PollType::wait_indefinitely());
+        if let Some(why) = self.lost() {
+            return Err(GpuError::DeviceLost(why));
+        }
+        polled.map_err(|e| GpuError::Operation(e.to_string()))?;
         let error = self
             .device_error
             .lock()

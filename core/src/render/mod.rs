@@ -78,6 +78,13 @@ pub struct GpuLightField {
     resident: Arc<ResidentCounter>,
 }
 
+impl GpuLightField {
+    /// The device the field lives on: only a renderer of that device can draw it.
+    pub fn gpu(&self) -> &Arc<Gpu> {
+        &self.gpu
+    }
+}
+
 impl Drop for GpuLightField {
     fn drop(&mut self) {
         // Dropping the handles alone leaves the memory to wgpu's next maintenance, which runs
@@ -416,6 +423,14 @@ impl Renderer {
         weight: f32,
         jitter: [f32; 2],
     ) -> Result<Frame, RenderError> {
+        if !Arc::ptr_eq(&field.gpu, &self.gpu) {
+            return Err(RenderError::Option(
+                "the light field was uploaded on another device than this renderer's".to_owned(),
+            ));
+        }
+        if let Some(why) = self.gpu.lost() {
+            return Err(GpuError::DeviceLost(why).into());
+        }
         let basis = view.basis(self.max_px)?;
         if !(weight.is_finite() && (0.0..=1.0).contains(&weight)) {
             return Err(RenderError::Option(format!(

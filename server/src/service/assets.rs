@@ -405,6 +405,17 @@ impl AssetStore {
             .insert(asset.id.clone(), Arc::new(asset));
     }
 
+    /// Empties the store, returning every asset's id and file (to load them again on a new
+    /// device); renders holding them finish first.
+    pub fn take_all(&self) -> Vec<(String, PathBuf)> {
+        let taken =
+            std::mem::take(&mut *self.assets.write().unwrap_or_else(PoisonError::into_inner));
+        taken
+            .into_values()
+            .map(|asset| (asset.id.clone(), asset.path.clone()))
+            .collect()
+    }
+
     /// Removes an asset from the store; renders holding it finish first.
     pub fn remove(&self, id: &str) -> Option<Arc<LoadedAsset>> {
         self.assets

@@ -92,6 +92,9 @@ pub async fn readyz(State(state): State<AppState>) -> Result<Json<Readiness>, Ap
             "loading assets (baking the demo scene on first start)".to_owned(),
         ));
     }
+    if let Some(why) = state.recovering() {
+        return Err(AppError::Unavailable(why));
+    }
     let health = state.pool().health();
     let bound = state.config().render_stall_timeout;
     if let Some(stalled) = health.stalled_for.filter(|s| *s > bound) {
@@ -282,19 +285,19 @@ pub async fn upload_asset(
     let check_path = temp_path.clone();
     let check_id = id.clone();
     let loaded = tokio::task::spawn_blocking(move || {
-        load_file(
-            loader.assets(),
-            loader.pool().renderer(),
-            &check_id,
-            &check_path,
-        )
+        let engine = loader.pool().engine();
+        load_file(loader.assets(), &engine.renderer, &check_id, &check_path)
+            .map_err(|e| (e, engine))
     })
     .await
     .map_err(|e| AppError::Internal(e.into()))?
-    .map_err(|e| match e {
+    .map_err(|(e, engine)| match e {
         LoadError::OverLimit(message) => AppError::OverLimit(message),
         LoadError::Busy(message) => AppError::Unavailable(message),
-        other => AppError::BadUpload(format!("not a usable .lfa asset: {other}")),
+        other => state
+            .pool()
+            .device_lost(&engine)
+            .unwrap_or_else(|| AppError::BadUpload(format!("not a usable .lfa asset: {other}"))),
     })?;
     let final_path = state.assets().path_for(&id);
     tokio::fs::rename(&temp_path, &final_path)
@@ -716,22 +719,19 @@ pub async fn bake(
                 })
             } else {
                 let report = baker
-                    .inner
+                    .pool()
+                    .engine()
                     .baker
                     .bake_to_file(&mesh, &options, &source, &path, &mut progress)
                     .map_err(|e| format!("bake failed: {e}"))?;
                 serde_json::to_value(&report).unwrap_or_default()
             };
-            let asset = load_file(
-                baker.assets(),
-                baker.pool().renderer(),
-                &progress_job.asset,
-                &path,
-            )
-            .map_err(|e| {
-                // The file stays in the folder, where a restart with a larger budget loads it.
-                format!("the baked asset cannot be loaded: {e}")
-            })?;
+            let engine = baker.pool().engine();
+            let asset = load_file(baker.assets(), &engine.renderer, &progress_job.asset, &path)
+                .map_err(|e| {
+                    // The file stays in the folder, where a restart with a larger budget loads it.
+                    format!("the baked asset cannot be loaded: {e}")
+                })?;
             Ok::<_, String>((report, asset))
         })
         .await;
@@ -743,6 +743,8 @@ pub async fn bake(
                 job.finish(report);
             }
             Ok(Err(message)) => {
+                // A bake that met a lost device reports it, so that a new one is opened.
+                let _ = worker.pool().device_lost(&worker.pool().engine());
                 tracing::warn!(job = job.id, message, "bake job failed");
                 job.fail(message);
             }

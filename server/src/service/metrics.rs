@@ -30,6 +30,7 @@ pub struct Metrics {
     asset_memory_budget: Gauge,
     memory_used: Gauge,
     memory_budget: Gauge,
+    devices_lost: Counter,
 }
 
 impl Default for Metrics {
@@ -56,6 +57,7 @@ impl Metrics {
         let asset_memory = Gauge::default();
         let asset_memory_budget = Gauge::default();
         let memory_used = Gauge::default();
+        let devices_lost = Counter::default();
         let memory_budget = Gauge::default();
         registry.register(
             "frames",
@@ -118,6 +120,11 @@ impl Metrics {
             "The server's memory budget (--memory-budget)",
             memory_budget.clone(),
         );
+        registry.register(
+            "gpu_devices_lost",
+            "GPU devices lost and replaced by a new one (assets uploaded again)",
+            devices_lost.clone(),
+        );
         Self {
             registry,
             frames,
@@ -133,6 +140,7 @@ impl Metrics {
             asset_memory_budget,
             memory_used,
             memory_budget,
+            devices_lost,
         }
     }
 
@@ -178,6 +186,11 @@ impl Metrics {
     /// Adds `delta` to the open sessions gauge.
     pub fn sessions_add(&self, delta: i64) {
         self.sessions.inc_by(delta);
+    }
+
+    /// Counts a lost device.
+    pub fn device_lost(&self) {
+        self.devices_lost.inc();
     }
 
     /// Sets the number of loaded assets.

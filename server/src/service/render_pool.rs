@@ -4,12 +4,15 @@
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
+use lumigraph_core::bake::Baker;
 use lumigraph_core::frame::Frame;
+use lumigraph_core::gpu::{Gpu, GpuError};
 use lumigraph_core::lod::LodError;
 use lumigraph_core::quality::{Decision, Plan, Quality, QualityError};
+use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::Renderer;
 use lumigraph_core::view::View;
-use tokio::sync::Semaphore;
+use tokio::sync::{Semaphore, mpsc};
 
 use super::assets::LoadedAsset;
 use super::budget::{Charge, MemoryBudget, frame_bytes};
@@ -29,10 +32,43 @@ pub fn quality_error(err: QualityError) -> AppError {
     }
 }
 
+/// The device and everything built on it. When the device is lost the whole engine is
+/// replaced by one on a new device ([`RenderPool::replace_engine`]) and the assets are uploaded
+/// again.
+pub struct Engine {
+    /// 0 for the first device, then one more for every replacement.
+    pub generation: u64,
+    /// The light-field renderer.
+    pub renderer: Arc<Renderer>,
+    /// The baker (server-side bakes).
+    pub baker: Baker,
+    /// The mesh rasterizer (bake calibration).
+    pub reference: ReferenceRenderer,
+}
+
+impl Engine {
+    /// Builds the pipelines on `gpu` (blocking: compiles shaders).
+    pub fn new(gpu: Arc<Gpu>, generation: u64) -> Self {
+        Self {
+            generation,
+            renderer: Arc::new(Renderer::new(Arc::clone(&gpu))),
+            baker: Baker::new(Arc::clone(&gpu)),
+            reference: ReferenceRenderer::new(gpu),
+        }
+    }
+
+    /// The device.
+    pub fn gpu(&self) -> &Arc<Gpu> {
+        self.renderer.gpu()
+    }
+}
+
 /// Renders on a bounded number of blocking threads; queued work beyond a cap is refused, and
 /// every frame is charged to the server's memory budget while it is served.
 pub struct RenderPool {
-    renderer: Arc<Renderer>,
+    engine: std::sync::RwLock<Arc<Engine>>,
+    /// Told the generation of an engine whose device was found lost.
+    lost: mpsc::Sender<u64>,
     workers: Arc<Semaphore>,
     queue: Arc<Semaphore>,
     budget: Arc<MemoryBudget>,
@@ -123,14 +159,16 @@ impl RenderPool {
     /// A pool running at most `workers` renders at once with at most `max_queued` waiting,
     /// charging each frame to `budget` (waiting up to `memory_wait` for it).
     pub fn new(
-        renderer: Arc<Renderer>,
+        engine: Engine,
         workers: usize,
         max_queued: usize,
         budget: Arc<MemoryBudget>,
         memory_wait: Duration,
+        lost: mpsc::Sender<u64>,
     ) -> Self {
         Self {
-            renderer,
+            engine: std::sync::RwLock::new(Arc::new(engine)),
+            lost,
             workers: Arc::new(Semaphore::new(workers.max(1))),
             queue: Arc::new(Semaphore::new(workers.max(1) + max_queued)),
             budget,
@@ -139,9 +177,29 @@ impl RenderPool {
         }
     }
 
-    /// The renderer (for uploads).
-    pub fn renderer(&self) -> &Arc<Renderer> {
-        &self.renderer
+    /// The current engine.
+    pub fn engine(&self) -> Arc<Engine> {
+        Arc::clone(&self.engine.read().unwrap_or_else(PoisonError::into_inner))
+    }
+
+    /// The current renderer (for uploads).
+    pub fn renderer(&self) -> Arc<Renderer> {
+        Arc::clone(&self.engine().renderer)
+    }
+
+    /// Puts `engine` (on a new device) in place of the current one; renders already running
+    /// finish (or fail) on the old one.
+    pub fn replace_engine(&self, engine: Engine) {
+        *self.engine.write().unwrap_or_else(PoisonError::into_inner) = Arc::new(engine);
+    }
+
+    /// Checks whether `engine`'s device is lost; if so, reports it for recovery and returns
+    /// the 503 that the request in flight gets.
+    pub fn device_lost(&self, engine: &Engine) -> Option<AppError> {
+        let why = engine.gpu().lost()?;
+        // Full: a report is already pending.
+        let _ = self.lost.try_send(engine.generation);
+        Some(lost_error(&why))
     }
 
     /// Requests in the pool and how long they have waited without progress.
@@ -179,19 +237,33 @@ impl RenderPool {
             .acquire_owned()
             .await
             .map_err(|_| AppError::Unavailable("the service is shutting down".to_owned()))?;
-        let renderer = Arc::clone(&self.renderer);
+        let engine = self.engine();
+        if let Some(lost) = self.device_lost(&engine) {
+            return Err(lost);
+        }
+        if !Arc::ptr_eq(asset.field.gpu(), engine.gpu()) {
+            return Err(AppError::Unavailable(
+                "the asset is being uploaded again to a new GPU device; retry shortly".to_owned(),
+            ));
+        }
+        let renderer = Arc::clone(&engine.renderer);
         let result = tokio::task::spawn_blocking(move || {
             let start = Instant::now();
-            let rendered = plan
-                .render(&renderer, &asset.field, &view)
-                .map_err(quality_error);
+            let rendered = plan.render(&renderer, &asset.field, &view);
             (rendered, start.elapsed().as_secs_f64() * 1e3)
         })
         .await
         .map_err(|e| AppError::Internal(anyhow::Error::new(e).context("render task failed")))?;
         in_flight.completed(Instant::now());
         let (rendered, render_ms) = result;
-        let rendered = rendered?;
+        let rendered = match rendered {
+            Ok(rendered) => rendered,
+            Err(err) => {
+                return Err(self
+                    .device_lost(&engine)
+                    .unwrap_or_else(|| quality_error(err)));
+            }
+        };
         Ok(Rendered {
             frame: rendered.frame,
             render_ms,
@@ -199,6 +271,22 @@ impl RenderPool {
             memory,
         })
     }
+}
+
+/// The 503 of a request that met a lost device.
+pub fn lost_error(why: &str) -> AppError {
+    AppError::Unavailable(format!(
+        "the GPU device was lost ({why}); the server is opening a new one and uploading the \
+         assets again: retry shortly"
+    ))
+}
+
+/// Whether a core render error is a lost device.
+pub fn is_device_lost(err: &lumigraph_core::render::RenderError) -> bool {
+    matches!(
+        err,
+        lumigraph_core::render::RenderError::Gpu(GpuError::DeviceLost(_))
+    )
 }
 
 /// Maps a core render error: invalid requests are 422, everything else 500.

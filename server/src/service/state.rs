@@ -9,17 +9,16 @@ use std::time::Duration;
 
 use anyhow::Context as _;
 use axum::http::{HeaderMap, header};
-use lumigraph_core::bake::{BakeOptions, Baker};
+use lumigraph_core::bake::BakeOptions;
 use lumigraph_core::gpu::Gpu;
-use lumigraph_core::render::Renderer;
-use tokio::sync::{Semaphore, watch};
+use tokio::sync::{Semaphore, mpsc, watch};
 
 use super::assets::{self, AssetLimits, AssetStore};
 use super::budget::MemoryBudget;
 use super::error::AppError;
 use super::jobs::Jobs;
 use super::metrics::Metrics;
-use super::render_pool::RenderPool;
+use super::render_pool::{Engine, RenderPool};
 
 /// Settings of `lumigraph serve`.
 #[derive(Clone, Debug)]
@@ -178,9 +177,11 @@ pub(super) struct Inner {
     pub(super) assets: AssetStore,
     pub(super) pool: RenderPool,
     pub(super) budget: Arc<MemoryBudget>,
-    pub(super) baker: Baker,
-    /// Rasterizes source meshes for the calibration of each bake.
-    pub(super) reference: lumigraph_core::reference::ReferenceRenderer,
+    /// Reports of lost devices, taken by the recovery task that [`AppState::load_assets`]
+    /// starts.
+    pub(super) lost_reports: std::sync::Mutex<Option<mpsc::Receiver<u64>>>,
+    /// Set while a lost device is being replaced: what `/readyz` says.
+    pub(super) recovering: std::sync::Mutex<Option<String>>,
     pub(super) bake_slot: Semaphore,
     pub(super) jobs: Jobs,
     pub(super) metrics: Metrics,
@@ -194,9 +195,8 @@ impl AppState {
     /// [`Self::load_assets`].
     pub fn new(config: ServeConfig, gpu: Arc<Gpu>) -> anyhow::Result<Self> {
         let adapter = gpu.adapter_summary();
-        let renderer = Renderer::new(Arc::clone(&gpu));
-        let reference = lumigraph_core::reference::ReferenceRenderer::new(Arc::clone(&gpu));
-        let baker = Baker::new(gpu);
+        let engine = Engine::new(gpu, 0);
+        let (lost_tx, lost_rx) = mpsc::channel(1);
         anyhow::ensure!(
             config.asset_memory_budget <= config.memory_budget,
             "the asset memory budget ({}) must not exceed the server's memory budget ({}): \
@@ -206,11 +206,12 @@ impl AppState {
         );
         let budget = MemoryBudget::new(config.memory_budget);
         let pool = RenderPool::new(
-            Arc::new(renderer),
+            engine,
             config.render_workers,
             config.max_queued_renders,
             Arc::clone(&budget),
             config.memory_wait,
+            lost_tx,
         );
         let (shutdown, _) = watch::channel(false);
         Ok(Self {
@@ -228,8 +229,8 @@ impl AppState {
                 config,
                 adapter,
                 pool,
-                baker,
-                reference,
+                lost_reports: std::sync::Mutex::new(Some(lost_rx)),
+                recovering: std::sync::Mutex::new(None),
                 bake_slot: Semaphore::new(1),
                 jobs: Jobs::default(),
                 metrics: Metrics::new(),
@@ -264,7 +265,8 @@ impl AppState {
         self.inner.ready.load(Ordering::Acquire)
     }
 
-    pub(crate) fn pool(&self) -> &RenderPool {
+    /// The render pool and its engine (device, renderer, baker).
+    pub fn pool(&self) -> &RenderPool {
         &self.inner.pool
     }
 
@@ -324,15 +326,25 @@ impl AppState {
             self.bake_demo(path.clone()).await?;
             found.push(("demo".to_owned(), path));
         }
-        for (id, path) in found {
+        self.load_files(found).await;
+        self.start_recovery_task();
+        self.inner.ready.store(true, Ordering::Release);
+        Ok(())
+    }
+
+    /// Loads `files` (id, path) into the store on the current device, logging and skipping
+    /// those that fail or exceed a limit.
+    async fn load_files(&self, files: Vec<(String, PathBuf)>) {
+        for (id, path) in files {
             let state = self.clone();
             let loaded = tokio::task::spawn_blocking(move || {
-                assets::load_file(&state.inner.assets, state.inner.pool.renderer(), &id, &path)
+                let renderer = state.inner.pool.renderer();
+                assets::load_file(&state.inner.assets, &renderer, &id, &path)
                     .map_err(|e| (id, path, e))
             })
-            .await?;
+            .await;
             match loaded {
-                Ok(asset) => {
+                Ok(Ok(asset)) => {
                     tracing::info!(
                         id = asset.id,
                         cameras = asset.header.geometry.camera_count,
@@ -341,14 +353,102 @@ impl AppState {
                     );
                     self.inner.assets.insert(asset);
                 }
-                Err((id, path, err)) => {
+                Ok(Err((id, path, err))) => {
                     tracing::warn!(id, path = %path.display(), error = format!("{err:#}"), "skipping an asset that cannot be loaded");
                 }
+                Err(err) => tracing::error!(error = %err, "an asset load task failed"),
             }
         }
         self.inner.metrics.set_assets(self.inner.assets.len());
-        self.inner.ready.store(true, Ordering::Release);
-        Ok(())
+    }
+
+    /// Starts (once) the task that replaces a lost device: it holds the state weakly and ends
+    /// with it.
+    fn start_recovery_task(&self) {
+        let Some(mut reports) = self
+            .inner
+            .lost_reports
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .take()
+        else {
+            return;
+        };
+        let weak = Arc::downgrade(&self.inner);
+        tokio::spawn(async move {
+            while let Some(generation) = reports.recv().await {
+                let Some(inner) = weak.upgrade() else {
+                    return;
+                };
+                AppState { inner }.recover(generation).await;
+            }
+        });
+    }
+
+    /// Why the service is not ready while it replaces a lost device.
+    pub(crate) fn recovering(&self) -> Option<String> {
+        self.inner
+            .recovering
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
+    }
+
+    fn set_recovering(&self, why: Option<String>) {
+        *self
+            .inner
+            .recovering
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = why;
+    }
+
+    /// Replaces the engine of `generation`, whose device is lost: opens a new device (retrying
+    /// with back-off while none opens), builds the pipelines, and uploads every loaded asset
+    /// again from its file. Readiness fails meanwhile; requests in flight on the old device
+    /// fail with 503.
+    async fn recover(&self, generation: u64) {
+        if self.inner.pool.engine().generation != generation {
+            return; // Already replaced.
+        }
+        let why = self.inner.pool.engine().gpu().lost().unwrap_or_default();
+        tracing::error!(generation, why, "the GPU device is lost: opening a new one");
+        self.set_recovering(Some(format!(
+            "the GPU device was lost ({why}); opening a new one and uploading the assets again"
+        )));
+        self.inner.metrics.device_lost();
+        let mut delay = Duration::from_millis(250);
+        let engine = loop {
+            let opened = tokio::task::spawn_blocking(move || {
+                Gpu::new().map(|gpu| Engine::new(Arc::new(gpu), generation + 1))
+            })
+            .await;
+            match opened {
+                Ok(Ok(engine)) => break engine,
+                Ok(Err(err)) => {
+                    tracing::error!(error = %err, "cannot open a new GPU device; retrying");
+                }
+                Err(err) => tracing::error!(error = %err, "the device task failed; retrying"),
+            }
+            if self.is_shutting_down() {
+                return;
+            }
+            tokio::time::sleep(delay).await;
+            delay = (delay * 2).min(Duration::from_secs(30));
+        };
+        tracing::info!(
+            adapter = engine.gpu().adapter_summary(),
+            "new GPU device ready"
+        );
+        self.inner.pool.replace_engine(engine);
+        // Every asset lives on the lost device: drop them all (their memory is given back as
+        // the requests holding them fail) and upload them again from their files.
+        let files = self.inner.assets.take_all();
+        self.load_files(files).await;
+        self.set_recovering(None);
+        tracing::info!(
+            assets = self.inner.assets.len(),
+            "recovered from the device loss"
+        );
     }
 
     /// Bakes `mesh`, measures its calibration (error against cost, for `target_psnr` /
@@ -361,10 +461,11 @@ impl AppState {
         path: &std::path::Path,
         progress: &mut dyn FnMut(u32, u32),
     ) -> anyhow::Result<lumigraph_core::calibration::CalibratedBake> {
+        let engine = self.pool().engine();
         let baked = lumigraph_core::calibration::bake_calibrated(
-            &self.inner.baker,
-            self.pool().renderer(),
-            &self.inner.reference,
+            &engine.baker,
+            &engine.renderer,
+            &engine.reference,
             mesh,
             options,
             source,

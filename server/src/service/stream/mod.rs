@@ -29,6 +29,29 @@ pub use settings::Settings;
 /// before it is read whole.
 const MAX_CLIENT_MESSAGE: usize = 64 << 10;
 
+/// Parses and validates one client text message exactly as a new session on an asset with
+/// `header` would (default settings, views up to `max_px`), without a session or a device: the
+/// checks of the receive loop, for tests and fuzzing. `Err` holds the error message the client
+/// would get.
+///
+/// # Errors
+/// The refusal's message.
+pub fn check_client_message(
+    text: &str,
+    header: &lumigraph_core::asset::AssetHeader,
+    max_px: u32,
+) -> Result<(), String> {
+    let defaults = Settings::defaults(std::time::Duration::from_millis(250));
+    match protocol::parse_client_message(text, max_px).map_err(|r| r.message)? {
+        protocol::ClientMessage::Settings(patch) => {
+            settings::merge_settings(&defaults, patch)
+                .and_then(|s| settings::validate_settings(s, header))?;
+            Ok(())
+        }
+        protocol::ClientMessage::View(_) | protocol::ClientMessage::Ack(_) => Ok(()),
+    }
+}
+
 /// Query of `GET /v1/stream`.
 #[derive(Debug, Deserialize, utoipa::IntoParams)]
 #[serde(deny_unknown_fields)]

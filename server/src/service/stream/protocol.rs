@@ -27,6 +27,74 @@ pub(super) struct AckMessage {
     pub(super) frame: u32,
 }
 
+/// A client text message, parsed and checked as far as it can be without a session.
+#[derive(Debug)]
+pub(super) enum ClientMessage {
+    /// A view to render (its basis is valid for the server's `max_px`).
+    View(ViewMessage),
+    /// A settings patch: the message's object without `type` (merged and validated against the
+    /// session's settings and asset by the receiver).
+    Settings(serde_json::Value),
+    /// A frame acknowledgement.
+    Ack(AckMessage),
+}
+
+/// Why a client message was refused: what the error message sent back names.
+#[derive(Debug, PartialEq, Eq)]
+pub(super) struct Refusal {
+    /// The message's `id`, when it has one that fits a `u32`.
+    pub(super) request: Option<u32>,
+    /// Error kind (`malformed_json` or `invalid`).
+    pub(super) kind: &'static str,
+    /// What is wrong.
+    pub(super) message: String,
+}
+
+/// Parses one client text message (see docs/protocol.md).
+pub(super) fn parse_client_message(text: &str, max_px: u32) -> Result<ClientMessage, Refusal> {
+    let mut value: serde_json::Value = serde_json::from_str(text).map_err(|e| Refusal {
+        request: None,
+        kind: "malformed_json",
+        message: format!("malformed JSON: {e}"),
+    })?;
+    let request = value
+        .get("id")
+        .and_then(serde_json::Value::as_u64)
+        .and_then(|v| u32::try_from(v).ok());
+    let invalid = |request: Option<u32>, message: String| Refusal {
+        request,
+        kind: "invalid",
+        message,
+    };
+    let kind = value
+        .as_object_mut()
+        .and_then(|o| o.remove("type"))
+        .and_then(|t| t.as_str().map(str::to_owned));
+    match kind.as_deref() {
+        Some("view") => {
+            let message = serde_json::from_value::<ViewMessage>(value)
+                .map_err(|e| invalid(request, format!("invalid view message: {e}")))?;
+            message
+                .view
+                .basis(max_px)
+                .map_err(|e| invalid(Some(message.id), e.to_string()))?;
+            Ok(ClientMessage::View(message))
+        }
+        Some("settings") => Ok(ClientMessage::Settings(value)),
+        Some("ack") => serde_json::from_value::<AckMessage>(value)
+            .map(ClientMessage::Ack)
+            .map_err(|e| invalid(request, format!("invalid ack message: {e}"))),
+        Some(other) => Err(invalid(
+            request,
+            format!("unknown message type {other:?}: use view, settings or ack"),
+        )),
+        None => Err(invalid(
+            request,
+            "a message needs a string field `type` (view, settings or ack)".to_owned(),
+        )),
+    }
+}
+
 #[derive(Serialize)]
 struct ErrorMessage<'a> {
     r#type: &'static str,

@@ -12,8 +12,8 @@ use lumigraph_core::view::View;
 use tokio::sync::{mpsc, watch};
 
 use super::protocol::{
-    AckMessage, FRAME_HEADER_LEN, FrameHeader, Hello, PROTOCOL_VERSION, Quality, ViewMessage,
-    error_text,
+    ClientMessage, FRAME_HEADER_LEN, FrameHeader, Hello, PROTOCOL_VERSION, Quality, error_text,
+    parse_client_message,
 };
 use super::settings::{Effective, Settings, merge_settings, validate_settings};
 use crate::service::assets::LoadedAsset;
@@ -100,6 +100,7 @@ pub(super) async fn run_session(socket: WebSocket, state: AppState, asset: Arc<L
         frame_id: 0,
         dropped: 0,
         ms_per_mpx: None,
+        generation: state.pool().engine().generation,
     };
     let close = tokio::select! {
         close = receiver => close,
@@ -182,42 +183,23 @@ async fn receive_loop(
             }
             Some(Ok(Message::Ping(_) | Message::Pong(_))) => continue,
         };
-        let mut value: serde_json::Value = match serde_json::from_str(text.as_str()) {
-            Ok(v) => v,
-            Err(e) => {
-                report(None, "malformed_json", &format!("malformed JSON: {e}"));
-                continue;
-            }
-        };
-        let request = value
-            .get("id")
-            .and_then(serde_json::Value::as_u64)
-            .and_then(|v| u32::try_from(v).ok());
-        let kind = value
-            .as_object_mut()
-            .and_then(|o| o.remove("type"))
-            .and_then(|t| t.as_str().map(str::to_owned));
-        match kind.as_deref() {
-            Some("view") => match serde_json::from_value::<ViewMessage>(value) {
-                Ok(message) => {
-                    if let Err(e) = message.view.basis(state.config().max_px) {
-                        report(Some(message.id), "invalid", &e.to_string());
-                        continue;
-                    }
-                    wanted.send_modify(|w| {
-                        w.seq += 1;
-                        w.views += 1;
-                        w.request_id = message.id;
-                        w.view = Some(message.view);
-                        w.still = message.still;
-                        w.arrived = Instant::now();
-                    });
-                }
-                Err(e) => report(request, "invalid", &format!("invalid view message: {e}")),
-            },
-            Some("settings") => {
+        match parse_client_message(text.as_str(), state.config().max_px) {
+            Err(refusal) => report(refusal.request, refusal.kind, &refusal.message),
+            Ok(ClientMessage::View(message)) => wanted.send_modify(|w| {
+                w.seq += 1;
+                w.views += 1;
+                w.request_id = message.id;
+                w.view = Some(message.view);
+                w.still = message.still;
+                w.arrived = Instant::now();
+            }),
+            Ok(ClientMessage::Settings(patch)) => {
+                let request = patch
+                    .get("id")
+                    .and_then(serde_json::Value::as_u64)
+                    .and_then(|v| u32::try_from(v).ok());
                 let current = wanted.borrow().effective.settings.clone();
-                match merge_settings(&current, value).and_then(|s| validate_settings(s, header)) {
+                match merge_settings(&current, patch).and_then(|s| validate_settings(s, header)) {
                     Ok(effective) => wanted.send_modify(|w| {
                         w.seq += 1;
                         w.arrived = Instant::now();
@@ -226,28 +208,15 @@ async fn receive_loop(
                     Err(message) => report(request, "invalid", &message),
                 }
             }
-            Some("ack") => match serde_json::from_value::<AckMessage>(value) {
-                Ok(ack) => {
-                    acked.send_if_modified(|last| {
-                        let newer = ack.frame > *last;
-                        if newer {
-                            *last = ack.frame;
-                        }
-                        newer
-                    });
-                }
-                Err(e) => report(request, "invalid", &format!("invalid ack message: {e}")),
-            },
-            Some(other) => report(
-                request,
-                "invalid",
-                &format!("unknown message type {other:?}: use view, settings or ack"),
-            ),
-            None => report(
-                request,
-                "invalid",
-                "a message needs a string field `type` (view, settings or ack)",
-            ),
+            Ok(ClientMessage::Ack(ack)) => {
+                acked.send_if_modified(|last| {
+                    let newer = ack.frame > *last;
+                    if newer {
+                        *last = ack.frame;
+                    }
+                    newer
+                });
+            }
         }
     }
 }
@@ -264,6 +233,8 @@ struct Sender<'a> {
     dropped: u64,
     /// Measured interactive render cost, milliseconds per megapixel (moving average).
     ms_per_mpx: Option<f64>,
+    /// The engine generation when the session started (a later one: the device was replaced).
+    generation: u64,
 }
 
 enum Wake {
@@ -393,11 +364,17 @@ impl Sender<'_> {
             view.height = ((f64::from(view.height) * scale).round() as u32).max(1);
         }
         let Some(asset) = self.asset.upgrade() else {
-            let text = error_text(
-                Some(want.request_id),
-                "not_found",
-                "the asset was deleted; the session ends",
-            );
+            // Gone: deleted, or uploaded again to the new device after a device loss.
+            let replaced = self.state.pool().engine().generation != self.generation;
+            let (kind, message) = if replaced {
+                (
+                    "unavailable",
+                    "the GPU device was replaced and the asset uploaded again; reconnect",
+                )
+            } else {
+                ("not_found", "the asset was deleted; the session ends")
+            };
+            let text = error_text(Some(want.request_id), kind, message);
             let _ = self.sink.send(Message::Text(text.into())).await;
             return false;
         };
