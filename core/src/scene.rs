@@ -262,6 +262,40 @@ pub struct SceneFile {
     pub objects: Vec<SceneObject>,
 }
 
+impl SceneFile {
+    /// Parses scene JSON and checks everything that needs no file and no device: the object
+    /// count, every transform and every mesh shading. [`Scene::from_json`] starts here.
+    ///
+    /// # Errors
+    /// What is wrong, naming the object.
+    pub fn parse(text: &str) -> Result<SceneFile, String> {
+        let file: SceneFile = serde_json::from_str(text).map_err(|e| e.to_string())?;
+        if file.objects.is_empty() || file.objects.len() > MAX_OBJECTS {
+            return Err(format!(
+                "{} objects: give 1 to {MAX_OBJECTS}",
+                file.objects.len()
+            ));
+        }
+        for (index, object) in file.objects.iter().enumerate() {
+            let transform = match object {
+                SceneObject::Lightfield { transform, .. } => transform,
+                SceneObject::Mesh {
+                    transform, shading, ..
+                } => {
+                    shading
+                        .validate()
+                        .map_err(|e| format!("object {index}: {e}"))?;
+                    transform
+                }
+            };
+            transform
+                .similarity()
+                .map_err(|m| format!("object {index}: {m}"))?;
+        }
+        Ok(file)
+    }
+}
+
 enum Layer {
     Field {
         field: usize,
@@ -321,13 +355,7 @@ impl Scene {
             path: "(json)".to_owned(),
             message,
         };
-        let file: SceneFile = serde_json::from_str(text).map_err(|e| invalid(e.to_string()))?;
-        if file.objects.is_empty() || file.objects.len() > MAX_OBJECTS {
-            return Err(invalid(format!(
-                "{} objects: give 1 to {MAX_OBJECTS}",
-                file.objects.len()
-            )));
-        }
+        let file = SceneFile::parse(text).map_err(invalid)?;
         // Asset index → its header (plans read the cameras and calibration from it).
         let mut headers: Vec<crate::asset::AssetHeader> = Vec::new();
         let mut field_index: HashMap<PathBuf, usize> = HashMap::new();

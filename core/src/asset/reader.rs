@@ -5,7 +5,7 @@ use std::fmt;
 use std::fs::File;
 use std::path::Path;
 
-use super::format::{Layout, PREAMBLE_LEN, Preamble, crc32, parse_index};
+use super::format::{Layout, PREAMBLE_LEN, Preamble, crc_matches, parse_index};
 use super::header::AssetHeader;
 use super::{AssetError, Codec, ImageKey, IndexEntry, Result};
 
@@ -139,7 +139,7 @@ impl AssetFile {
             preamble.header_offset,
             preamble.header_len as usize,
             |bytes| {
-                if crc32(bytes) != preamble.header_crc32 {
+                if !crc_matches(bytes, preamble.header_crc32) {
                     return Err(AssetError::Checksum {
                         what: "header".to_owned(),
                     });
@@ -153,7 +153,7 @@ impl AssetFile {
             preamble.index_offset,
             preamble.index_len as usize,
             |bytes| {
-                if crc32(bytes) != preamble.index_crc32 {
+                if !crc_matches(bytes, preamble.index_crc32) {
                     return Err(AssetError::Checksum {
                         what: "index".to_owned(),
                     });
@@ -325,7 +325,7 @@ impl PageDecoder {
     /// grow it, and needs no window buffer of its own, so a hostile frame cannot make it
     /// allocate more than the (validated) page size.
     fn decode<'a>(&'a mut self, entry: &IndexEntry, stored: &'a [u8]) -> Result<&'a [u8]> {
-        if crc32(stored) != entry.crc32 {
+        if !crc_matches(stored, entry.crc32) {
             return Err(AssetError::Checksum {
                 what: format!("page {} of {}", entry.page, entry.key),
             });
