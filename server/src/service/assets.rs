@@ -202,6 +202,8 @@ pub struct AssetStore {
     /// stream) plus those being loaded.
     charged: Arc<AtomicU64>,
     assets: RwLock<BTreeMap<String, Arc<LoadedAsset>>>,
+    /// Ids taken out to be uploaded again to a new device ([`Self::take_all`]).
+    reloading: Mutex<HashSet<String>>,
     /// Ids an upload or bake is writing right now.
     reserved: Arc<Mutex<HashSet<String>>>,
 }
@@ -238,6 +240,7 @@ impl AssetStore {
             budget,
             charged: Arc::default(),
             assets: RwLock::new(BTreeMap::new()),
+            reloading: Mutex::default(),
             reserved: Arc::default(),
         }
     }
@@ -353,7 +356,27 @@ impl AssetStore {
             .unwrap_or_else(PoisonError::into_inner)
             .get(id)
             .cloned()
-            .ok_or_else(|| AppError::NotFound(format!("no asset with id {id:?}")))
+            .ok_or_else(|| {
+                if self.reloading().contains(id) {
+                    AppError::Unavailable(format!(
+                        "asset {id:?} is being uploaded again to a new GPU device; retry shortly"
+                    ))
+                } else {
+                    AppError::NotFound(format!("no asset with id {id:?}"))
+                }
+            })
+    }
+
+    fn reloading(&self) -> std::sync::MutexGuard<'_, HashSet<String>> {
+        self.reloading
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Ends a reload that [`Self::take_all`] began: ids that did not come back are now simply
+    /// unknown (404).
+    pub fn end_reload(&self) {
+        self.reloading().clear();
     }
 
     /// The first asset in id order, if any.
@@ -399,6 +422,7 @@ impl AssetStore {
 
     /// Adds (or replaces) an asset.
     pub fn insert(&self, asset: LoadedAsset) {
+        self.reloading().remove(&asset.id);
         self.assets
             .write()
             .unwrap_or_else(PoisonError::into_inner)
@@ -407,9 +431,12 @@ impl AssetStore {
 
     /// Empties the store, returning every asset's id and file (to load them again on a new
     /// device); renders holding them finish first.
+    /// Until [`Self::end_reload`], asking for one of them gets 503 instead of 404.
     pub fn take_all(&self) -> Vec<(String, PathBuf)> {
-        let taken =
-            std::mem::take(&mut *self.assets.write().unwrap_or_else(PoisonError::into_inner));
+        let mut assets = self.assets.write().unwrap_or_else(PoisonError::into_inner);
+        let taken = std::mem::take(&mut *assets);
+        self.reloading().extend(taken.keys().cloned());
+        drop(assets);
         taken
             .into_values()
             .map(|asset| (asset.id.clone(), asset.path.clone()))

@@ -444,6 +444,7 @@ impl AppState {
         // the requests holding them fail) and upload them again from their files.
         let files = self.inner.assets.take_all();
         self.load_files(files).await;
+        self.inner.assets.end_reload();
         self.set_recovering(None);
         tracing::info!(
             assets = self.inner.assets.len(),
