@@ -418,6 +418,29 @@ fn glb_from_bytes_with_image_in_buffer_view() {
     assert_eq!(from_file, mesh);
 }
 
+/// A GLB header declaring a total length below its own 12 bytes (every value 0..12) is a clear
+/// error: the `gltf` crate would subtract past zero (found by `scripts/fuzz.sh`, target
+/// `mesh_gltf`).
+#[test]
+fn glb_declaring_less_than_its_header_is_refused() {
+    let doc = quad_gltf(
+        &json!({"byteLength": quad_buffer().len()}),
+        &json!({"bufferView": 5, "mimeType": "image/png"}),
+        0,
+        &transformed_nodes(),
+    );
+    let valid = glb(&doc, &quad_buffer());
+    for declared in 0u32..12 {
+        let mut bytes = valid.clone();
+        bytes[8..12].copy_from_slice(&declared.to_le_bytes());
+        let err = load_mesh_from_bytes(&bytes, MeshFormat::Glb).expect_err("refused");
+        assert!(
+            err.to_string().contains("fewer than its own 12"),
+            "{declared}: {err}"
+        );
+    }
+}
+
 #[test]
 fn gltf_from_bytes_with_data_uris() {
     let png = png_bytes(3, 2);

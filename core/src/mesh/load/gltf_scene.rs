@@ -59,9 +59,26 @@ const MIN_VIEWLESS_LIMIT: usize = 1 << 16;
 /// memory (a few GiB at this limit).
 const MAX_SCENE_ELEMENTS: usize = 1 << 25;
 
+/// Refuses a GLB whose header declares a total length shorter than the 12-byte header itself:
+/// the `gltf` crate subtracts the header's size from that length unchecked (an overflow panic
+/// where overflow is checked; found by fuzzing).
+fn check_glb_header(bytes: &[u8]) -> Result<(), MeshError> {
+    if let [b'g', b'l', b'T', b'F', _, _, _, _, a, b, c, d, ..] = bytes {
+        let length = u32::from_le_bytes([*a, *b, *c, *d]);
+        if length < 12 {
+            return Err(parse_error(
+                FORMAT,
+                format!("the GLB header declares {length} bytes, fewer than its own 12"),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Loads glTF or GLB bytes into an unvalidated mesh; `base_dir` resolves external files
 /// (`None` for uploads).
 pub(super) fn load(bytes: &[u8], base_dir: Option<&Path>) -> Result<Mesh, MeshError> {
+    check_glb_header(bytes)?;
     let gltf::Gltf { document, blob } = gltf::Gltf::from_slice_without_validation(bytes)
         .map_err(|e| parse_error(FORMAT, e.to_string()))?;
     let root = document.into_json();
