@@ -28,7 +28,7 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --seconds) SECONDS_EACH=$2; shift 2 ;;
     --runs) RUNS=$2; shift 2 ;;
-    --smoke) SECONDS_EACH=5; PROFILE_FLAG=--dev; shift ;;
+    --smoke) SECONDS_EACH=5; PROFILE_FLAG=--dev; shift ;;  # own corpus and logs, removed after
     --fresh) FRESH=1; shift ;;
     -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
     -*) echo "unknown option $1" >&2; exit 2 ;;
@@ -56,6 +56,14 @@ if [ -z "$BIN" ]; then
   BIN=${CARGO_TARGET_DIR:-$ROOT/target}/debug/lumigraph
 fi
 CORPUS=$ROOT/fuzz/corpus
+LOGS=$ROOT/fuzz/logs
+if [ -n "$PROFILE_FLAG" ]; then
+  # A smoke run starts from the seeds in a folder of its own and leaves the corpus alone.
+  SMOKE_DIR=$(mktemp -d)
+  trap 'rm -rf "$SMOKE_DIR"' EXIT
+  CORPUS=$SMOKE_DIR/corpus
+  LOGS=$SMOKE_DIR/logs
+fi
 if [ "$FRESH" = 1 ]; then rm -rf "$CORPUS"; fi
 python3 scripts/fuzz_seeds.py "$CORPUS" --bin "$BIN" --fixtures "${LUMIGRAPH_FIXTURES:-fixtures}"
 
@@ -69,7 +77,6 @@ if [ -n "$PROFILE_FLAG" ]; then BIN_DIR=target/$HOST/debug; else BIN_DIR=target/
 
 LIMIT_ARGS=(-rss_limit_mb=2048 -malloc_limit_mb=2048 -timeout=10 -max_len=65536 -print_final_stats=1)
 if [ -n "$RUNS" ]; then LIMIT_ARGS+=(-runs="$RUNS"); else LIMIT_ARGS+=(-max_total_time="$SECONDS_EACH"); fi
-LOGS=$ROOT/fuzz/logs
 mkdir -p "$LOGS"
 SUMMARY=$LOGS/summary.tsv
 printf 'target\texecutions\tseconds\texec_per_s\tcorpus\tresult\n' > "$SUMMARY"
@@ -93,7 +100,7 @@ for t in "${TARGETS[@]}"; do
   printf '%s\t%s\t%s\t%s\t%s\t%s\n' "$t" "${execs:-?}" "$secs" "${rate:-?}" "$corpus" "$result" >> "$SUMMARY"
   echo "$t: ${execs:-?} executions in ${secs} s (${rate:-?}/s), corpus $corpus, $result"
   if [ "$result" = FAILED ]; then
-    grep -E '==[0-9]+== ERROR|panicked|out-of-memory|timeout|Test unit written' "$log" | head -5 || true
+    tail -n 25 "$log"
     echo "  full log: $log; reproduce: (cd fuzz && $BIN_DIR/$t artifacts/$t/<file>)"
   fi
 done

@@ -16,6 +16,8 @@ echo "== cargo test"
 cargo test --workspace --locked -- --test-threads=2
 # The Python and service suites reuse this debug build instead of a second, release one.
 export LUMIGRAPH_PROFILE=dev
+echo "== fuzz smoke (scripts/fuzz.sh --smoke: every target for a few seconds)"
+LUMIGRAPH_BIN=${CARGO_TARGET_DIR:-$PWD/target}/debug/lumigraph bash scripts/fuzz.sh --smoke
 echo "== Python bindings (maturin build, stubtest, pytest, examples)"
 bash scripts/test_python.sh
 echo "== service end to end (HTTP, WebSocket, headless Chromium)"
