@@ -950,6 +950,27 @@ fn ply_errors() {
         load_mesh_from_bytes(hostile.as_bytes(), MeshFormat::Ply),
         Err(MeshError::Parse { .. })
     ));
+    // A binary count near 2^63 must be refused before anything is allocated for it (found by
+    // fuzzing: the payload parser reserved the declared count and aborted).
+    for ascii in [false, true] {
+        let text = if ascii {
+            PLY_ASCII.to_owned()
+        } else {
+            String::from_utf8_lossy(&ply_binary(true)).into_owned()
+        };
+        let Some(at) = text.find("element face ") else {
+            panic!("no face element")
+        };
+        let end = at + text[at..].find('\n').expect("line end");
+        let mut bytes = if ascii {
+            PLY_ASCII.as_bytes().to_vec()
+        } else {
+            ply_binary(true)
+        };
+        bytes.splice(at..end, b"element face 9223372036854775007".iter().copied());
+        let err = load_mesh_from_bytes(&bytes, MeshFormat::Ply).expect_err("refused");
+        assert!(err.to_string().contains("more than the file's"), "{err}");
+    }
     let no_xyz = PLY_ASCII
         .replace("property float z\n", "")
         .replace("0 0 0 0 0 1", "0 0 0 0 1");

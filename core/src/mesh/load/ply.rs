@@ -33,6 +33,21 @@ pub(super) fn load(bytes: &[u8]) -> Result<Mesh, MeshError> {
         .get("vertex")
         .ok_or_else(|| parse_error(FORMAT, "the header declares no `vertex` element"))?;
     let layout = VertexLayout::of(vertex_def)?;
+    // Every entry of an element takes at least one byte (ASCII: its line's newline; binary:
+    // its properties); a larger declared count is a lie that the payload parser would try to
+    // allocate up front (found by fuzzing: a count near 2^63 aborted on allocation).
+    for (name, def) in &header.elements {
+        if def.count > bytes.len() {
+            return Err(parse_error(
+                FORMAT,
+                format!(
+                    "element `{name}` declares {} entries, more than the file's {} bytes can hold",
+                    def.count,
+                    bytes.len()
+                ),
+            ));
+        }
+    }
 
     let mut vertices: Vec<PlyVertex> = Vec::new();
     let mut faces: Vec<PlyFace> = Vec::new();
