@@ -311,9 +311,10 @@ pub struct ViewSchema {
     /// Point looked at.
     #[schema(min_items = 3, max_items = 3)]
     pub target: [f64; 3],
-    /// Up direction (default `[0, 1, 0]`); not zero, not parallel to `target - eye`.
-    #[schema(min_items = 3, max_items = 3)]
-    pub up: Option<[f64; 3]>,
+    /// Up direction (default, when absent: `[0, 1, 0]`; not `null`); not zero, not parallel to
+    /// `target - eye`.
+    #[schema(required = false, min_items = 3, max_items = 3)]
+    pub up: [f64; 3],
     /// Vertical field of view in degrees, in (0, 180).
     #[schema(exclusive_minimum = 0.0, exclusive_maximum = 180.0)]
     pub yfov_deg: f64,
@@ -339,18 +340,20 @@ pub struct RenderRequest {
     #[schema(value_type = ViewSchema)]
     pub view: View,
     /// RGBA8 background where nothing is hit; default transparent black.
-    #[schema(min_items = 4, max_items = 4)]
+    #[schema(value_type = Option<Vec<u8>>, min_items = 4, max_items = 4)]
     pub background: Option<[u8; 4]>,
-    /// Colour codec; default `png`. `none` returns only the depth image.
-    pub format: Option<ColorFormat>,
+    /// Colour codec; default, when absent, `png` (not `null`). `none` returns only the depth
+    /// image.
+    #[schema(required = false)]
+    pub format: ColorFormat,
     /// JPEG quality 1..=100, default 90.
+    #[schema(minimum = 1, maximum = 100)]
     pub quality: Option<u8>,
     /// Also return depth in this format (see the response description).
     pub depth: Option<DepthFormat>,
-    /// The quality request, its keys at the top level.
-    #[schema(inline)]
-    #[serde(flatten)]
-    pub render_quality: Quality,
+    // The quality keys (core `Quality`) sit at the top level of the body: openapi.rs merges
+    // their properties into this object, whose schema then allows no other key (the server
+    // refuses unknown ones). An `allOf` of the two closed objects would match no body at all.
 }
 
 /// The fields of a render body other than the quality keys.
@@ -526,14 +529,21 @@ pub struct BakeForm {
     /// `format` is given. glTF must embed its buffers and images.
     #[schema(value_type = String, format = Binary)]
     pub mesh: Vec<u8>,
-    /// Mesh format, overriding the file name's extension.
+    /// Mesh format, overriding the file name's extension (any case, an optional leading dot).
+    #[schema(
+        pattern = "^\\.?([Gg][Ll][Tt][Ff]|[Gg][Ll][Bb]|[Oo][Bb][Jj]|[Pp][Ll][Yy]|[Ss][Tt][Ll]|[Oo][Ff][Ff])$"
+    )]
     pub format: Option<String>,
     /// Bake options as JSON, e.g. `{"cameras": 42, "resolution": 128}`.
     pub options: Option<String>,
-    /// Id of the asset to create (default: a random `mesh-…` id).
+    /// Id of the asset to create (default, also when empty: a random `mesh-…` id); surrounding
+    /// whitespace is ignored.
+    #[schema(pattern = "^\\s*([A-Za-z0-9][A-Za-z0-9_-]{0,63})?\\s*$")]
     pub id: Option<String>,
-    /// `true` (default) or `false`: measure the scene's error against cost after the bake
-    /// (a few seconds), so renders can ask for `target_psnr` / `budget_ms`.
+    /// `true` (default) or `false`, surrounding whitespace ignored: measure the scene's error
+    /// against cost after the bake (a few seconds), so renders can ask for `target_psnr` /
+    /// `budget_ms`.
+    #[schema(pattern = "^\\s*(true|false)\\s*$")]
     pub calibrate: Option<String>,
 }
 
