@@ -617,6 +617,40 @@ def test_raw_dot_segments_never_escape(server: Server, path: str) -> None:
 # --- shutdown ------------------------------------------------------------------------------------
 
 
+STALLED_BODIES = [
+    ("POST /v1/assets?id=stalled", "application/octet-stream", b"LFA"),
+    ("POST /v1/bake", "multipart/form-data; boundary=XX",
+     b'--XX\r\nContent-Disposition: form-data; name="mesh"; filename="a.off"\r\n\r\nOFF\n'),
+]
+
+
+@pytest.mark.parametrize(("request_line", "content_type", "start"), STALLED_BODIES,
+                         ids=["upload", "bake"])
+def test_stalled_upload_and_bake_bodies_are_408(
+    tmp_path: Path, demo_lfa: Path, request_line: str, content_type: str, start: bytes
+) -> None:
+    """A body that stops arriving is 408 (docs/protocol.md), not 400 for an upload or 500 for a
+    bake form (the multipart parser's status for a body that failed to arrive)."""
+    with running_server(tmp_path, demo_lfa, extra=["--body-timeout-secs", "1"]) as own:
+        files = own.asset_files()
+        with socket.create_connection(("127.0.0.1", own.port), timeout=10) as sock:
+            sock.sendall(f"{request_line} HTTP/1.1\r\nHost: e2e\r\nContent-Type: {content_type}"
+                         f"\r\nContent-Length: 100000\r\n\r\n".encode() + start)
+            reply = b""
+            while b"\r\n\r\n" not in reply or not reply.rstrip().endswith(b"}"):
+                chunk = sock.recv(4096)
+                if not chunk:
+                    break
+                reply += chunk
+        head, _, body = reply.partition(b"\r\n\r\n")
+        assert head.startswith(b"HTTP/1.1 408"), reply
+        error = json.loads(body)["error"]
+        assert error["kind"] == "rejected" and "stalled" in error["message"], error
+        assert own.asset_files() == files
+        assert metric(httpx.get(f"{own.base_url}/metrics").text, "lumigraph_errors_total",
+                      kind="internal") == 0
+
+
 def test_sigterm_with_a_stalled_upload_exits_promptly(tmp_path: Path, demo_lfa: Path) -> None:
     with running_server(tmp_path, demo_lfa) as own:
         sock = socket.create_connection(("127.0.0.1", own.port), timeout=30)

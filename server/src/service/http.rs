@@ -56,6 +56,41 @@ fn body_error(rejection: &BytesRejection, limit: usize) -> AppError {
     AppError::from_rejection(rejection.status(), rejection.body_text(), limit as u64)
 }
 
+/// Maps a failure to read a streamed request body (an upload, or a bake form through the
+/// multipart parser, whose own status and message are `status` and `message`): 408 when the
+/// body stalled past `--body-timeout-secs`, 413 past the size limit, otherwise the client's
+/// fault, never a 5xx (the parser answers 500 for a body that failed to arrive).
+fn body_read_error(
+    state: &AppState,
+    err: &(dyn std::error::Error + 'static),
+    status: StatusCode,
+    message: String,
+    limit: u64,
+) -> AppError {
+    let mut cause = Some(err);
+    while let Some(e) = cause {
+        if e.is::<tower_http::timeout::TimeoutError>() {
+            return AppError::Rejected {
+                status: StatusCode::REQUEST_TIMEOUT,
+                message: format!(
+                    "the request body stalled: no data for {} s",
+                    state.config().body_idle_timeout.as_secs_f64()
+                ),
+            };
+        }
+        if e.is::<http_body_util::LengthLimitError>() {
+            return AppError::TooLarge { limit };
+        }
+        cause = e.source();
+    }
+    let status = if status.is_server_error() {
+        StatusCode::BAD_REQUEST
+    } else {
+        status
+    };
+    AppError::from_rejection(status, message, limit)
+}
+
 /// Health of the process (always 200 while it answers).
 #[derive(Serialize, utoipa::ToSchema)]
 pub struct Health {
@@ -249,9 +284,9 @@ pub async fn upload_asset(
     let mut stream = body.into_data_stream();
     let mut written = 0u64;
     while let Some(chunk) = stream.next().await {
-        let chunk = chunk.map_err(|e| AppError::Rejected {
-            status: StatusCode::BAD_REQUEST,
-            message: format!("reading the upload failed: {e}"),
+        let chunk = chunk.map_err(|e| {
+            let message = format!("reading the upload failed: {e}");
+            body_read_error(&state, &e, StatusCode::BAD_REQUEST, message, limit)
         })?;
         written += chunk.len() as u64;
         if written > limit {
@@ -571,7 +606,7 @@ pub async fn bake(
         message: e.body_text(),
     })?;
     let field_error = |e: axum::extract::multipart::MultipartError| {
-        AppError::from_rejection(e.status(), e.body_text(), limit)
+        body_read_error(&state, &e, e.status(), e.body_text(), limit)
     };
     let mut mesh: Option<(Option<String>, Bytes)> = None;
     let mut format = None;
