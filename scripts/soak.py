@@ -113,6 +113,10 @@ def percentile(values: list[float], q: float) -> float | None:
     return ordered[min(len(ordered) - 1, max(0, math.ceil(q * len(ordered)) - 1))]
 
 
+def rounded(value: float | None) -> float | None:
+    return None if value is None else round(value, 1)
+
+
 def orbit_view(angle: float, width: int = 128, height: int = 96) -> dict[str, Any]:
     return {"eye": [10.0 * math.sin(angle), 1.0, 10.0 * math.cos(angle)], "target": [0, 0, 0],
             "up": [0, 1, 0], "yfov_deg": 40, "width": width, "height": height}
@@ -439,7 +443,8 @@ class Soak:
             samples.append({
                 "t": round(now - self.stats.started, 2), "rss_mib": round(rss / MIB, 1),
                 "fps": round(statistics.fmean(fps), 2) if fps else 0.0,
-                "p50_ms": percentile(window, 0.5), "p95_ms": percentile(window, 0.95),
+                "p50_ms": rounded(percentile(window, 0.5)),
+                "p95_ms": rounded(percentile(window, 0.95)),
             })
             last_frames, last = frames, now
 
@@ -624,8 +629,8 @@ def summarize(args: argparse.Namespace, samples: list[dict[str, Any]], stats: St
         "rss": rss,
         "frames": sum(stats.frames),
         "fps_per_client_mean": round(statistics.fmean(fps), 2) if fps else 0.0,
-        "latency_p50_ms": percentile(latencies, 0.5),
-        "latency_p95_ms": percentile(latencies, 0.95),
+        "latency_p50_ms": rounded(percentile(latencies, 0.5)),
+        "latency_p95_ms": rounded(percentile(latencies, 0.95)),
         "views_answered": len(latencies),
     }
 
