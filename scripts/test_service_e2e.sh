@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # End-to-end tests of the render service (python_tests/service/): creates ./.venv-e2e with
-# pytest, pytest-timeout, httpx, websockets, pillow and playwright, installs Debian's `chromium`
-# when missing (playwright drives it through executable_path; no browser download), builds the
-# release `lumigraph` binary and runs pytest (strict: python_tests/service/pytest.ini). The test
-# fixtures start and stop their own servers on free loopback ports in temporary folders.
+# pytest, pytest-timeout, httpx, websockets, pillow, playwright, schemathesis (the schema fuzzing
+# test) and matplotlib (the soak plot), installs Debian's `chromium` when missing (playwright
+# drives it through executable_path; no browser download), builds the release `lumigraph` binary
+# and runs pytest (strict: python_tests/service/pytest.ini). The test fixtures start and stop
+# their own servers on free loopback ports in temporary folders. Then scripts/soak.py runs for
+# LUMIGRAPH_SOAK_SECONDS (default 60; 0 skips it), its report and plot in $CARGO_TARGET_DIR/soak.
 # Idempotent: a second run reuses the venv and rebuilds only what cargo finds changed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -15,7 +17,7 @@ if [ ! -x "$CHROMIUM" ]; then
 fi
 VENV=$ROOT/.venv-e2e
 make_venv "$VENV" 10
-PACKAGES="pytest pytest-timeout httpx websockets playwright pillow"
+PACKAGES="pytest pytest-timeout httpx websockets playwright pillow schemathesis==4.32.5 matplotlib"
 pip_install_once "$VENV" "$PACKAGES" $PACKAGES
 
 # LUMIGRAPH_PROFILE=dev (scripts/test.sh) reuses the binary `cargo test` just built.
@@ -36,4 +38,9 @@ export LUMIGRAPH_CHROMIUM=$CHROMIUM
 echo "== pytest python_tests/service"
 "$VENV/bin/python" -m pytest -c python_tests/service/pytest.ini python_tests/service \
   -p no:cacheprovider -q ${LUMIGRAPH_PYTEST_ARGS:-}
+SOAK_SECONDS=${LUMIGRAPH_SOAK_SECONDS:-60}
+if [ "$SOAK_SECONDS" != 0 ]; then
+  echo "== soak ${SOAK_SECONDS} s (scripts/soak.py)"
+  "$VENV/bin/python" scripts/soak.py --seconds "$SOAK_SECONDS" --out "$CARGO_TARGET_DIR/soak"
+fi
 echo "== service e2e tests passed"

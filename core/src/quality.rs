@@ -105,7 +105,7 @@ pub struct Quality {
     /// Marching method: default (the accelerated marcher) or fixed (the fixed-step baseline).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[cfg_attr(feature = "clap", arg(long))]
-    #[cfg_attr(feature = "openapi", schema(value_type = Option<String>))]
+    #[cfg_attr(feature = "openapi", schema(inline))]
     pub method: Option<Method>,
     /// Coarse-to-fine factor of the default method, 2-16 (0 = off; default 4): a coarse pass
     /// renders every F-th pixel per axis and bounds each pixel's march (BENCHMARKS.md).

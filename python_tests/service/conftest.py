@@ -40,6 +40,18 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
     return None
 
 
+# Lines for the end of the pytest report (e.g. how many cases the schema fuzzing ran), so that
+# they show without `-s`.
+SUMMARY: list[str] = []
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    if SUMMARY:
+        terminalreporter.write_sep("-", "service e2e summary")
+        for line in SUMMARY:
+            terminalreporter.write_line(line)
+
+
 def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -84,7 +96,9 @@ def metric(text: str, name: str, **labels: str) -> float:
 class Server:
     """A running `lumigraph serve`."""
 
-    def __init__(self, assets: Path, log: Path, token: str | None, extra: list[str]) -> None:
+    def __init__(
+        self, assets: Path, log: Path, token: str | None, extra: list[str], max_px: int = MAX_PX
+    ) -> None:
         self.assets = assets
         self.log_path = log
         self.token = token
@@ -97,7 +111,7 @@ class Server:
         self._log = log.open("wb")
         self.proc = subprocess.Popen(
             [str(BIN), "serve", "--assets", str(assets), "--addr", f"127.0.0.1:{self.port}",
-             "--max-px", str(MAX_PX), *extra],
+             "--max-px", str(max_px), *extra],
             stdout=self._log, stderr=subprocess.STDOUT, env=env,
         )
 
@@ -163,12 +177,13 @@ def demo_lfa(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @contextlib.contextmanager
 def running_server(
-    tmp: Path, demo_lfa: Path, token: str | None = None, extra: list[str] | None = None
+    tmp: Path, demo_lfa: Path, token: str | None = None, extra: list[str] | None = None,
+    max_px: int = MAX_PX,
 ) -> Iterator[Server]:
     assets = tmp / "assets"
     assets.mkdir()
     shutil.copyfile(demo_lfa, assets / "demo.lfa")
-    server = Server(assets, tmp / "server.log", token, extra or [])
+    server = Server(assets, tmp / "server.log", token, extra or [], max_px)
     try:
         server.wait_ready()
         yield server

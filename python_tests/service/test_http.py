@@ -116,6 +116,48 @@ def test_health_ready_openapi(server: Server) -> None:
         assert path in spec["paths"], path
 
 
+def test_openapi_describes_what_the_server_accepts(server: Server, auth_server: Server) -> None:
+    """The document's request schemas match the server's validation (schema fuzzing found each
+    of these; test_schema_fuzz.py runs the fuzzer)."""
+    spec = httpx.get(f"{server.base_url}/openapi.json").json()
+    schemas = spec["components"]["schemas"]
+    body = schemas["RenderRequest"]
+    # One closed object with the quality keys beside `view` (an allOf of two closed objects
+    # matched no body at all).
+    assert "allOf" not in body and body["additionalProperties"] is False
+    assert body["required"] == ["view"]
+    for key in ("view", "format", "depth", "lod", "step", "target_psnr", "auto_lod", "refine"):
+        assert key in body["properties"], key
+    assert body["properties"]["method"]["oneOf"][1]["enum"] == ["fixed", "default"]
+    assert body["properties"]["quality"]["minimum"] == 1
+    assert body["properties"]["quality"]["maximum"] == 100
+    assert body["properties"]["background"]["items"]["maximum"] == 255
+    # `format` and `up` may be left out but not sent as null, which the server refuses.
+    assert body["properties"]["format"] == {
+        "$ref": "#/components/schemas/ColorFormat",
+        "description": body["properties"]["format"]["description"]}
+    assert_error(render(server, {"view": VIEW, "format": None}), 422, "invalid")
+    view = schemas["ViewSchema"]
+    assert view["properties"]["up"]["type"] == "array" and "up" not in view["required"]
+    assert_error(render(server, {"view": {**VIEW, "up": None}}), 422, "invalid")
+    assert view["additionalProperties"] is False
+    assert view["properties"]["width"]["maximum"] == MAX_PX
+    assert view["properties"]["height"]["maximum"] == MAX_PX
+    # Every body the schema allows with only these keys renders.
+    ok = render(server, {"view": VIEW, "method": "fixed", "quality": 100, "background": [255] * 4,
+                         "format": "jpeg"})
+    assert ok.status_code == 200, ok.text
+    form = schemas["BakeForm"]
+    assert form["additionalProperties"] is False
+    assert form["properties"]["calibrate"]["pattern"] == r"^\s*(true|false)\s*$"
+    # The token requirement is documented only where a token is configured.
+    for own, secured in ((server, False), (auth_server, True)):
+        doc = httpx.get(f"{own.base_url}/openapi.json").json()
+        for path, method in (("/v1/assets", "post"), ("/v1/bake", "post"),
+                             ("/v1/assets/{id}", "delete")):
+            assert ("security" in doc["paths"][path][method]) is secured, (path, method, own)
+
+
 def test_assets_list_and_detail(server: Server) -> None:
     listed = httpx.get(f"{server.base_url}/v1/assets").json()
     demo = next(a for a in listed if a["id"] == "demo")
@@ -573,6 +615,40 @@ def test_raw_dot_segments_never_escape(server: Server, path: str) -> None:
 
 
 # --- shutdown ------------------------------------------------------------------------------------
+
+
+STALLED_BODIES = [
+    ("POST /v1/assets?id=stalled", "application/octet-stream", b"LFA"),
+    ("POST /v1/bake", "multipart/form-data; boundary=XX",
+     b'--XX\r\nContent-Disposition: form-data; name="mesh"; filename="a.off"\r\n\r\nOFF\n'),
+]
+
+
+@pytest.mark.parametrize(("request_line", "content_type", "start"), STALLED_BODIES,
+                         ids=["upload", "bake"])
+def test_stalled_upload_and_bake_bodies_are_408(
+    tmp_path: Path, demo_lfa: Path, request_line: str, content_type: str, start: bytes
+) -> None:
+    """A body that stops arriving is 408 (docs/protocol.md), not 400 for an upload or 500 for a
+    bake form (the multipart parser's status for a body that failed to arrive)."""
+    with running_server(tmp_path, demo_lfa, extra=["--body-timeout-secs", "1"]) as own:
+        files = own.asset_files()
+        with socket.create_connection(("127.0.0.1", own.port), timeout=10) as sock:
+            sock.sendall(f"{request_line} HTTP/1.1\r\nHost: e2e\r\nContent-Type: {content_type}"
+                         f"\r\nContent-Length: 100000\r\n\r\n".encode() + start)
+            reply = b""
+            while b"\r\n\r\n" not in reply or not reply.rstrip().endswith(b"}"):
+                chunk = sock.recv(4096)
+                if not chunk:
+                    break
+                reply += chunk
+        head, _, body = reply.partition(b"\r\n\r\n")
+        assert head.startswith(b"HTTP/1.1 408"), reply
+        error = json.loads(body)["error"]
+        assert error["kind"] == "rejected" and "stalled" in error["message"], error
+        assert own.asset_files() == files
+        assert metric(httpx.get(f"{own.base_url}/metrics").text, "lumigraph_errors_total",
+                      kind="internal") == 0
 
 
 def test_sigterm_with_a_stalled_upload_exits_promptly(tmp_path: Path, demo_lfa: Path) -> None:

@@ -35,6 +35,7 @@ pub enum RenderError {
 /// Marching method.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase", try_from = "String")]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub enum Method {
     /// Seed 000's fixed-step search with bilinear depth (baseline).
     Fixed,

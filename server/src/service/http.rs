@@ -56,6 +56,41 @@ fn body_error(rejection: &BytesRejection, limit: usize) -> AppError {
     AppError::from_rejection(rejection.status(), rejection.body_text(), limit as u64)
 }
 
+/// Maps a failure to read a streamed request body (an upload, or a bake form through the
+/// multipart parser, whose own status and message are `status` and `message`): 408 when the
+/// body stalled past `--body-timeout-secs`, 413 past the size limit, otherwise the client's
+/// fault, never a 5xx (the parser answers 500 for a body that failed to arrive).
+fn body_read_error(
+    state: &AppState,
+    err: &(dyn std::error::Error + 'static),
+    status: StatusCode,
+    message: String,
+    limit: u64,
+) -> AppError {
+    let mut cause = Some(err);
+    while let Some(e) = cause {
+        if e.is::<tower_http::timeout::TimeoutError>() {
+            return AppError::Rejected {
+                status: StatusCode::REQUEST_TIMEOUT,
+                message: format!(
+                    "the request body stalled: no data for {} s",
+                    state.config().body_idle_timeout.as_secs_f64()
+                ),
+            };
+        }
+        if e.is::<http_body_util::LengthLimitError>() {
+            return AppError::TooLarge { limit };
+        }
+        cause = e.source();
+    }
+    let status = if status.is_server_error() {
+        StatusCode::BAD_REQUEST
+    } else {
+        status
+    };
+    AppError::from_rejection(status, message, limit)
+}
+
 /// Health of the process (always 200 while it answers).
 #[derive(Serialize, utoipa::ToSchema)]
 pub struct Health {
@@ -269,9 +304,9 @@ pub async fn upload_asset(
     let mut stream = body.into_data_stream();
     let mut written = 0u64;
     while let Some(chunk) = stream.next().await {
-        let chunk = chunk.map_err(|e| AppError::Rejected {
-            status: StatusCode::BAD_REQUEST,
-            message: format!("reading the upload failed: {e}"),
+        let chunk = chunk.map_err(|e| {
+            let message = format!("reading the upload failed: {e}");
+            body_read_error(&state, &e, StatusCode::BAD_REQUEST, message, limit)
         })?;
         written += chunk.len() as u64;
         if written > limit {
@@ -332,9 +367,10 @@ pub struct ViewSchema {
     /// Point looked at.
     #[schema(min_items = 3, max_items = 3)]
     pub target: [f64; 3],
-    /// Up direction (default `[0, 1, 0]`); not zero, not parallel to `target - eye`.
-    #[schema(min_items = 3, max_items = 3)]
-    pub up: Option<[f64; 3]>,
+    /// Up direction (default, when absent: `[0, 1, 0]`; not `null`); not zero, not parallel to
+    /// `target - eye`.
+    #[schema(required = false, min_items = 3, max_items = 3)]
+    pub up: [f64; 3],
     /// Vertical field of view in degrees, in (0, 180).
     #[schema(exclusive_minimum = 0.0, exclusive_maximum = 180.0)]
     pub yfov_deg: f64,
@@ -360,18 +396,20 @@ pub struct RenderRequest {
     #[schema(value_type = ViewSchema)]
     pub view: View,
     /// RGBA8 background where nothing is hit; default transparent black.
-    #[schema(min_items = 4, max_items = 4)]
+    #[schema(value_type = Option<Vec<u8>>, min_items = 4, max_items = 4)]
     pub background: Option<[u8; 4]>,
-    /// Colour codec; default `png`. `none` returns only the depth image.
-    pub format: Option<ColorFormat>,
+    /// Colour codec; default, when absent, `png` (not `null`). `none` returns only the depth
+    /// image.
+    #[schema(required = false)]
+    pub format: ColorFormat,
     /// JPEG quality 1..=100, default 90.
+    #[schema(minimum = 1, maximum = 100)]
     pub quality: Option<u8>,
     /// Also return depth in this format (see the response description).
     pub depth: Option<DepthFormat>,
-    /// The quality request, its keys at the top level.
-    #[schema(inline)]
-    #[serde(flatten)]
-    pub render_quality: Quality,
+    // The quality keys (core `Quality`) sit at the top level of the body: openapi.rs merges
+    // their properties into this object, whose schema then allows no other key (the server
+    // refuses unknown ones). An `allOf` of the two closed objects would match no body at all.
 }
 
 /// The fields of a render body other than the quality keys.
@@ -576,14 +614,21 @@ pub struct BakeForm {
     /// `format` is given. glTF must embed its buffers and images.
     #[schema(value_type = String, format = Binary)]
     pub mesh: Vec<u8>,
-    /// Mesh format, overriding the file name's extension.
+    /// Mesh format, overriding the file name's extension (any case, an optional leading dot).
+    #[schema(
+        pattern = "^\\.?([Gg][Ll][Tt][Ff]|[Gg][Ll][Bb]|[Oo][Bb][Jj]|[Pp][Ll][Yy]|[Ss][Tt][Ll]|[Oo][Ff][Ff])$"
+    )]
     pub format: Option<String>,
     /// Bake options as JSON, e.g. `{"cameras": 42, "resolution": 128}`.
     pub options: Option<String>,
-    /// Id of the asset to create (default: a random `mesh-…` id).
+    /// Id of the asset to create (default, also when empty: a random `mesh-…` id); surrounding
+    /// whitespace is ignored.
+    #[schema(pattern = "^\\s*([A-Za-z0-9][A-Za-z0-9_-]{0,63})?\\s*$")]
     pub id: Option<String>,
-    /// `true` (default) or `false`: measure the scene's error against cost after the bake
-    /// (a few seconds), so renders can ask for `target_psnr` / `budget_ms`.
+    /// `true` (default) or `false`, surrounding whitespace ignored: measure the scene's error
+    /// against cost after the bake (a few seconds), so renders can ask for `target_psnr` /
+    /// `budget_ms`.
+    #[schema(pattern = "^\\s*(true|false)\\s*$")]
     pub calibrate: Option<String>,
 }
 
@@ -611,7 +656,7 @@ pub async fn bake(
         message: e.body_text(),
     })?;
     let field_error = |e: axum::extract::multipart::MultipartError| {
-        AppError::from_rejection(e.status(), e.body_text(), limit)
+        body_read_error(&state, &e, e.status(), e.body_text(), limit)
     };
     let mut mesh: Option<(Option<String>, Bytes)> = None;
     let mut format = None;
