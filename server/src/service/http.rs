@@ -151,7 +151,8 @@ pub async fn get_asset(
     Ok(Json(detail(&asset)?))
 }
 
-/// Deletes an asset and its file (token-protected when a token is configured).
+/// Deletes an asset and its file (token-protected when a token is configured). The file's
+/// removal is synced to disk before the 204: a deleted asset stays deleted across a crash.
 #[utoipa::path(delete, path = "/v1/assets/{id}", tag = "assets",
     params(("id" = String, Path, description = "asset id", pattern = "^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$", min_length = 1, max_length = 64)),
     security(("bearer" = [])),
@@ -168,13 +169,21 @@ pub async fn delete_asset(
         return Err(AppError::NotFound(format!("no asset with id {id:?}")));
     };
     state.metrics().set_assets(state.assets().len());
-    if let Err(err) = tokio::fs::remove_file(&asset.path).await
-        && err.kind() != std::io::ErrorKind::NotFound
-    {
-        return Err(AppError::Internal(
-            anyhow::Error::new(err).context(format!("removing {}", asset.path.display())),
-        ));
-    }
+    // The unlink is made durable (the folder synced) before the 204: a deleted asset stays
+    // deleted across a crash.
+    let path = asset.path.clone();
+    let dir = state.assets().dir().to_path_buf();
+    tokio::task::spawn_blocking(move || {
+        match std::fs::remove_file(&path) {
+            Err(err) if err.kind() != std::io::ErrorKind::NotFound => Err(err),
+            _ => Ok(()),
+        }
+        .and_then(|()| lumigraph_core::sync_dir(&dir))
+        .map_err(|err| anyhow::Error::new(err).context(format!("removing {}", path.display())))
+    })
+    .await
+    .map_err(|e| AppError::Internal(e.into()))?
+    .map_err(AppError::Internal)?;
     tracing::info!(id, "asset deleted");
     Ok(StatusCode::NO_CONTENT)
 }
@@ -212,7 +221,8 @@ impl Drop for TempFile {
 
 /// Uploads an `.lfa` file (the raw request body). The file is streamed to a temporary file,
 /// fully verified (every page checksum) and loaded onto the GPU before it is renamed into the
-/// assets folder, so a bad upload leaves nothing behind.
+/// assets folder, so a bad upload leaves nothing behind; the file and the rename are synced to
+/// disk before the 201, so an acknowledged upload survives a crash.
 #[utoipa::path(post, path = "/v1/assets", tag = "assets",
     params(UploadQuery),
     request_body(content = Vec<u8>, content_type = "application/octet-stream", description = "an .lfa file"),
@@ -281,6 +291,12 @@ pub async fn upload_asset(
     let final_path = state.assets().path_for(&id);
     tokio::fs::rename(&temp_path, &final_path)
         .await
+        .map_err(internal)?;
+    // The rename is made durable before the 201: an acknowledged upload survives a crash.
+    let dir = state.assets().dir().to_path_buf();
+    tokio::task::spawn_blocking(move || lumigraph_core::sync_dir(&dir))
+        .await
+        .map_err(|e| AppError::Internal(e.into()))?
         .map_err(internal)?;
     let mut temp = temp;
     temp.0 = None;
