@@ -251,19 +251,18 @@ pub(crate) fn spawn(state: AppState, job: Arc<Job>, reservation: Reservation, wo
             Ok((report, asset)) => (Ok(report), Some(asset)),
             Err(message) => (Err(message), None),
         };
-        record_finished(&state, &job, outcome).await;
-        if let Some(asset) = asset {
-            state.assets().insert(asset);
-            state.metrics().set_assets(state.assets().len());
-        }
+        record_finished(&state, &job, outcome, asset).await;
     });
 }
 
-/// Records how `job` finished in the journal (logging a failure to write it), then in memory.
+/// Records how `job` finished in the journal (logging a failure to write it), then adds its
+/// asset (if any) to the store, then marks the job finished in memory: a job reported `done`
+/// has its asset listed.
 pub(crate) async fn record_finished(
     state: &AppState,
     job: &Arc<Job>,
     outcome: Result<serde_json::Value, String>,
+    asset: Option<LoadedAsset>,
 ) {
     let mut status = job.status();
     match &outcome {
@@ -289,6 +288,10 @@ pub(crate) async fn record_finished(
             tracing::error!(job = job.id, error = %err, "cannot record the finished job in the journal");
         }
         Err(err) => tracing::error!(job = job.id, %err, "recording the finished job panicked"),
+    }
+    if let Some(asset) = asset {
+        state.assets().insert(asset);
+        state.metrics().set_assets(state.assets().len());
     }
     match outcome {
         Ok(report) => job.finish(report),

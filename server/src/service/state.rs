@@ -365,10 +365,10 @@ impl AppState {
                     if outcome.is_ok() {
                         job.progress(spec.options.cameras, spec.options.cameras);
                     }
-                    jobs::record_finished(self, &job, outcome).await;
+                    jobs::record_finished(self, &job, outcome, None).await;
                 }
                 Resume::Conflict(message) => {
-                    jobs::record_finished(self, &job, Err(message)).await;
+                    jobs::record_finished(self, &job, Err(message), None).await;
                 }
             }
         }
