@@ -1,12 +1,14 @@
-//! Atomic file writes: write to a temporary file beside the target, flush, fsync, rename.
-//! A crash or an error never leaves a partial file under the target name.
+//! Atomic file writes: write to a temporary file beside the target, flush, fsync, rename, fsync
+//! the folder. A crash or an error never leaves a partial file under the target name, and once
+//! [`atomic_write`] returns the file survives a power loss.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 /// Writes `path` atomically: `fill` receives a buffered writer on a temporary file in the same
-/// directory; on success the file is synced and renamed over `path`, on error it is removed.
+/// directory; on success the file is synced, renamed over `path` and the directory synced (so the
+/// rename itself is durable), on error it is removed.
 pub fn atomic_write<E>(
     path: &Path,
     fill: impl FnOnce(&mut BufWriter<File>) -> Result<(), E>,
@@ -26,12 +28,39 @@ where
         file.sync_all()?;
         drop(file);
         std::fs::rename(&tmp, path)?;
+        sync_dir(&parent_dir(path))?;
         Ok(())
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
     result
+}
+
+/// Makes the entries of `dir` durable: after a file is created, renamed or removed in it, an
+/// fsync of the directory is what keeps that change across a power loss. A no-op where
+/// directories cannot be opened as files (not Unix).
+///
+/// # Errors
+/// The directory cannot be opened or synced.
+pub fn sync_dir(dir: &Path) -> std::io::Result<()> {
+    #[cfg(unix)]
+    {
+        File::open(dir)?.sync_all()
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = dir;
+        Ok(())
+    }
+}
+
+/// The directory holding `path` (`.` for a bare file name).
+fn parent_dir(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => dir.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
 }
 
 /// The target file name of a temporary name [`temp_path_for`] makes (`.name.tmp-<pid>-<n>` →

@@ -51,7 +51,7 @@ pub mod shading;
 pub mod tradeoff;
 pub mod view;
 
-pub use fsutil::{atomic_write, temp_target};
+pub use fsutil::{atomic_write, sync_dir, temp_target};
 
 /// Deterministic pseudo-random numbers for unit tests: Marsaglia's xorshift64 from `state`
 /// (non-zero), each call the next state.

@@ -152,12 +152,39 @@ class Server:
         self._log.close()
         return int(self.proc.returncode)
 
+    def kill(self) -> None:
+        """SIGKILL, as a crash: nothing of the server runs after it."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        self._log.close()
+
     def auth(self) -> dict[str, str]:
         return {"Authorization": f"Bearer {self.token}"} if self.token else {}
 
     def asset_files(self) -> set[str]:
-        """Every entry of the assets folder (hidden temporary files included)."""
-        return {p.name for p in self.assets.iterdir()}
+        """Every entry of the assets folder (hidden temporary files included), except the bake
+        job journal `.jobs/`, whose records come and go with jobs: of it only the temporary
+        files, as `.jobs/NAME`."""
+        return asset_files(self.assets)
+
+
+JOURNAL = ".jobs"
+
+
+def asset_files(assets: Path) -> set[str]:
+    """See `Server.asset_files`."""
+    names = {p.name for p in assets.iterdir() if p.name != JOURNAL}
+    journal = assets / JOURNAL
+    if journal.is_dir():
+        names |= {f"{JOURNAL}/{p.name}" for p in journal.iterdir() if p.name.startswith(".")}
+    return names
+
+
+def temporary_files(assets: Path) -> list[str]:
+    """Hidden files of the assets folder and of its job journal: what a write in progress (or a
+    killed one) leaves; none should remain once a server has started or stopped."""
+    return sorted(n for n in asset_files(assets) if n.startswith("."))
 
 
 @pytest.fixture(scope="session")
@@ -190,7 +217,7 @@ def running_server(
     finally:
         code = server.stop()
     assert code == 0, f"server exited with {code} after SIGTERM:\n{server.log_tail()}"
-    assert not [n for n in server.asset_files() if n.startswith(".")], (
+    assert not temporary_files(server.assets), (
         f"temporary files left in the assets folder: {server.asset_files()}")
 
 

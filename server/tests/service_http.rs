@@ -443,11 +443,25 @@ fn upload(uri: &str, token: Option<&str>, body: Vec<u8>) -> Request<Body> {
     request.body(Body::from(body)).expect("request")
 }
 
+/// The entries of an assets folder, sorted; of the bake job journal (`.jobs/`, whose records
+/// come and go with jobs) only its temporary files, as `.jobs/NAME`.
 fn dir_names(dir: &std::path::Path) -> Vec<String> {
-    let mut names: Vec<String> = std::fs::read_dir(dir)
-        .expect("dir")
-        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
-        .collect();
+    let list = |dir: &std::path::Path| -> Vec<String> {
+        std::fs::read_dir(dir)
+            .expect("dir")
+            .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+            .collect()
+    };
+    let journal = lumigraph_server::service::journal::JOURNAL_DIR;
+    let mut names: Vec<String> = list(dir).into_iter().filter(|n| n != journal).collect();
+    if dir.join(journal).is_dir() {
+        names.extend(
+            list(&dir.join(journal))
+                .into_iter()
+                .filter(|n| n.starts_with('.'))
+                .map(|n| format!("{journal}/{n}")),
+        );
+    }
     names.sort();
     names
 }

@@ -26,7 +26,8 @@ use super::codecs::{
     ColorFormat, DepthFormat, Encoding, encode_blocking, encode_color, encode_depth,
 };
 use super::error::{AppError, ErrorBody, ErrorKind};
-use super::jobs::{JobState, JobStatus};
+use super::jobs::{self, BakeWork, JobStatus};
+use super::journal::{JobSpec, now_unix_ms};
 use super::render_pool::{plan, quality_error};
 use super::state::{AppState, random_id};
 
@@ -206,7 +207,8 @@ pub async fn get_asset(
     Ok(Json(detail(&asset)?))
 }
 
-/// Deletes an asset and its file (token-protected when a token is configured).
+/// Deletes an asset and its file (token-protected when a token is configured). The file's
+/// removal is synced to disk before the 204: a deleted asset stays deleted across a crash.
 #[utoipa::path(delete, path = "/v1/assets/{id}", tag = "assets",
     params(("id" = String, Path, description = "asset id", pattern = "^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$", min_length = 1, max_length = 64)),
     security(("bearer" = [])),
@@ -223,13 +225,21 @@ pub async fn delete_asset(
         return Err(AppError::NotFound(format!("no asset with id {id:?}")));
     };
     state.metrics().set_assets(state.assets().len());
-    if let Err(err) = tokio::fs::remove_file(&asset.path).await
-        && err.kind() != std::io::ErrorKind::NotFound
-    {
-        return Err(AppError::Internal(
-            anyhow::Error::new(err).context(format!("removing {}", asset.path.display())),
-        ));
-    }
+    // The unlink is made durable (the folder synced) before the 204: a deleted asset stays
+    // deleted across a crash.
+    let path = asset.path.clone();
+    let dir = state.assets().dir().to_path_buf();
+    tokio::task::spawn_blocking(move || {
+        match std::fs::remove_file(&path) {
+            Err(err) if err.kind() != std::io::ErrorKind::NotFound => Err(err),
+            _ => Ok(()),
+        }
+        .and_then(|()| lumigraph_core::sync_dir(&dir))
+        .map_err(|err| anyhow::Error::new(err).context(format!("removing {}", path.display())))
+    })
+    .await
+    .map_err(|e| AppError::Internal(e.into()))?
+    .map_err(AppError::Internal)?;
     tracing::info!(id, "asset deleted");
     Ok(StatusCode::NO_CONTENT)
 }
@@ -267,7 +277,8 @@ impl Drop for TempFile {
 
 /// Uploads an `.lfa` file (the raw request body). The file is streamed to a temporary file,
 /// fully verified (every page checksum) and loaded onto the GPU before it is renamed into the
-/// assets folder, so a bad upload leaves nothing behind.
+/// assets folder, so a bad upload leaves nothing behind; the file and the rename are synced to
+/// disk before the 201, so an acknowledged upload survives a crash.
 #[utoipa::path(post, path = "/v1/assets", tag = "assets",
     params(UploadQuery),
     request_body(content = Vec<u8>, content_type = "application/octet-stream", description = "an .lfa file"),
@@ -337,6 +348,12 @@ pub async fn upload_asset(
     let final_path = state.assets().path_for(&id);
     tokio::fs::rename(&temp_path, &final_path)
         .await
+        .map_err(internal)?;
+    // The rename is made durable before the 201: an acknowledged upload survives a crash.
+    let dir = state.assets().dir().to_path_buf();
+    tokio::task::spawn_blocking(move || lumigraph_core::sync_dir(&dir))
+        .await
+        .map_err(|e| AppError::Internal(e.into()))?
         .map_err(internal)?;
     let mut temp = temp;
     temp.0 = None;
@@ -633,7 +650,9 @@ pub struct BakeForm {
 }
 
 /// Uploads a mesh and starts a bake job (token-protected when a token is configured). The
-/// mesh and options are checked before the job starts: bad ones are answered 422 at once.
+/// mesh and options are checked before the job starts: bad ones are answered 422 at once. The
+/// job and its mesh are stored in the assets folder's job journal (`.jobs/`) before the 202: a
+/// server that stops or crashes resumes the job at its next start, under the same job id.
 #[utoipa::path(post, path = "/v1/bake", tag = "bake",
     request_body(content = BakeForm, content_type = "multipart/form-data"),
     security(("bearer" = [])),
@@ -724,81 +743,53 @@ pub async fn bake(
     validate_id(&id)?;
     let reservation = state.assets().reserve(&id)?;
     let parsed = tokio::task::spawn_blocking(move || {
-        load_mesh_from_bytes(&mesh_bytes, mesh_format)
-            .map(|mesh| (mesh, lumigraph_core::bake::sha256_hex(&mesh_bytes)))
+        load_mesh_from_bytes(&mesh_bytes, mesh_format).map(|mesh| {
+            (
+                mesh,
+                lumigraph_core::bake::sha256_hex(&mesh_bytes),
+                mesh_bytes,
+            )
+        })
     })
     .await
     .map_err(|e| AppError::Internal(e.into()))?;
-    let (mesh, sha256) = parsed.map_err(|e| AppError::BadUpload(e.to_string()))?;
-    let job = state.jobs().create(id.clone(), options.cameras);
-    let status = job.status();
-    let worker = state.clone();
-    let source = lumigraph_core::asset::Provenance {
+    let (mesh, mesh_sha256, mesh_bytes) = parsed.map_err(|e| AppError::BadUpload(e.to_string()))?;
+    let spec = JobSpec {
+        id: state.jobs().fresh_id(|id| state.journal().contains(id)),
+        asset: id,
+        options,
+        format: mesh_format.extension().to_owned(),
+        calibrate,
         source_name: file_name.unwrap_or_else(|| format!("upload.{}", mesh_format.extension())),
-        source_sha256: sha256,
-        ..Default::default()
+        mesh_bytes: mesh_bytes.len() as u64,
+        mesh_sha256,
+        created_unix_ms: now_unix_ms(),
     };
-    tokio::spawn(async move {
-        let _reservation = reservation;
-        let Ok(_slot) = worker.inner.bake_slot.acquire().await else {
-            job.fail("the service is shutting down".to_owned());
-            return;
+    // From here on the work runs to its end even if the client goes away: a job stored in the
+    // journal is always in the job list too.
+    let starter = state.clone();
+    let status = tokio::spawn(async move {
+        let journal = starter.journal().clone();
+        let stored = spec.clone();
+        tokio::task::spawn_blocking(move || journal.write_pending(&stored, &mesh_bytes))
+            .await
+            .map_err(|e| AppError::Internal(e.into()))?
+            .map_err(|e| AppError::Internal(anyhow::Error::new(e).context("storing the job")))?;
+        let (job, forgotten) =
+            starter
+                .jobs()
+                .create(spec.id.clone(), spec.asset.clone(), options.cameras);
+        starter.forget_jobs(&forgotten);
+        let status = job.status();
+        let work = BakeWork {
+            spec,
+            mesh: Some(mesh),
         };
-        job.set_state(JobState::Running);
-        let path = worker.assets().path_for(&job.asset);
-        let baker = worker.clone();
-        let progress_job = Arc::clone(&job);
-        let result = tokio::task::spawn_blocking(move || {
-            let mut progress = |done, total| progress_job.progress(done, total);
-            let report = if calibrate {
-                let baked = baker
-                    .bake_calibrated(&mesh, &options, &source, &path, &mut progress)
-                    .map_err(|e| format!("bake failed: {e:#}"))?;
-                serde_json::json!({
-                    "cameras": options.cameras,
-                    "resolution": options.resolution,
-                    "triangles": mesh.triangles.len(),
-                    "bake_ms": baked.bake_ms,
-                    "calibrate_ms": baked.calibrate_ms,
-                    "asset_bytes": baked.bytes.len(),
-                })
-            } else {
-                let report = baker
-                    .pool()
-                    .engine()
-                    .baker
-                    .bake_to_file(&mesh, &options, &source, &path, &mut progress)
-                    .map_err(|e| format!("bake failed: {e}"))?;
-                serde_json::to_value(&report).unwrap_or_default()
-            };
-            let engine = baker.pool().engine();
-            let asset = load_file(baker.assets(), &engine.renderer, &progress_job.asset, &path)
-                .map_err(|e| {
-                    // The file stays in the folder, where a restart with a larger budget loads it.
-                    format!("the baked asset cannot be loaded: {e}")
-                })?;
-            Ok::<_, String>((report, asset))
-        })
-        .await;
-        match result {
-            Ok(Ok((report, asset))) => {
-                worker.assets().insert(asset);
-                worker.metrics().set_assets(worker.assets().len());
-                tracing::info!(job = job.id, asset = job.asset, %report, "bake job done");
-                job.finish(report);
-            }
-            Ok(Err(message)) => {
-                // A bake that met a lost device reports it, so that a new one is opened.
-                let _ = worker.pool().device_lost(&worker.pool().engine());
-                tracing::warn!(job = job.id, message, "bake job failed");
-                job.fail(message);
-            }
-            Err(err) => {
-                tracing::error!(job = job.id, %err, "bake task panicked");
-                job.fail("internal error while baking".to_owned());
-            }
-        }
-    });
+        jobs::spawn(starter, job, reservation, work);
+        Ok::<_, AppError>(status)
+    })
+    .await
+    .map_err(|e| AppError::Internal(e.into()))??;
     let location = HeaderValue::from_str(&format!("/v1/jobs/{}", status.id))
         .map_err(|e| AppError::Internal(e.into()))?;
     Ok((
@@ -809,7 +800,8 @@ pub async fn bake(
         .into_response())
 }
 
-/// Progress and result of a bake job.
+/// Progress and result of a bake job. The newest 256 jobs are remembered, across restarts
+/// (docs/protocol.md, Bake jobs and the journal).
 #[utoipa::path(get, path = "/v1/jobs/{id}", tag = "bake",
     params(("id" = String, Path, description = "job id", pattern = "^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$", min_length = 1, max_length = 64)),
     responses((status = 200, body = JobStatus), (status = 404, body = ErrorBody),

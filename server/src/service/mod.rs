@@ -4,7 +4,8 @@
 //!   holds no asset) and serves [`app`] until Ctrl-C or SIGTERM.
 //! - [`AppState`] (cheap to clone) holds the [`assets::AssetStore`] (each asset uploaded to the
 //!   GPU once), the [`render_pool::RenderPool`] (a bounded set of blocking render threads
-//!   shared by every request and session), bake [`jobs`] and the Prometheus [`metrics`].
+//!   shared by every request and session), bake [`jobs`] (kept across restarts by the
+//!   [`journal`]) and the Prometheus [`metrics`].
 //! - [`http`] has the `/v1` handlers, [`stream`] the `/v1/stream` sessions (protocol in
 //!   `docs/protocol.md`), [`viewer`] the page at `/`.
 
@@ -14,6 +15,7 @@ pub mod codecs;
 pub mod error;
 pub mod http;
 pub mod jobs;
+pub mod journal;
 pub mod listen;
 pub mod metrics;
 pub mod openapi;

@@ -3,8 +3,8 @@
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use anyhow::Context as _;
@@ -13,10 +13,11 @@ use lumigraph_core::bake::BakeOptions;
 use lumigraph_core::gpu::Gpu;
 use tokio::sync::{Semaphore, mpsc, watch};
 
-use super::assets::{self, AssetLimits, AssetStore};
+use super::assets::{self, AssetLimits, AssetStore, Reservation};
 use super::budget::MemoryBudget;
 use super::error::AppError;
-use super::jobs::Jobs;
+use super::jobs::{self, BakeWork, Job, Jobs, MAX_JOBS};
+use super::journal::{JobSpec, Journal, Recovery};
 use super::metrics::Metrics;
 use super::render_pool::{Engine, RenderPool};
 
@@ -184,15 +185,40 @@ pub(super) struct Inner {
     pub(super) recovering: std::sync::Mutex<Option<String>>,
     pub(super) bake_slot: Semaphore,
     pub(super) jobs: Jobs,
+    /// The durable side of `jobs`, in the assets folder.
+    pub(super) journal: Journal,
+    /// Unfinished jobs read back from the journal, run by [`AppState::load_assets`].
+    pub(super) resumed: Mutex<Vec<Resumed>>,
     pub(super) metrics: Metrics,
     pub(super) ready: AtomicBool,
     pub(super) sessions: Arc<Semaphore>,
     pub(super) shutdown: watch::Sender<bool>,
 }
 
+/// An unfinished job read back from the journal at start-up.
+pub(super) struct Resumed {
+    job: Arc<Job>,
+    spec: JobSpec,
+    how: Resume,
+}
+
+/// How a resumed job goes on.
+enum Resume {
+    /// Bake it again, holding the claim on its asset id.
+    Bake(Reservation),
+    /// Its asset file exists: the bake finished and the server stopped before recording it.
+    Written,
+    /// Another resumed job writes the same asset (only a damaged journal says so).
+    Conflict(String),
+}
+
 impl AppState {
-    /// Builds the pipelines on `gpu` (blocking: compiles shaders). No asset is loaded yet; see
-    /// [`Self::load_assets`].
+    /// Builds the pipelines on `gpu` (blocking: compiles shaders) and reads the job journal of
+    /// the assets folder back: finished jobs are reported again, unfinished ones are queued
+    /// (and their asset ids claimed) to run once [`Self::load_assets`] has loaded the folder.
+    ///
+    /// # Errors
+    /// The journal folder exists but cannot be listed; creating the pipelines fails.
     pub fn new(config: ServeConfig, gpu: Arc<Gpu>) -> anyhow::Result<Self> {
         let adapter = gpu.adapter_summary();
         let engine = Engine::new(gpu, 0);
@@ -214,7 +240,11 @@ impl AppState {
             lost_tx,
         );
         let (shutdown, _) = watch::channel(false);
-        Ok(Self {
+        let journal = Journal::new(&config.assets_dir);
+        let recovery = journal
+            .recover(MAX_JOBS)
+            .with_context(|| format!("reading the job journal {}", journal.dir().display()))?;
+        let state = Self {
             inner: Arc::new(Inner {
                 assets: AssetStore::new(
                     config.assets_dir.clone(),
@@ -233,11 +263,65 @@ impl AppState {
                 recovering: std::sync::Mutex::new(None),
                 bake_slot: Semaphore::new(1),
                 jobs: Jobs::default(),
+                journal,
+                resumed: Mutex::default(),
                 metrics: Metrics::new(),
                 ready: AtomicBool::new(false),
                 shutdown,
             }),
-        })
+        };
+        state.restore_jobs(recovery);
+        Ok(state)
+    }
+
+    /// Puts the jobs of the journal back in the job list (see [`Self::new`]).
+    fn restore_jobs(&self, recovery: Recovery) {
+        for record in recovery.finished {
+            let (_, forgotten) = self.inner.jobs.restore(record.status);
+            self.forget_jobs(&forgotten);
+        }
+        let mut resumed = Vec::with_capacity(recovery.pending.len());
+        for spec in recovery.pending {
+            let (job, forgotten) =
+                self.inner
+                    .jobs
+                    .create(spec.id.clone(), spec.asset.clone(), spec.options.cameras);
+            self.forget_jobs(&forgotten);
+            let how = if self.inner.assets.path_for(&spec.asset).exists() {
+                Resume::Written
+            } else {
+                match self.inner.assets.reserve(&spec.asset) {
+                    Ok(reservation) => Resume::Bake(reservation),
+                    Err(err) => Resume::Conflict(err.to_string()),
+                }
+            };
+            resumed.push(Resumed { job, spec, how });
+        }
+        if !resumed.is_empty() {
+            tracing::info!(
+                jobs = resumed.len(),
+                "resuming the unfinished bake jobs of the journal"
+            );
+        }
+        *self
+            .inner
+            .resumed
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) = resumed;
+    }
+
+    /// Removes the journal records of jobs the job list forgot.
+    pub(crate) fn forget_jobs(&self, ids: &[String]) {
+        for id in ids {
+            if let Err(err) = self.inner.journal.forget(id) {
+                tracing::warn!(job = id, error = %err, "cannot remove a forgotten job's record");
+            }
+        }
+    }
+
+    /// The job journal.
+    pub(crate) fn journal(&self) -> &Journal {
+        &self.inner.journal
     }
 
     /// The configuration.
@@ -304,10 +388,11 @@ impl AppState {
         }
     }
 
-    /// Removes temporary files an interrupted upload or bake left in the assets folder, loads
-    /// every `*.lfa` there (files that fail or exceed a limit are logged and skipped), bakes the
-    /// demo scene first when configured and the folder holds none, then marks the service
-    /// ready.
+    /// Removes temporary files an interrupted upload or bake left in the assets folder, settles
+    /// the resumed jobs whose asset was written before the server stopped, loads every `*.lfa`
+    /// there (files that fail or exceed a limit are logged and skipped), bakes the demo scene
+    /// first when configured and the folder holds none, marks the service ready, then queues
+    /// the other resumed jobs.
     pub async fn load_assets(&self) -> anyhow::Result<()> {
         let dir = self.inner.config.assets_dir.clone();
         std::fs::create_dir_all(&dir)
@@ -316,6 +401,32 @@ impl AppState {
             .assets
             .remove_leftovers()
             .with_context(|| format!("reading {}", dir.display()))?;
+        let resumed = std::mem::take(
+            &mut *self
+                .inner
+                .resumed
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner),
+        );
+        let mut to_bake = Vec::new();
+        for Resumed { job, spec, how } in resumed {
+            match how {
+                Resume::Bake(reservation) => to_bake.push((job, reservation, spec)),
+                Resume::Written => {
+                    let path = self.inner.assets.path_for(&job.asset);
+                    let outcome = tokio::task::spawn_blocking(move || written_report(&path))
+                        .await
+                        .unwrap_or_else(|e| Err(format!("checking the baked asset panicked: {e}")));
+                    if outcome.is_ok() {
+                        job.progress(spec.options.cameras, spec.options.cameras);
+                    }
+                    jobs::record_finished(self, &job, outcome, None).await;
+                }
+                Resume::Conflict(message) => {
+                    jobs::record_finished(self, &job, Err(message), None).await;
+                }
+            }
+        }
         let mut found = self
             .inner
             .assets
@@ -329,6 +440,15 @@ impl AppState {
         self.load_files(found).await;
         self.start_recovery_task();
         self.inner.ready.store(true, Ordering::Release);
+        for (job, reservation, spec) in to_bake {
+            tracing::info!(job = job.id, asset = job.asset, "bake job resumed");
+            jobs::spawn(
+                self.clone(),
+                job,
+                reservation,
+                BakeWork { spec, mesh: None },
+            );
+        }
         Ok(())
     }
 
@@ -505,6 +625,22 @@ impl AppState {
         })
         .await?
     }
+}
+
+/// The report of a resumed job whose asset file was written before the server stopped, once
+/// the file verifies (every page checksum); why not otherwise (the file is left for the folder
+/// scan, which skips it with a warning).
+fn written_report(path: &std::path::Path) -> Result<serde_json::Value, String> {
+    let file = lumigraph_core::asset::AssetFile::open(path)
+        .and_then(|file| file.verify_all().map(|()| file))
+        .map_err(|e| format!("the baked asset cannot be read: {e}"))?;
+    let geometry = &file.header().geometry;
+    Ok(serde_json::json!({
+        "cameras": geometry.camera_count,
+        "resolution": geometry.resolution_px,
+        "asset_bytes": file.file_len(),
+        "resumed": true,
+    }))
 }
 
 fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
