@@ -43,7 +43,7 @@ pub fn check_client_message(
 ) -> Result<(), String> {
     let defaults = Settings::defaults(std::time::Duration::from_millis(250));
     match protocol::parse_client_message(text, max_px).map_err(|r| r.message)? {
-        protocol::ClientMessage::Settings(patch) => {
+        protocol::ClientMessage::Settings { patch, .. } => {
             settings::merge_settings(&defaults, patch)
                 .and_then(|s| settings::validate_settings(s, header))?;
             Ok(())

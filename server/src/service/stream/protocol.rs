@@ -33,8 +33,13 @@ pub(super) enum ClientMessage {
     /// A view to render (its basis is valid for the server's `max_px`).
     View(ViewMessage),
     /// A settings patch: the message's object without `type` (merged and validated against the
-    /// session's settings and asset by the receiver).
-    Settings(serde_json::Value),
+    /// session's settings and asset by the receiver), and its `id` for the error reply.
+    Settings {
+        /// The message's `id`, when it has one that fits a `u32`.
+        request: Option<u32>,
+        /// The fields to merge.
+        patch: serde_json::Value,
+    },
     /// A frame acknowledgement.
     Ack(AckMessage),
 }
@@ -80,7 +85,10 @@ pub(super) fn parse_client_message(text: &str, max_px: u32) -> Result<ClientMess
                 .map_err(|e| invalid(Some(message.id), e.to_string()))?;
             Ok(ClientMessage::View(message))
         }
-        Some("settings") => Ok(ClientMessage::Settings(value)),
+        Some("settings") => Ok(ClientMessage::Settings {
+            request,
+            patch: value,
+        }),
         Some("ack") => serde_json::from_value::<AckMessage>(value)
             .map(ClientMessage::Ack)
             .map_err(|e| invalid(request, format!("invalid ack message: {e}"))),

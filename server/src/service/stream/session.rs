@@ -193,11 +193,7 @@ async fn receive_loop(
                 w.still = message.still;
                 w.arrived = Instant::now();
             }),
-            Ok(ClientMessage::Settings(patch)) => {
-                let request = patch
-                    .get("id")
-                    .and_then(serde_json::Value::as_u64)
-                    .and_then(|v| u32::try_from(v).ok());
+            Ok(ClientMessage::Settings { request, patch }) => {
                 let current = wanted.borrow().effective.settings.clone();
                 match merge_settings(&current, patch).and_then(|s| validate_settings(s, header)) {
                     Ok(effective) => wanted.send_modify(|w| {
