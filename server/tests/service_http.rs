@@ -423,7 +423,13 @@ async fn bad_render_requests_get_json_errors() {
     )
     .await;
     assert_eq!(unknown.status, StatusCode::NOT_FOUND);
-    let wrong_method = get(&state, "/v1/assets/tiny/render").await;
+    let wrong_method = send(
+        &state,
+        Request::put("/v1/assets/tiny/render")
+            .body(Body::empty())
+            .expect("request"),
+    )
+    .await;
     assert_eq!(wrong_method.status, StatusCode::METHOD_NOT_ALLOWED);
     assert_eq!(wrong_method.error_kind(), "rejected");
     // The server is still fine.
@@ -433,6 +439,325 @@ async fn bad_render_requests_get_json_errors() {
             .status,
         StatusCode::OK
     );
+}
+
+/// `GET /v1/assets/tiny/render?QUERY` with optional `If-None-Match`.
+async fn get_link(state: &AppState, query: &str, if_none_match: Option<&str>) -> Reply {
+    let mut request = Request::get(format!("/v1/assets/tiny/render?{query}"));
+    if let Some(tag) = if_none_match {
+        request = request.header(header::IF_NONE_MATCH, tag);
+    }
+    send(state, request.body(Body::empty()).expect("request")).await
+}
+
+/// The `X-` header names of a render answer, but for the two timings, with their values.
+fn render_headers(reply: &Reply) -> Vec<(String, String)> {
+    let mut out: Vec<_> = reply
+        .headers
+        .iter()
+        .filter(|(name, _)| {
+            name.as_str().starts_with("x-")
+                && !matches!(name.as_str(), "x-render-ms" | "x-encode-ms")
+                || *name == header::CONTENT_TYPE
+        })
+        .map(|(n, v)| (n.to_string(), v.to_str().unwrap_or_default().to_owned()))
+        .collect();
+    out.sort();
+    out
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn render_links_answer_the_post_render_bit_for_bit_and_revalidate() {
+    let (_dir, state) = setup(None, |_| {}).await;
+    // The same state as a body and as a query, in both view forms and several codecs.
+    let orbit_eye =
+        lumigraph_server::service::render_query::orbit_eye([0.1, -0.2, 0.05], 33.5, 21.25, 2.75);
+    let cases = [
+        (
+            "eye=0.3,0.5,3&target=0,0,0&up=0,1,0&yfov_deg=40&width=48&height=32".to_owned(),
+            serde_json::json!({"view": view_json(48, 32)}),
+        ),
+        (
+            "format=webp&width=40&lod=12&step=0.02&tolerance=0.01&method=fixed&height=24\
+             &target=0,0,0&eye=0.3,0.5,3&yfov_deg=35.5&background=10,20,30,255"
+                .to_owned(),
+            serde_json::json!({"view": {"eye": [0.3, 0.5, 3.0], "target": [0, 0, 0], "yfov_deg": 35.5,
+                                        "width": 40, "height": 24},
+                               "format": "webp", "lod": 12, "step": 0.02, "tolerance": 0.01,
+                               "method": "fixed", "background": [10, 20, 30, 255]}),
+        ),
+        (
+            "az=33.5&el=21.25&dist=2.75&target=0.1,-0.2,0.05&yfov_deg=40&width=32&height=32\
+             &format=jpeg&quality=70&background=0,0,0,255&guide=0"
+                .to_owned(),
+            serde_json::json!({"view": {"eye": orbit_eye, "target": [0.1, -0.2, 0.05], "up": [0, 1, 0],
+                                        "yfov_deg": 40, "width": 32, "height": 32},
+                               "format": "jpeg", "quality": 70, "background": [0, 0, 0, 255],
+                               "guide": 0}),
+        ),
+    ];
+    let mut tags = Vec::new();
+    for (query, body) in &cases {
+        let link = get_link(&state, query, None).await;
+        let posted = render(&state, body).await;
+        assert_eq!(
+            link.status,
+            StatusCode::OK,
+            "{query}: {}",
+            String::from_utf8_lossy(&link.body)
+        );
+        assert_eq!(posted.status, StatusCode::OK, "{body}");
+        assert!(
+            link.body == posted.body,
+            "{query}: the image differs from the POST render"
+        );
+        assert_eq!(render_headers(&link), render_headers(&posted), "{query}");
+        assert!(link.header("x-render-ms").parse::<f64>().is_ok());
+        assert!(link.header("x-encode-ms").parse::<f64>().is_ok());
+        assert_eq!(link.header("cache-control"), "public, max-age=300");
+        assert_eq!(posted.header("cache-control"), "no-store");
+        let tag = link.header("etag").to_owned();
+        assert!(
+            tag.len() == 34 && tag.starts_with('"') && tag.ends_with('"'),
+            "{tag}"
+        );
+        tags.push(tag);
+    }
+    tags.dedup();
+    assert_eq!(tags.len(), cases.len(), "different renders share a tag");
+    assert!(is_png(&get_link(&state, &cases[0].0, None).await.body));
+
+    // The tag is a function of the state, not of its spelling: reordered, `40.0`, the default
+    // `up` given or not, the orbit form of the same eye.
+    let tag = &tags[0];
+    for same in [
+        "height=32&width=48&yfov_deg=40.0&target=0,0,0&eye=0.3,0.5,3&up=0,1,0",
+        "eye=0.30,0.5,3e0&target=0,0,0&yfov_deg=40&width=48&height=32&up=0,1.0,0",
+    ] {
+        let reply = get_link(&state, same, None).await;
+        assert_eq!(reply.status, StatusCode::OK);
+        assert_eq!(reply.header("etag"), tag, "{same}");
+    }
+    // A tag the client holds is answered 304 without a body; a stale or weak one too where it
+    // matches, any other with the image.
+    for held in [
+        tag.clone(),
+        format!("W/{tag}"),
+        format!("\"0123\", {tag}"),
+        "*".to_owned(),
+    ] {
+        let reply = get_link(&state, &cases[0].0, Some(&held)).await;
+        assert_eq!(reply.status, StatusCode::NOT_MODIFIED, "{held}");
+        assert!(reply.body.is_empty());
+        assert_eq!(reply.header("etag"), tag);
+        assert_eq!(reply.header("cache-control"), "public, max-age=300");
+    }
+    let other = get_link(&state, &cases[0].0, Some(&tags[1])).await;
+    assert_eq!(other.status, StatusCode::OK);
+    assert!(is_png(&other.body));
+
+    // New content under the same id gets new tags.
+    let delete = send(
+        &state,
+        Request::delete("/v1/assets/tiny")
+            .body(Body::empty())
+            .expect("request"),
+    )
+    .await;
+    assert_eq!(delete.status, StatusCode::NO_CONTENT);
+    let uploaded = send(
+        &state,
+        upload("/v1/assets?id=tiny", None, asset_declaring_states(2)),
+    )
+    .await;
+    assert_eq!(uploaded.status, StatusCode::CREATED);
+    let renewed = get_link(&state, &cases[0].0, Some(tag)).await;
+    assert_eq!(renewed.status, StatusCode::OK);
+    assert_ne!(renewed.header("etag"), tag);
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn bad_render_links_get_json_errors_naming_the_parameter() {
+    let (_dir, state) = setup(None, |_| {}).await;
+    const VIEW: &str = "eye=0.3,0.5,3&target=0,0,0&yfov_deg=40&width=16&height=16";
+    let cases: Vec<(String, StatusCode, &str)> = vec![
+        (
+            format!("{VIEW}&zoom=2"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "zoom",
+        ),
+        (
+            format!("{VIEW}&lod=12&lod=12"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "`lod`",
+        ),
+        (
+            format!("{VIEW}&depth=npy"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "`depth`",
+        ),
+        (
+            "target=0,0,0&yfov_deg=40&width=16&height=16".to_owned(),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "`eye`",
+        ),
+        (
+            "eye=0.3,0.5,3&target=0,0,0&yfov_deg=40&width=16".to_owned(),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "`height`",
+        ),
+        (
+            "eye=a,b,c&target=0,0,0&yfov_deg=40&width=16&height=16".to_owned(),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "`eye`",
+        ),
+        (
+            "eye=0,0,3&target=0,0,0&yfov_deg=inf&width=16&height=16".to_owned(),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "`yfov_deg`",
+        ),
+        (
+            "eye=0,0,3&target=0,0,0&yfov_deg=180&width=16&height=16".to_owned(),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "yfov",
+        ),
+        (
+            "eye=0,0,3&target=0,0,0&yfov_deg=40&width=513&height=16".to_owned(),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "513",
+        ),
+        (
+            "eye=0,0,3&target=0,0,0&yfov_deg=40&width=1.5&height=16".to_owned(),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "`width`",
+        ),
+        (
+            "eye=0,0,0&target=0,0,0&yfov_deg=40&width=16&height=16".to_owned(),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "eye",
+        ),
+        (
+            format!("{VIEW}&up=0,0,0"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "up",
+        ),
+        (
+            format!("{VIEW}&lod=13"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "13",
+        ),
+        (
+            format!("{VIEW}&lod=abc"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "`lod`",
+        ),
+        (
+            format!("{VIEW}&lod=12.5"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "`lod`",
+        ),
+        (
+            format!("{VIEW}&step=0"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "step",
+        ),
+        (
+            format!("{VIEW}&method=magic"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "`method`",
+        ),
+        (
+            format!("{VIEW}&format=gif"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "gif",
+        ),
+        (
+            format!("{VIEW}&format=none"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "none",
+        ),
+        (
+            format!("{VIEW}&quality=101"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "quality",
+        ),
+        (
+            format!("{VIEW}&background=0,0,0,256"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "`background`",
+        ),
+        (
+            format!("{VIEW}&target_psnr=30&lod=12"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "target_psnr",
+        ),
+        (
+            format!("{VIEW}&az=10"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "`az`",
+        ),
+        (
+            "az=10&el=0&target=0,0,0&yfov_deg=40&width=16&height=16".to_owned(),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "`dist`",
+        ),
+        (
+            format!("{VIEW}&lod=%FF"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "",
+        ),
+    ];
+    for (query, status, needle) in cases {
+        let reply = get_link(&state, &query, None).await;
+        assert_eq!(
+            reply.status,
+            status,
+            "{query}: {}",
+            String::from_utf8_lossy(&reply.body)
+        );
+        assert_eq!(reply.error_kind(), "invalid", "{query}");
+        let message = reply.json()["error"]["message"]
+            .as_str()
+            .unwrap_or_default()
+            .to_owned();
+        assert!(
+            !message.is_empty() && message.contains(needle),
+            "{query}: {message}"
+        );
+        assert!(
+            reply.header("etag").is_empty(),
+            "{query}: an error has no tag"
+        );
+    }
+    // The checks shared with the POST body answer the POST body's words.
+    for (query, body) in [
+        (
+            format!("{VIEW}&lod=13"),
+            serde_json::json!({"view": view_json(16, 16), "lod": 13}),
+        ),
+        (
+            "eye=0.3,0.5,3&target=0,0,0&yfov_deg=180&width=16&height=16".to_owned(),
+            serde_json::json!({"view": {"eye": [0.3, 0.5, 3], "target": [0, 0, 0], "yfov_deg": 180,
+                                        "width": 16, "height": 16}}),
+        ),
+    ] {
+        let (link, posted) = (
+            get_link(&state, &query, None).await,
+            render(&state, &body).await,
+        );
+        assert_eq!(link.status, posted.status);
+        assert_eq!(link.json(), posted.json(), "{query}");
+    }
+    // Unknown asset: 404 whatever the parameters.
+    for query in [VIEW, "zoom=1"] {
+        let reply = get(&state, &format!("/v1/assets/ghost/render?{query}")).await;
+        assert_eq!(reply.status, StatusCode::NOT_FOUND, "{query}");
+        assert_eq!(reply.error_kind(), "not_found");
+    }
+    let bad_id = get(&state, &format!("/v1/assets/bad..id/render?{VIEW}")).await;
+    assert_eq!(bad_id.status, StatusCode::UNPROCESSABLE_ENTITY);
+    // The server is still fine.
+    assert_eq!(get_link(&state, VIEW, None).await.status, StatusCode::OK);
 }
 
 fn upload(uri: &str, token: Option<&str>, body: Vec<u8>) -> Request<Body> {

@@ -55,6 +55,9 @@ pub struct LoadedAsset {
     pub header: AssetHeader,
     /// File size in bytes.
     pub file_bytes: u64,
+    /// Fingerprint of the file's content ([`content_id`]): what a render's `ETag` depends on,
+    /// so an id given to new content gets new tags.
+    pub content_id: String,
     /// Colour and depth texture arrays.
     pub field: GpuLightField,
     /// The asset's share of the memory budget, given back when the last holder drops it (the
@@ -187,9 +190,35 @@ pub fn load_file(
         path: path.to_path_buf(),
         header: file.header().clone(),
         file_bytes: file.file_len(),
+        content_id: content_id(&file),
         field,
         _charge: charge,
     })
+}
+
+/// A fingerprint of an asset file's content, from what the file already checksums: SHA-256 of
+/// its preamble (with the header's and the index's CRC-32), its length, its header and every
+/// index entry (each page's place, sizes and CRC-32). Hashing the page bytes themselves would
+/// read the whole file again; every page was just verified against its entry.
+pub fn content_id(file: &AssetFile) -> String {
+    let header = serde_json::to_vec(file.header()).unwrap_or_default();
+    let mut bytes = Vec::with_capacity(96 + header.len() + file.index().len() * 40);
+    bytes.extend_from_slice(&file.preamble().to_bytes());
+    bytes.extend_from_slice(&file.file_len().to_le_bytes());
+    bytes.extend_from_slice(&header);
+    for entry in file.index() {
+        bytes.extend_from_slice(&entry.key.layer.to_le_bytes());
+        bytes.extend_from_slice(&entry.key.state.to_le_bytes());
+        bytes.extend_from_slice(&entry.key.camera.to_le_bytes());
+        bytes.push(entry.key.channel.code());
+        bytes.extend_from_slice(&entry.page.to_le_bytes());
+        bytes.push(entry.codec.code());
+        bytes.extend_from_slice(&entry.offset.to_le_bytes());
+        bytes.extend_from_slice(&entry.length.to_le_bytes());
+        bytes.extend_from_slice(&entry.raw_length.to_le_bytes());
+        bytes.extend_from_slice(&entry.crc32.to_le_bytes());
+    }
+    lumigraph_core::bake::sha256_hex(&bytes)
 }
 
 /// The loaded assets, by id.

@@ -29,6 +29,7 @@ use super::error::{AppError, ErrorBody, ErrorKind};
 use super::jobs::{self, BakeWork, JobStatus};
 use super::journal::{JobSpec, now_unix_ms};
 use super::render_pool::{plan, quality_error};
+use super::render_query;
 use super::state::{AppState, random_id};
 
 /// Counts error responses by kind for `/metrics`.
@@ -457,8 +458,20 @@ impl RenderBody {
     /// # Errors
     /// [`AppError::MalformedJson`] for malformed JSON, [`AppError::Invalid`] for bad values.
     pub fn parse(body: &[u8], max_px: u32) -> Result<Self, AppError> {
-        let mut body: serde_json::Map<String, serde_json::Value> =
+        let body: serde_json::Map<String, serde_json::Value> =
             serde_json::from_slice(body).map_err(|e| AppError::from_json(&e))?;
+        Self::from_map(body, max_px)
+    }
+
+    /// Checks a render body already parsed as a JSON object (a `POST` body, or the body
+    /// [`render_query::body_from_query`] builds from a `GET` query) as [`RenderBody::parse`] does.
+    ///
+    /// # Errors
+    /// [`AppError::Invalid`] for bad values.
+    pub fn from_map(
+        mut body: serde_json::Map<String, serde_json::Value>,
+        max_px: u32,
+    ) -> Result<Self, AppError> {
         let knobs = Quality::take_from(&mut body).map_err(quality_error)?;
         let fields: RenderFields = serde_json::from_value(serde_json::Value::Object(body))
             .map_err(|e| AppError::from_json(&e))?;
@@ -512,15 +525,170 @@ pub async fn render_asset(
 ) -> Result<Response, AppError> {
     let body = body.map_err(|e| body_error(&e, state.config().max_json_bytes))?;
     let asset = state.assets().get(&id)?;
+    let body = RenderBody::parse(&body, state.config().max_px)?;
+    let plan = plan(&body.knobs, &asset)?;
+    render_response(&state, asset, body, plan).await
+}
+
+/// How long shared caches may keep a render link's image before asking again (with
+/// `If-None-Match`, answered 304 without rendering while the asset is unchanged). Short,
+/// because an id can be given to new content (a delete and an upload).
+const RENDER_LINK_MAX_AGE_S: u32 = 300;
+
+/// Renders one view given as query parameters, so that a link is also an image: the render
+/// body's keys, with the view's fields at the top level (`eye=x,y,z` or the viewer's orbit
+/// form `az`/`el`/`dist` in degrees and world units, `target`, `up`, `yfov_deg`, `width`,
+/// `height`), `background=r,g,b,a`, `format`, `quality` and the quality keys (`lod=12&step=0.02`,
+/// `method=fixed`, ...); no `depth`. The answer is the `POST` render's, bit for bit, with the
+/// same headers, plus an `ETag` (the asset's content, the server's version and adapter and the
+/// canonical parameters) and `Cache-Control: public, max-age=300`; `If-None-Match` with that tag
+/// is answered 304 without rendering.
+#[utoipa::path(get, path = "/v1/assets/{id}/render", tag = "render",
+    params(("id" = String, Path, description = "asset id", pattern = "^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$", min_length = 1, max_length = 64),
+        RenderLinkQuery),
+    responses(
+        (status = 200, description = "image/png, image/jpeg or image/webp, with ETag and Cache-Control"),
+        (status = 304, description = "If-None-Match matched the ETag: the cached image is current"),
+        (status = 404, body = ErrorBody),
+        (status = 413, body = ErrorBody),
+        (status = 422, body = ErrorBody, description = "unknown, repeated, missing, malformed or out-of-range parameter (the message names it)"),
+        (status = 503, body = ErrorBody, description = "render queue full")))]
+pub async fn render_link(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+    query: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Response, AppError> {
+    let Query(pairs) = query.map_err(|e| AppError::Invalid(e.body_text()))?;
+    let asset = state.assets().get(&id)?;
+    let map = render_query::body_from_query(&pairs)?;
+    let canonical = serde_json::to_string(&map).map_err(|e| AppError::Internal(e.into()))?;
+    let body = RenderBody::from_map(map, state.config().max_px)?;
+    let plan = plan(&body.knobs, &asset)?;
+    let tag = format!(
+        "\"{}\"",
+        &lumigraph_core::bake::sha256_hex(
+            format!(
+                "lumigraph {}\n{}\n{}\n{canonical}",
+                env!("CARGO_PKG_VERSION"),
+                state.inner.adapter,
+                asset.content_id
+            )
+            .as_bytes()
+        )[..32]
+    );
+    let etag = HeaderValue::from_str(&tag).map_err(|e| AppError::Internal(e.into()))?;
+    let cache_control = HeaderValue::from_str(&format!("public, max-age={RENDER_LINK_MAX_AGE_S}"))
+        .map_err(|e| AppError::Internal(e.into()))?;
+    if if_none_match(&headers, &tag) {
+        return Ok((
+            StatusCode::NOT_MODIFIED,
+            [(header::ETAG, etag), (header::CACHE_CONTROL, cache_control)],
+        )
+            .into_response());
+    }
+    let mut response = render_response(&state, asset, body, plan).await?;
+    response.headers_mut().insert(header::ETAG, etag);
+    response
+        .headers_mut()
+        .insert(header::CACHE_CONTROL, cache_control);
+    Ok(response)
+}
+
+/// Whether an `If-None-Match` header lists `tag` (weak comparison, RFC 9110 §13.1.2) or is `*`.
+fn if_none_match(headers: &HeaderMap, tag: &str) -> bool {
+    headers
+        .get_all(header::IF_NONE_MATCH)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(','))
+        .map(str::trim)
+        .any(|candidate| candidate == "*" || candidate.trim_start_matches("W/") == tag)
+}
+
+/// The parameters of `GET /v1/assets/{id}/render` (for the OpenAPI document; the handler reads
+/// them as pairs, so that unknown and repeated ones are refused by name).
+#[derive(utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+#[allow(dead_code)]
+pub struct RenderLinkQuery {
+    /// Eye position `x,y,z` (world units); or give `az`, `el`, `dist` instead.
+    #[param(pattern = "^[^,]+,[^,]+,[^,]+$")]
+    pub eye: Option<String>,
+    /// Orbit form: azimuth in degrees about +y, from +z towards +x (with `el`, `dist`).
+    pub az: Option<f64>,
+    /// Orbit form: elevation in degrees above the x-z plane.
+    pub el: Option<f64>,
+    /// Orbit form: distance from `target`, world units, above 0.
+    #[param(exclusive_minimum = 0.0)]
+    pub dist: Option<f64>,
+    /// Point looked at, `x,y,z`.
+    #[param(pattern = "^[^,]+,[^,]+,[^,]+$")]
+    pub target: String,
+    /// Up direction `x,y,z` (default `0,1,0`).
+    #[param(pattern = "^[^,]+,[^,]+,[^,]+$")]
+    pub up: Option<String>,
+    /// Vertical field of view in degrees, in (0, 180).
+    #[param(exclusive_minimum = 0.0, exclusive_maximum = 180.0)]
+    pub yfov_deg: f64,
+    /// Width in pixels, 1..=max_px.
+    #[param(minimum = 1)]
+    pub width: u32,
+    /// Height in pixels, 1..=max_px.
+    #[param(minimum = 1)]
+    pub height: u32,
+    /// RGBA background `r,g,b,a` (0..=255 each) where nothing is hit; default `0,0,0,0`.
+    #[param(pattern = "^\\d{1,3},\\d{1,3},\\d{1,3},\\d{1,3}$")]
+    pub background: Option<String>,
+    /// `png` (default), `jpeg` or `webp`.
+    #[param(pattern = "^(png|jpeg|webp)$")]
+    pub format: Option<String>,
+    /// JPEG quality 1..=100, default 90.
+    #[param(minimum = 1, maximum = 100)]
+    pub quality: Option<u8>,
+    /// Cameras (12, 42, 162, 642 or a level 0-3), as in the render body.
+    pub lod: Option<u32>,
+    /// March step, as in the render body.
+    pub step: Option<f32>,
+    /// Depth agreement tolerance, as in the render body.
+    pub tolerance: Option<f32>,
+    /// `default` or `fixed`.
+    #[param(pattern = "^(default|fixed)$")]
+    pub method: Option<String>,
+    /// Coarse-to-fine factor, as in the render body.
+    pub guide: Option<u32>,
+    /// Goal: masked PSNR (dB), as in the render body.
+    pub target_psnr: Option<f64>,
+    /// Goal: time budget (ms), as in the render body.
+    pub budget_ms: Option<f64>,
+    /// Automatic LOD: silhouette error bound in pixels, as in the render body.
+    pub auto_lod: Option<f64>,
+    /// With `auto_lod`: PSNR floor (dB).
+    pub lod_min_psnr: Option<f64>,
+    /// With `auto_lod`: largest PSNR drop (dB) below the most accurate level.
+    pub lod_max_psnr_drop: Option<f64>,
+    /// With `auto_lod`: cross-fade band.
+    pub lod_blend: Option<f64>,
+    /// Still refinement samples, 1..=256.
+    pub refine: Option<u32>,
+}
+
+/// Renders a checked request with its plan and answers the image with the render headers: the
+/// one path of `POST` and `GET` renders.
+async fn render_response(
+    state: &AppState,
+    asset: Arc<LoadedAsset>,
+    body: RenderBody,
+    plan: lumigraph_core::quality::Plan,
+) -> Result<Response, AppError> {
     let RenderBody {
         fields: request,
         quality,
-        knobs: render_quality,
-    } = RenderBody::parse(&body, state.config().max_px)?;
-    let plan = plan(&render_quality, &asset)?;
+        ..
+    } = body;
     let rendered = state
         .pool()
-        .render(Arc::clone(&asset), request.view.clone(), plan)
+        .render(asset, request.view.clone(), plan)
         .await?;
     let decision = rendered.decision;
     let encoding = Encoding {

@@ -20,6 +20,7 @@ pub mod listen;
 pub mod metrics;
 pub mod openapi;
 pub mod render_pool;
+pub mod render_query;
 pub mod state;
 pub mod stream;
 pub mod viewer;
@@ -64,10 +65,12 @@ pub fn app(state: AppState) -> Router {
         )
         .route(
             "/v1/assets/{id}/render",
-            post(http::render_asset).layer(axum::middleware::from_fn_with_state(
-                state.clone(),
-                read_body_within_deadline,
-            )),
+            post(http::render_asset)
+                .layer(axum::middleware::from_fn_with_state(
+                    state.clone(),
+                    read_body_within_deadline,
+                ))
+                .get(http::render_link),
         )
         .route(
             "/v1/bake",

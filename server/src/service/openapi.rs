@@ -38,6 +38,7 @@ impl Modify for BearerAuth {
         http::delete_asset,
         http::upload_asset,
         http::render_asset,
+        http::render_link,
         http::bake,
         http::get_job,
         stream::stream,
