@@ -2291,7 +2291,34 @@ async fn openapi_documents_the_statuses_and_constraints_the_server_enforces() {
             "get",
             get(&state, "/v1/assets/bad..id").await.status,
         ),
+        (
+            "/v1/assets/{id}/render",
+            "get",
+            get(&state, "/v1/assets/tiny/render?zoom=1").await.status,
+        ),
+        (
+            "/v1/assets/{id}/render",
+            "get",
+            get(&state, "/v1/assets/ghost/render").await.status,
+        ),
     ];
+    // A render link's size is bounded like a body's view.
+    let link_params = openapi["paths"]["/v1/assets/{id}/render"]["get"]["parameters"]
+        .as_array()
+        .expect("GET render parameters");
+    for side in ["width", "height"] {
+        let param = link_params
+            .iter()
+            .find(|p| p["name"] == side)
+            .unwrap_or_else(|| panic!("no {side} parameter"));
+        assert_eq!(param["schema"]["maximum"], 512, "{param}");
+        assert_eq!(param["required"], true, "{param}");
+    }
+    assert!(documented(
+        "/v1/assets/{id}/render",
+        "get",
+        StatusCode::NOT_MODIFIED
+    ));
     for (path, method, status) in cases {
         assert!(status.is_client_error(), "{path} {method}: {status}");
         assert!(

@@ -89,6 +89,15 @@ pub fn document(config: &ServeConfig) -> Value {
     for side in ["width", "height"] {
         schemas["ViewSchema"]["properties"][side]["maximum"] = json!(config.max_px);
     }
+    if let Some(params) = doc["paths"]["/v1/assets/{id}/render"]["get"]["parameters"].as_array_mut()
+    {
+        for param in params
+            .iter_mut()
+            .filter(|p| p["name"] == "width" || p["name"] == "height")
+        {
+            param["schema"]["maximum"] = json!(config.max_px);
+        }
+    }
     if config.token.is_none() {
         // Nothing asks for the token: say so, or clients (and fuzzers) expect 401s.
         if let Some(paths) = doc["paths"].as_object_mut() {
