@@ -203,6 +203,29 @@ def test_render_transparent_png_and_lossless_webp_agree(server: Server) -> None:
     assert png.convert("RGBA").tobytes() == webp.convert("RGBA").tobytes()
 
 
+def test_render_link_is_the_post_render_and_revalidates(server: Server) -> None:
+    """`GET /v1/assets/{id}/render?...`: the POST render's bytes, with a tag a client can hold."""
+    query = {"eye": "0.3,1,10", "target": "0,0,0", "up": "0,1,0", "yfov_deg": "40",
+             "width": str(VIEW["width"]), "height": str(VIEW["height"]), "lod": "12",
+             "format": "png", "background": "0,0,0,255"}
+    link = httpx.get(f"{server.base_url}/v1/assets/demo/render", params=query, timeout=60)
+    assert link.status_code == 200, link.text
+    assert link.headers["content-type"] == "image/png"
+    posted = render(server, {"view": VIEW, "lod": 12, "format": "png",
+                             "background": [0, 0, 0, 255]})
+    assert link.content == posted.content
+    assert Image.open(io.BytesIO(link.content)).size == (VIEW["width"], VIEW["height"])
+    assert link.headers["cache-control"] == "public, max-age=300"
+    held = httpx.get(f"{server.base_url}/v1/assets/demo/render", params=query, timeout=60,
+                     headers={"If-None-Match": link.headers["etag"]})
+    assert held.status_code == 304 and not held.content
+    bad = httpx.get(f"{server.base_url}/v1/assets/demo/render", params={**query, "zoom": "2"},
+                    timeout=60)
+    assert bad.status_code == 422 and "zoom" in bad.json()["error"]["message"]
+    missing = httpx.get(f"{server.base_url}/v1/assets/nope/render", params=query, timeout=60)
+    assert missing.status_code == 404 and missing.json()["error"]["kind"] == "not_found"
+
+
 def test_render_depth_npy_alone(server: Server) -> None:
     response = render(server, {"view": VIEW, "format": "none", "depth": "npy"})
     assert response.status_code == 200, response.text

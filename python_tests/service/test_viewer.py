@@ -1,16 +1,22 @@
 """The web viewer in real headless Chromium (Debian's `chromium`, driven by playwright with
 `executable_path`; no browser download): the page loads, a frame is drawn, a drag changes the
-frame and the stats overlay updates."""
+frame and the stats overlay updates; the viewer's state lives in its URL (a link reopens the same
+view, its image link renders the same image, a bad link is reported and falls back)."""
 
 from __future__ import annotations
 
+import base64
 import hashlib
+import io
+import math
 import os
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import httpx
 import pytest
+from PIL import Image, ImageChops
 from playwright.sync_api import Page, sync_playwright
 
 from conftest import Server
@@ -141,4 +147,130 @@ def test_viewer_wheel_zoom_and_settings(server: Server, page: Page) -> None:
         f"window.lumigraphViewer.last.frameId > {frame_id}"
         " && window.lumigraphViewer.last.quality === 1", timeout=30_000)
     assert not page.locator("#error").is_visible(), page.locator("#error").inner_text()
+    assert not page.errors, page.errors  # type: ignore[attr-defined]
+
+
+FULL_FRAME = ("window.lumigraphViewer.last && window.lumigraphViewer.last.quality === 1"
+              " && window.lumigraphViewer.last.requestId === window.lumigraphViewer.requestId")
+
+
+def canvas_image(page: Page) -> Image.Image:
+    url: str = page.evaluate("document.getElementById('view').toDataURL('image/png')")
+    return Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))).convert("RGB")
+
+
+def orbit_eye(target: list[float], az_deg: float, el_deg: float, dist: float) -> list[float]:
+    az, el = math.radians(az_deg), math.radians(el_deg)
+    return [target[0] + math.cos(el) * math.sin(az) * dist, target[1] + math.sin(el) * dist,
+            target[2] + math.cos(el) * math.cos(az) * dist]
+
+
+def differing(a: Image.Image, b: Image.Image, levels: int) -> tuple[float, float]:
+    """(fraction of pixels where some channel differs by more than `levels`, mean abs diff)."""
+    assert a.size == b.size, (a.size, b.size)
+    diff = ImageChops.difference(a, b).tobytes()
+    pixels = len(diff) // 3
+    over = sum(1 for i in range(0, len(diff), 3) if max(diff[i:i + 3]) > levels)
+    return over / pixels, sum(diff) / len(diff)
+
+
+def test_viewer_url_state_opens_the_view_its_image_link_renders(server: Server, page: Page) -> None:
+    demo = httpx.get(f"{server.base_url}/v1/assets/demo", timeout=10).json()
+    target = [round(c, 4) for c in demo["center"]]
+    dist = round(demo["radius"] * 2.5, 4)
+    query = (f"asset=demo&az=30&el=20&dist={dist}&target={','.join(map(str, target))}"
+             "&yfov_deg=35&still_codec=png&background=10,20,30,255")
+    page.goto(f"{server.base_url}/?{query}")
+    page.wait_for_function(FULL_FRAME + " && window.lumigraphViewer.last.codec === 0",
+                           timeout=30_000)
+    # The stream was asked for exactly the URL's camera (to float rounding).
+    view = page.evaluate("window.lumigraphViewer.lastView")
+    want = orbit_eye(target, 30, 20, dist)
+    assert all(abs(a - b) <= 1e-9 * dist for a, b in zip(view["eye"], want)), (view, want)
+    assert view["target"] == target and view["yfov_deg"] == 35 and view["up"] == [0, 1, 0]
+    assert not page.locator("#notice").is_visible(), page.locator("#notice").inner_text()
+
+    # The image link renders the drawn frame: the same renderer on the same view, drawn 1:1
+    # from a lossless PNG; the eye the server computes from az/el/dist may differ from the
+    # browser's in the last bit, which can flip at most a few silhouette pixels.
+    image_link: str = page.evaluate("window.lumigraphViewer.imageLink()")
+    assert image_link.startswith(f"{server.base_url}/v1/assets/demo/render?"), image_link
+    page.click("#copy_image_link")
+    page.wait_for_function("window.lumigraphViewer.copied !== undefined", timeout=5_000)
+    assert page.evaluate("window.lumigraphViewer.copied") == image_link
+    reply = httpx.get(image_link, timeout=60)
+    assert reply.status_code == 200, reply.text
+    assert reply.headers["content-type"] == "image/png"
+    assert reply.content.startswith(b"\x89PNG\r\n\x1a\n")
+    linked = Image.open(io.BytesIO(reply.content)).convert("RGB")
+    drawn = canvas_image(page)
+    assert linked.size == drawn.size == (view["width"], view["height"])
+    over, mean = differing(linked, drawn, 2)
+    assert over <= 0.001 and mean <= 0.05, (over, mean)
+    # A second fetch with the tag is answered 304.
+    again = httpx.get(image_link, headers={"If-None-Match": reply.headers["etag"]}, timeout=60)
+    assert again.status_code == 304 and not again.content
+
+    # Moving updates the URL in place (no history entry per move)...
+    history = page.evaluate("history.length")
+    box = page.locator("#view").bounding_box()
+    assert box is not None
+    x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    page.mouse.move(x, y)
+    page.mouse.down()
+    for i in range(1, 9):
+        page.mouse.move(x + 15 * i, y + 5 * i)
+        page.wait_for_timeout(30)
+    page.mouse.up()
+    page.wait_for_function(FULL_FRAME + " && new URLSearchParams(location.search).get('az') !== '30'"
+                           " && window.lumigraphViewer.last.codec === 0", timeout=30_000)
+    page.wait_for_timeout(400)  # the URL follows at most every 250 ms
+    moved_view = page.evaluate("window.lumigraphViewer.lastView")
+    moved_url = page.url
+    assert page.evaluate("history.length") == history
+    params = dict(p.split("=", 1) for p in moved_url.split("?", 1)[1].split("&"))
+    assert params["asset"] == "demo" and params["still_codec"] == "png", params
+    assert params["background"] == "10,20,30,255" and params["yfov_deg"] == "35", params
+    moved = canvas_image(page)
+
+    # ...and that URL reopens the same camera: the link rounds angles to 0.001° and the
+    # distance to 6 digits, which moves the eye by under 3e-5 of the distance (well under a
+    # pixel at this size), and the image is the same but for silhouette pixels.
+    page.goto(moved_url)
+    page.wait_for_function(FULL_FRAME + " && window.lumigraphViewer.last.codec === 0",
+                           timeout=30_000)
+    reopened = page.evaluate("window.lumigraphViewer.lastView")
+    assert all(abs(a - b) <= 3e-5 * dist for a, b in zip(reopened["eye"], moved_view["eye"])), (
+        reopened, moved_view)
+    assert reopened["target"] == [float(c) for c in params["target"].split(",")]
+    over, mean = differing(canvas_image(page), moved, 8)
+    assert over <= 0.01, (over, mean)
+    assert not page.errors, page.errors  # type: ignore[attr-defined]
+
+
+def test_viewer_reports_a_bad_link_and_falls_back(server: Server, page: Page) -> None:
+    page.goto(f"{server.base_url}/?asset=nope&az=abc&el=95&dist=-1&lod=13&yfov_deg=40"
+              "&interactive=maybe&light=sun&bogus=1")
+    page.wait_for_function(FULL_FRAME, timeout=30_000)
+    notice = page.locator("#notice")
+    assert notice.is_visible()
+    text = notice.inner_text()
+    for needle in ("asset=nope", "az=abc", "el=95", "dist=-1", "lod=13", "interactive=maybe",
+                   "light=sun", "bogus"):
+        assert needle in text, text
+    # The closest valid state: the first asset at its default camera, the valid keys kept.
+    assert page.eval_on_selector("#asset", "s => s.value") == "demo"
+    demo = httpx.get(f"{server.base_url}/v1/assets/demo", timeout=10).json()
+    state = page.evaluate("({a: window.lumigraphViewer.azimuth, d: window.lumigraphViewer.distance,"
+                          " f: window.lumigraphViewer.yfovDeg})")
+    assert state["a"] == 0.6 and abs(state["d"] - demo["radius"] * 2.8) < 1e-9, state
+    assert state["f"] == 40
+    assert canvas(page)["sum"] > 0
+    # The URL now holds the state in use, with the key kept for later versions.
+    page.wait_for_function("new URLSearchParams(location.search).get('asset') === 'demo'",
+                           timeout=5_000)
+    params = page.evaluate("Object.fromEntries(new URLSearchParams(location.search))")
+    assert params["light"] == "sun" and "bogus" not in params and params["az"] != "abc", params
+    notice.click()
+    assert not notice.is_visible()
     assert not page.errors, page.errors  # type: ignore[attr-defined]

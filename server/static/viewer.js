@@ -1,5 +1,6 @@
 // lumigraph web viewer: an orbit camera that streams views to /v1/stream and draws the frames
-// it gets back (protocol: docs/protocol.md). Plain JS, no build step.
+// it gets back (protocol: docs/protocol.md). Plain JS, no build step. The whole viewer state
+// lives in the page's query string (docs/protocol.md, "Viewer links"), so a link opens the same view.
 "use strict";
 
 (() => {
@@ -28,9 +29,22 @@
     last: null,
     dirty: false,
     drawing: Promise.resolve(),
+    // The state the page's URL asked for, applied once the asset's hello arrives.
+    fromUrl: null,
+    // The last view message sent (tests compare it with the URL's camera).
+    lastView: null,
+    // Keys the stream settings carry that a later version may add (URL: light, time, focus).
+    extra: {},
   };
   // Exposed for tests and for poking at from the console.
   window.lumigraphViewer = state;
+
+  // Problems with the URL's state: shown until dismissed (a click), never a blank page.
+  function showNotice(lines) {
+    const el = $("notice");
+    el.textContent = lines.length ? "This link's state was adjusted:\n" + lines.join("\n") : "";
+    el.style.display = lines.length ? "block" : "none";
+  }
 
   function showError(message) {
     errorEl.textContent = message;
@@ -73,7 +87,9 @@
     state.requestId = (state.requestId + 1) >>> 0;
     state.sentAt.set(state.requestId, performance.now());
     if (state.sentAt.size > 256) state.sentAt.delete(state.sentAt.keys().next().value);
-    send({ type: "view", id: state.requestId, view: currentView(), still: !!still });
+    state.lastView = currentView();
+    send({ type: "view", id: state.requestId, view: state.lastView, still: !!still });
+    scheduleUrlUpdate();
   }
 
   function numberOrNull(el) {
@@ -81,9 +97,13 @@
     return Number.isFinite(v) ? v : null;
   }
 
-  function sendSettings() {
+  function backgroundRgba() {
     const bg = $("background").value;
     const rgb = [1, 3, 5].map((i) => parseInt(bg.slice(i, i + 2), 16));
+    return [rgb[0], rgb[1], rgb[2], 255];
+  }
+
+  function sendSettings() {
     send({
       type: "settings",
       lod: parseInt($("lod").value, 10) || null,
@@ -95,8 +115,183 @@
       interactive: $("interactive").checked,
       target_fps: numberOrNull($("target_fps")) || 20,
       rest_ms: Math.round(numberOrNull($("rest_ms")) ?? 250),
-      background: [rgb[0], rgb[1], rgb[2], 255],
+      background: backgroundRgba(),
     });
+    scheduleUrlUpdate();
+  }
+
+  // --- the state in the URL ------------------------------------------------------------------
+  // Precision (docs/protocol.md, "Viewer links"): angles to 0.001°, distance to 6 significant
+  // digits, the target to 1e-6 of the distance; at 4096 px and 40° that moves a point by at most
+  // about 0.05 px.
+  const DEG = Math.PI / 180;
+  const fmt = (v, decimals) => String(Number(v.toFixed(decimals)));
+  const sig = (v, digits) => String(Number(v.toPrecision(digits)));
+  const decimalsFor = (step) => Math.max(0, Math.min(12, Math.ceil(-Math.log10(step))));
+  const CONTROL_DEFAULTS = {
+    method: "default", still_codec: "jpeg", interactive: true, target_fps: 20, rest_ms: 250,
+    background: [32, 32, 32, 255],
+  };
+
+  function cameraParams() {
+    let az = (state.azimuth / DEG) % 360;
+    if (az > 180) az -= 360; else if (az <= -180) az += 360;
+    const td = decimalsFor(Math.abs(state.distance) * 1e-6);
+    return [
+      ["az", fmt(az, 3)],
+      ["el", fmt(state.elevation / DEG, 3)],
+      ["dist", sig(state.distance, 6)],
+      ["target", state.target.map((v) => fmt(v, td)).join(",")],
+      ["yfov_deg", fmt(state.yfovDeg, 3)],
+    ];
+  }
+
+  // Quality keys the render link takes too; empty controls are left out.
+  function qualityParams() {
+    const out = [];
+    const lod = $("lod").value;
+    if (lod && state.asset && Number(lod) !== state.asset.camera_count) out.push(["lod", lod]);
+    if ($("method").value !== CONTROL_DEFAULTS.method) out.push(["method", $("method").value]);
+    for (const id of ["step", "tolerance", "auto_lod"]) {
+      const v = numberOrNull($(id));
+      if (v !== null) out.push([id, String(v)]);
+    }
+    return out;
+  }
+
+  function viewerQuery() {
+    const p = [["asset", state.asset ? state.asset.id : ""], ...cameraParams(), ...qualityParams()];
+    if ($("still_codec").value !== CONTROL_DEFAULTS.still_codec) p.push(["still_codec", $("still_codec").value]);
+    if (!$("interactive").checked) p.push(["interactive", "0"]);
+    const fps = numberOrNull($("target_fps"));
+    if (fps !== null && fps !== CONTROL_DEFAULTS.target_fps) p.push(["target_fps", String(fps)]);
+    const rest = numberOrNull($("rest_ms"));
+    if (rest !== null && rest !== CONTROL_DEFAULTS.rest_ms) p.push(["rest_ms", String(rest)]);
+    const bg = backgroundRgba();
+    if (bg.join() !== CONTROL_DEFAULTS.background.join()) p.push(["background", bg.join(",")]);
+    for (const [k, v] of Object.entries(state.extra)) p.push([k, v]);
+    return p;
+  }
+
+  // Keeps the reserved characters readable (`,` and `:` are safe in a query value).
+  const encode = (v) => encodeURIComponent(v).replace(/%2C/gi, ",").replace(/%3A/gi, ":");
+  const toQuery = (pairs) => pairs.map(([k, v]) => `${k}=${encode(v)}`).join("&");
+
+  /** The link to this view: the viewer page with the whole state. */
+  function link() {
+    return `${location.origin}${location.pathname}?${toQuery(viewerQuery())}`;
+  }
+
+  /** The image of this view: `GET /v1/assets/{id}/render` with the same camera and quality. */
+  function imageLink() {
+    const [w, h] = viewSize();
+    const p = [...cameraParams(), ["width", String(w)], ["height", String(h)],
+      ...qualityParams(), ["background", backgroundRgba().join(",")], ["format", "png"]];
+    const id = state.asset ? state.asset.id : "";
+    return `${location.origin}/v1/assets/${encodeURIComponent(id)}/render?${toQuery(p)}`;
+  }
+  state.link = link;
+  state.imageLink = imageLink;
+
+  // The URL follows the view at most every 250 ms (replaceState: no history entry per move).
+  let urlTimer = null;
+  function scheduleUrlUpdate() {
+    if (urlTimer !== null || !state.asset) return;
+    urlTimer = setTimeout(() => {
+      urlTimer = null;
+      history.replaceState(null, "", `${location.pathname}?${toQuery(viewerQuery())}`);
+    }, 250);
+  }
+
+  // The URL's state, checked key by key: a bad value is reported and its default used.
+  const URL_KEYS = ["asset", "az", "el", "dist", "target", "yfov_deg", "lod", "method", "step",
+    "tolerance", "auto_lod", "still_codec", "interactive", "target_fps", "rest_ms", "background",
+    "layers", "state", "light", "time", "focus"];
+  // Keys the issue reserves for later renderer features: kept in the link, not yet sent.
+  const LATER_KEYS = ["light", "time", "focus"];
+
+  function readUrl() {
+    const params = new URLSearchParams(location.search);
+    const out = { problems: [], camera: {}, controls: {}, settings: {}, extra: {} };
+    const bad = (k, v, why) => out.problems.push(`${k}=${v}: ${why}; using the default`);
+    const num = (k, v, lo, hi) => {
+      const x = v.trim() === "" ? NaN : Number(v);
+      if (!Number.isFinite(x)) { bad(k, v, "not a number"); return null; }
+      if (x < lo || x > hi) { bad(k, v, `outside [${lo}, ${hi}]`); return null; }
+      return x;
+    };
+    const seen = new Set();
+    for (const [k, v] of params) {
+      if (seen.has(k)) { out.problems.push(`${k} is given more than once; using the first`); continue; }
+      seen.add(k);
+      if (!URL_KEYS.includes(k)) { out.problems.push(`unknown key ${k}; ignored`); continue; }
+      switch (k) {
+        case "asset": out.asset = v; break;
+        case "az": { const x = num(k, v, -1e6, 1e6); if (x !== null) out.camera.azimuth = x * DEG; break; }
+        case "el": { const x = num(k, v, -88.8, 88.8); if (x !== null) out.camera.elevation = x * DEG; break; }
+        case "dist": { const x = num(k, v, 1e-6, 1e12); if (x !== null) out.camera.distance = x; break; }
+        case "yfov_deg": { const x = num(k, v, 0.01, 179); if (x !== null) out.camera.yfovDeg = x; break; }
+        case "target": {
+          const t = v.split(",").map((c) => (c.trim() === "" ? NaN : Number(c)));
+          if (t.length !== 3 || !t.every(Number.isFinite)) bad(k, v, "not three numbers x,y,z");
+          else out.camera.target = t;
+          break;
+        }
+        case "lod": {
+          const x = num(k, v, 1, 642);
+          if (x !== null && [12, 42, 162, 642].includes(x)) out.controls.lod = String(x);
+          else if (x !== null) bad(k, v, "not a camera count (12, 42, 162, 642)");
+          break;
+        }
+        case "method":
+          if (["default", "fixed"].includes(v)) out.controls.method = v; else bad(k, v, "not default or fixed");
+          break;
+        case "step": { const x = num(k, v, 1 / 4096, 1); if (x !== null) out.controls.step = String(x); break; }
+        case "tolerance": { const x = num(k, v, 1e-9, 1); if (x !== null) out.controls.tolerance = String(x); break; }
+        case "auto_lod": { const x = num(k, v, 0.05, 100); if (x !== null) out.controls.auto_lod = String(x); break; }
+        case "still_codec":
+          if (["jpeg", "png", "webp"].includes(v)) out.controls.still_codec = v; else bad(k, v, "not jpeg, png or webp");
+          break;
+        case "interactive":
+          if (v === "0" || v === "1") out.controls.interactive = v === "1"; else bad(k, v, "not 0 or 1");
+          break;
+        case "target_fps": { const x = num(k, v, 1, 120); if (x !== null) out.controls.target_fps = String(x); break; }
+        case "rest_ms": { const x = num(k, v, 0, 10000); if (x !== null) out.controls.rest_ms = String(x); break; }
+        case "background": {
+          const c = v.split(",").map((x) => (/^\d{1,3}$/.test(x) ? Number(x) : NaN));
+          if (c.length !== 4 || !c.every((x) => x <= 255)) bad(k, v, "not r,g,b,a in 0..255");
+          else out.controls.background = "#" + c.slice(0, 3).map((x) => x.toString(16).padStart(2, "0")).join("");
+          break;
+        }
+        case "layers": {
+          // name:opacity,name:opacity; the server checks names and opacities against the asset.
+          const layers = {};
+          let ok = v !== "";
+          for (const item of v.split(",")) {
+            const i = item.lastIndexOf(":");
+            const o = i > 0 ? Number(item.slice(i + 1)) : NaN;
+            if (!Number.isFinite(o)) { ok = false; break; }
+            layers[item.slice(0, i)] = o;
+          }
+          if (ok) { out.settings.layers = layers; out.extra.layers = v; } else bad(k, v, "not name:opacity,...");
+          break;
+        }
+        case "state": out.settings.state = v; out.extra.state = v; break;
+        default:
+          if (LATER_KEYS.includes(k)) {
+            out.extra[k] = v;
+            out.problems.push(`${k}=${v}: not supported by this server yet; kept in the link, not applied`);
+          }
+      }
+    }
+    return out;
+  }
+
+  function applyControls(controls) {
+    for (const [id, value] of Object.entries(controls)) {
+      if (id === "lod") continue;
+      if (id === "interactive") $(id).checked = value; else $(id).value = value;
+    }
   }
 
   function parseHeader(buf) {
@@ -197,7 +392,20 @@
         state.maxPx = msg.max_px;
         fillLod(msg.asset.camera_count);
         if (!same) resetCamera();
+        const fromUrl = state.fromUrl;
+        state.fromUrl = null;
+        if (fromUrl) {
+          Object.assign(state, fromUrl.camera);
+          if (fromUrl.controls.lod !== undefined) {
+            if (Number(fromUrl.controls.lod) <= msg.asset.camera_count) $("lod").value = fromUrl.controls.lod;
+            else fromUrl.problems.push(`lod=${fromUrl.controls.lod}: the asset has ${msg.asset.camera_count} cameras; using all`);
+          }
+          showNotice(fromUrl.problems);
+        }
         sendSettings();
+        // Layers and state go in a settings message of their own: one the asset refuses (an
+        // error shown below) leaves the other settings applied.
+        if (fromUrl && Object.keys(fromUrl.settings).length) send({ type: "settings", ...fromUrl.settings });
         sendView(true);
       } else if (msg.type === "error") {
         showError(`${msg.kind}: ${msg.message}`);
@@ -228,7 +436,22 @@
       sel.appendChild(o);
     }
     if (!assets.length) { statsEl.textContent = "no assets yet (the demo may still be baking)…"; setTimeout(boot, 2000); return; }
-    connect(assets[0].id);
+    const fromUrl = readUrl();
+    let id = assets[0].id;
+    if (fromUrl.asset !== undefined) {
+      if (assets.some((a) => a.id === fromUrl.asset)) id = fromUrl.asset;
+      else {
+        fromUrl.problems.unshift(`asset=${fromUrl.asset}: no such asset; showing ${id} instead`);
+        // A camera placed for another asset means nothing here: start from this one's default.
+        fromUrl.camera = {};
+      }
+    }
+    sel.value = id;
+    applyControls(fromUrl.controls);
+    state.extra = fromUrl.extra;
+    state.fromUrl = fromUrl;
+    showNotice(fromUrl.problems);
+    connect(id);
   }
 
   function boot() { loadAssets().catch((e) => { showError(String(e)); setTimeout(boot, 2000); }); }
@@ -273,7 +496,28 @@
   for (const id of ["lod", "method", "step", "tolerance", "auto_lod", "still_codec", "interactive", "target_fps", "rest_ms", "background"]) {
     $(id).addEventListener("change", () => { sendSettings(); requestView(false); });
   }
-  $("asset").addEventListener("change", (e) => connect(e.target.value));
+  $("asset").addEventListener("change", (e) => { state.extra = {}; connect(e.target.value); });
+  $("notice").addEventListener("click", () => showNotice([]));
+
+  // Copy buttons: the clipboard where the page may use it, else the text is selected in a
+  // prompt-free field for the user to copy.
+  async function copy(text, button) {
+    state.copied = text;
+    const label = button.textContent;
+    try {
+      await navigator.clipboard.writeText(text);
+      button.textContent = "Copied";
+    } catch {
+      const field = $("copied");
+      field.style.display = "block";
+      field.value = text;
+      field.select();
+      button.textContent = "Select and copy below";
+    }
+    setTimeout(() => { button.textContent = label; }, 1500);
+  }
+  $("copy_link").addEventListener("click", (e) => copy(link(), e.currentTarget));
+  $("copy_image_link").addEventListener("click", (e) => copy(imageLink(), e.currentTarget));
 
   function sub(a, b) { return [a[0] - b[0], a[1] - b[1], a[2] - b[2]]; }
   function cross(a, b) { return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]; }
