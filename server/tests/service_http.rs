@@ -578,8 +578,8 @@ async fn render_links_answer_the_post_render_bit_for_bit_and_revalidate() {
 
 #[tokio::test(flavor = "multi_thread")]
 async fn bad_render_links_get_json_errors_naming_the_parameter() {
-    let (_dir, state) = setup(None, |_| {}).await;
     const VIEW: &str = "eye=0.3,0.5,3&target=0,0,0&yfov_deg=40&width=16&height=16";
+    let (_dir, state) = setup(None, |_| {}).await;
     let cases: Vec<(String, StatusCode, &str)> = vec![
         (
             format!("{VIEW}&zoom=2"),

@@ -606,71 +606,78 @@ fn if_none_match(headers: &HeaderMap, tag: &str) -> bool {
         .any(|candidate| candidate == "*" || candidate.trim_start_matches("W/") == tag)
 }
 
-/// The parameters of `GET /v1/assets/{id}/render` (for the OpenAPI document; the handler reads
-/// them as pairs, so that unknown and repeated ones are refused by name).
-#[derive(utoipa::IntoParams)]
-#[into_params(parameter_in = Query)]
-#[allow(dead_code)]
-pub struct RenderLinkQuery {
-    /// Eye position `x,y,z` (world units); or give `az`, `el`, `dist` instead.
-    #[param(pattern = "^[^,]+,[^,]+,[^,]+$")]
-    pub eye: Option<String>,
-    /// Orbit form: azimuth in degrees about +y, from +z towards +x (with `el`, `dist`).
-    pub az: Option<f64>,
-    /// Orbit form: elevation in degrees above the x-z plane.
-    pub el: Option<f64>,
-    /// Orbit form: distance from `target`, world units, above 0.
-    #[param(exclusive_minimum = 0.0)]
-    pub dist: Option<f64>,
-    /// Point looked at, `x,y,z`.
-    #[param(pattern = "^[^,]+,[^,]+,[^,]+$")]
-    pub target: String,
-    /// Up direction `x,y,z` (default `0,1,0`).
-    #[param(pattern = "^[^,]+,[^,]+,[^,]+$")]
-    pub up: Option<String>,
-    /// Vertical field of view in degrees, in (0, 180).
-    #[param(exclusive_minimum = 0.0, exclusive_maximum = 180.0)]
-    pub yfov_deg: f64,
-    /// Width in pixels, 1..=max_px.
-    #[param(minimum = 1)]
-    pub width: u32,
-    /// Height in pixels, 1..=max_px.
-    #[param(minimum = 1)]
-    pub height: u32,
-    /// RGBA background `r,g,b,a` (0..=255 each) where nothing is hit; default `0,0,0,0`.
-    #[param(pattern = "^\\d{1,3},\\d{1,3},\\d{1,3},\\d{1,3}$")]
-    pub background: Option<String>,
-    /// `png` (default), `jpeg` or `webp`.
-    #[param(pattern = "^(png|jpeg|webp)$")]
-    pub format: Option<String>,
-    /// JPEG quality 1..=100, default 90.
-    #[param(minimum = 1, maximum = 100)]
-    pub quality: Option<u8>,
-    /// Cameras (12, 42, 162, 642 or a level 0-3), as in the render body.
-    pub lod: Option<u32>,
-    /// March step, as in the render body.
-    pub step: Option<f32>,
-    /// Depth agreement tolerance, as in the render body.
-    pub tolerance: Option<f32>,
-    /// `default` or `fixed`.
-    #[param(pattern = "^(default|fixed)$")]
-    pub method: Option<String>,
-    /// Coarse-to-fine factor, as in the render body.
-    pub guide: Option<u32>,
-    /// Goal: masked PSNR (dB), as in the render body.
-    pub target_psnr: Option<f64>,
-    /// Goal: time budget (ms), as in the render body.
-    pub budget_ms: Option<f64>,
-    /// Automatic LOD: silhouette error bound in pixels, as in the render body.
-    pub auto_lod: Option<f64>,
-    /// With `auto_lod`: PSNR floor (dB).
-    pub lod_min_psnr: Option<f64>,
-    /// With `auto_lod`: largest PSNR drop (dB) below the most accurate level.
-    pub lod_max_psnr_drop: Option<f64>,
-    /// With `auto_lod`: cross-fade band.
-    pub lod_blend: Option<f64>,
-    /// Still refinement samples, 1..=256.
-    pub refine: Option<u32>,
+pub use link_params::RenderLinkQuery;
+
+// utoipa's derive builds the 24 parameters' descriptions in one array on the stack, once per
+// OpenAPI document: above clippy's 16 KiB bound, harmless for a call made at start-up.
+#[allow(clippy::large_stack_arrays)]
+mod link_params {
+    /// The parameters of `GET /v1/assets/{id}/render` (for the OpenAPI document; the handler reads
+    /// them as pairs, so that unknown and repeated ones are refused by name).
+    #[derive(utoipa::IntoParams)]
+    #[into_params(parameter_in = Query)]
+    #[allow(dead_code)]
+    pub struct RenderLinkQuery {
+        /// Eye position `x,y,z` (world units); or give `az`, `el`, `dist` instead.
+        #[param(pattern = "^[^,]+,[^,]+,[^,]+$")]
+        pub eye: Option<String>,
+        /// Orbit form: azimuth in degrees about +y, from +z towards +x (with `el`, `dist`).
+        pub az: Option<f64>,
+        /// Orbit form: elevation in degrees above the x-z plane.
+        pub el: Option<f64>,
+        /// Orbit form: distance from `target`, world units, above 0.
+        #[param(exclusive_minimum = 0.0)]
+        pub dist: Option<f64>,
+        /// Point looked at, `x,y,z`.
+        #[param(pattern = "^[^,]+,[^,]+,[^,]+$")]
+        pub target: String,
+        /// Up direction `x,y,z` (default `0,1,0`).
+        #[param(pattern = "^[^,]+,[^,]+,[^,]+$")]
+        pub up: Option<String>,
+        /// Vertical field of view in degrees, in (0, 180).
+        #[param(exclusive_minimum = 0.0, exclusive_maximum = 180.0)]
+        pub yfov_deg: f64,
+        /// Width in pixels, 1..=max_px.
+        #[param(minimum = 1)]
+        pub width: u32,
+        /// Height in pixels, 1..=max_px.
+        #[param(minimum = 1)]
+        pub height: u32,
+        /// RGBA background `r,g,b,a` (0..=255 each) where nothing is hit; default `0,0,0,0`.
+        #[param(pattern = "^\\d{1,3},\\d{1,3},\\d{1,3},\\d{1,3}$")]
+        pub background: Option<String>,
+        /// `png` (default), `jpeg` or `webp`.
+        #[param(pattern = "^(png|jpeg|webp)$")]
+        pub format: Option<String>,
+        /// JPEG quality 1..=100, default 90.
+        #[param(minimum = 1, maximum = 100)]
+        pub quality: Option<u8>,
+        /// Cameras (12, 42, 162, 642 or a level 0-3), as in the render body.
+        pub lod: Option<u32>,
+        /// March step, as in the render body.
+        pub step: Option<f32>,
+        /// Depth agreement tolerance, as in the render body.
+        pub tolerance: Option<f32>,
+        /// `default` or `fixed`.
+        #[param(pattern = "^(default|fixed)$")]
+        pub method: Option<String>,
+        /// Coarse-to-fine factor, as in the render body.
+        pub guide: Option<u32>,
+        /// Goal: masked PSNR (dB), as in the render body.
+        pub target_psnr: Option<f64>,
+        /// Goal: time budget (ms), as in the render body.
+        pub budget_ms: Option<f64>,
+        /// Automatic LOD: silhouette error bound in pixels, as in the render body.
+        pub auto_lod: Option<f64>,
+        /// With `auto_lod`: PSNR floor (dB).
+        pub lod_min_psnr: Option<f64>,
+        /// With `auto_lod`: largest PSNR drop (dB) below the most accurate level.
+        pub lod_max_psnr_drop: Option<f64>,
+        /// With `auto_lod`: cross-fade band.
+        pub lod_blend: Option<f64>,
+        /// Still refinement samples, 1..=256.
+        pub refine: Option<u32>,
+    }
 }
 
 /// Renders a checked request with its plan and answers the image with the render headers: the

@@ -137,7 +137,7 @@ pub fn body_from_query(pairs: &[(String, String)]) -> Result<Map<String, Value>,
     };
 
     let target = vec3("target", required("target")?)?;
-    let orbit = ["az", "el", "dist"].map(|k| text(k));
+    let orbit = ["az", "el", "dist"].map(&text);
     let eye = match (text("eye"), orbit) {
         (Some(_), [None, None, None]) => vec3("eye", required("eye")?)?,
         (Some(_), _) => {
