@@ -244,6 +244,8 @@ def test_settings_change_rerenders_with_new_codec_and_lod(server: Server) -> Non
     ({"type": "settings", "layers": {"nope": 1}}, None, "invalid"),
     ({"type": "settings", "bogus": 1}, None, "invalid"),
     ({"type": "ack", "frame": -1}, None, "invalid"),
+    ({"type": "ack", "frame": 1, "received_ms": -5}, None, "invalid"),
+    ({"type": "ack", "frame": 1, "received_ms": "now"}, None, "invalid"),
     (b"\x00\x01binary", None, "bad_message"),
 ])
 def test_bad_messages_answer_errors_and_keep_the_socket(

@@ -1665,9 +1665,9 @@ async fn websocket_goals_choose_full_quality_settings() {
 }
 
 /// Streams `frames` moving views to a new session, acking frame `i` with the receive time
-/// `i × spacing_ms` (frames arriving that far apart: 1 s is a link of a few kB/s for these
-/// frames, 1 ms a fast one), and returns each interactive frame's header and size, then the
-/// resting frame's header after a `still` view.
+/// `i × spacing_ms` (frames arriving that far apart: 5 s is a link of a few hundred bytes a
+/// second for these frames, 1 ms a fast one), and returns each interactive frame's header and
+/// size, then the resting frame's header after a `still` view.
 async fn stream_with_reported_link(
     addr: std::net::SocketAddr,
     settings: serde_json::Value,
@@ -1715,10 +1715,11 @@ async fn a_client_reporting_a_slow_link_gets_smaller_frames() {
     let (addr, stop_tx, server) = serve_on_loopback(state).await;
     // No resting frame while the views move: each view is answered by one interactive frame.
     let settings = serde_json::json!({"type": "settings", "rest_ms": 10000, "still_codec": "png"});
-    // Frames 1 ms apart (faster than the server sends them: no link limit seen) and 1 s apart:
-    // a few kB a second, below what even the smallest frame needs at 20 fps.
+    // Frames 1 ms apart (faster than the server sends them: no link limit seen) and 5 s apart
+    // (far longer than a render here takes, so the sample is the link's): a few hundred bytes a
+    // second, below what even the smallest frame needs at 20 fps.
     let (fast, fast_still) = stream_with_reported_link(addr, settings.clone(), 6, 1.0).await;
-    let (slow, slow_still) = stream_with_reported_link(addr, settings, 6, 1000.0).await;
+    let (slow, slow_still) = stream_with_reported_link(addr, settings, 6, 5000.0).await;
     // The first two frames precede the first bandwidth sample (it needs two receive times).
     for ((f, f_bytes), (s, s_bytes)) in fast.iter().zip(&slow).skip(3) {
         assert_eq!(
@@ -1733,7 +1734,7 @@ async fn a_client_reporting_a_slow_link_gets_smaller_frames() {
         );
         assert!(s_bytes < f_bytes, "slow {s_bytes} B >= fast {f_bytes} B");
     }
-    // The resting frame: PNG as asked on the fast link; 256² PNG in a second at a few kB/s
+    // The resting frame: PNG as asked on the fast link; 256² PNG in a second at a few hundred B/s
     // cannot arrive in time, so JPEG (still_quality 90), flagged.
     assert_eq!((fast_still.codec, fast_still.flags), (0, 0));
     assert_eq!(
@@ -1747,14 +1748,14 @@ async fn a_client_reporting_a_slow_link_gets_smaller_frames() {
 
     // `adaptive: false` keeps the settings exactly, and a fixed scale stays under adaptation.
     let fixed = serde_json::json!({"type": "settings", "rest_ms": 10000, "adaptive": false});
-    let (off, _) = stream_with_reported_link(addr, fixed, 5, 1000.0).await;
+    let (off, _) = stream_with_reported_link(addr, fixed, 5, 5000.0).await;
     assert!(
         off.iter()
             .all(|(h, _)| (h.encoded_quality, h.flags) == (50, 0))
     );
     let scaled =
         serde_json::json!({"type": "settings", "rest_ms": 10000, "interactive_scale": 0.5});
-    let (kept, _) = stream_with_reported_link(addr, scaled, 5, 1000.0).await;
+    let (kept, _) = stream_with_reported_link(addr, scaled, 5, 5000.0).await;
     let last = &kept[kept.len() - 1].0;
     assert_eq!((last.width, last.encoded_quality, last.flags), (128, 10, 1));
     let _ = stop_tx.send(());
