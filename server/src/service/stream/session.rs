@@ -384,7 +384,8 @@ impl Sender<'_> {
         };
         let mut flags = 0u8;
         // The link a lossless resting frame must arrive over in time, else it is sent as JPEG.
-        let mut lossless_link = None;
+        let lossless_link = link_bytes_per_s
+            .filter(|_| quality == Quality::Full && encoding.format != ColorFormat::Jpeg);
         if quality == Quality::Interactive {
             let best_scale = settings.interactive_scale.map_or_else(
                 || self.adaptive_scale(&view, settings.target_fps),
@@ -417,12 +418,6 @@ impl Sender<'_> {
             let scale = choice.scale;
             view.width = ((f64::from(view.width) * scale).round() as u32).max(1);
             view.height = ((f64::from(view.height) * scale).round() as u32).max(1);
-        }
-        if quality == Quality::Full
-            && encoding.format != ColorFormat::Jpeg
-            && let Some(bytes_per_s) = link_bytes_per_s
-        {
-            lossless_link = Some(bytes_per_s);
         }
         let Some(asset) = self.asset.upgrade() else {
             // Gone: deleted, or uploaded again to the new device after a device loss.
