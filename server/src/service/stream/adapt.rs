@@ -377,16 +377,16 @@ mod tests {
     /// About what a q50 JPEG of a rendered object on black takes (bytes per pixel).
     const BPP_Q50: f64 = 0.12;
 
-    fn link(mbit_per_s: f64) -> Option<Link> {
-        Some(Link {
+    fn link(mbit_per_s: f64) -> Link {
+        Link {
             bytes_per_s: mbit_per_s * 1e6 / 8.0,
             bytes_per_px_q50: BPP_Q50,
-        })
+        }
     }
 
     #[test]
     fn a_fast_link_or_none_measured_keeps_full_quality() {
-        for measured in [None, link(1000.0)] {
+        for measured in [None, Some(link(1000.0))] {
             let choice = choose_interactive(FULL_PX, 0.75, false, 50, 20.0, measured);
             assert_eq!(
                 choice,
@@ -407,33 +407,33 @@ mod tests {
         };
         let mut previous = f64::INFINITY;
         for mbit in [50.0, 10.0, 5.0, 2.0, 1.0] {
-            let choice = choose_interactive(FULL_PX, 1.0, false, 50, 20.0, link(mbit));
+            let choice = choose_interactive(FULL_PX, 1.0, false, 50, 20.0, Some(link(mbit)));
             let bytes = predicted(choice);
             assert!(bytes <= budget(mbit), "{mbit} Mbit/s: {choice:?} {bytes}");
             assert!(bytes <= previous, "{mbit} Mbit/s: not smaller");
             previous = bytes;
         }
-        let slow = choose_interactive(FULL_PX, 1.0, false, 50, 20.0, link(2.0));
+        let slow = choose_interactive(FULL_PX, 1.0, false, 50, 20.0, Some(link(2.0)));
         assert!(
             slow.link_limited && slow.scale < 1.0 && slow.quality <= 30,
             "{slow:?}"
         );
         // Quality is lowered to 30 before the scale.
-        let mid = choose_interactive(FULL_PX, 1.0, false, 50, 20.0, link(16.0));
+        let mid = choose_interactive(FULL_PX, 1.0, false, 50, 20.0, Some(link(16.0)));
         assert_eq!((mid.scale, mid.quality), (1.0, 30), "{mid:?}");
     }
 
     #[test]
     fn a_fixed_scale_stays_and_an_impossible_link_gets_the_smallest_frame() {
-        let fixed = choose_interactive(FULL_PX, 0.5, true, 80, 20.0, link(0.5));
+        let fixed = choose_interactive(FULL_PX, 0.5, true, 80, 20.0, Some(link(0.5)));
         assert_eq!(fixed.scale, 0.5);
         assert!(fixed.quality < 80 && fixed.link_limited);
-        let floor = choose_interactive(FULL_PX, 1.0, false, 50, 120.0, link(0.01));
+        let floor = choose_interactive(FULL_PX, 1.0, false, 50, 120.0, Some(link(0.01)));
         assert_eq!((floor.scale, floor.quality), (0.25, 10));
         // A ceiling below the ladder's steps is never raised.
-        let low = choose_interactive(FULL_PX, 1.0, false, 12, 20.0, link(0.01));
+        let low = choose_interactive(FULL_PX, 1.0, false, 12, 20.0, Some(link(0.01)));
         assert_eq!((low.scale, low.quality), (0.25, 10));
-        let low_fast = choose_interactive(FULL_PX, 1.0, false, 12, 20.0, link(1000.0));
+        let low_fast = choose_interactive(FULL_PX, 1.0, false, 12, 20.0, Some(link(1000.0)));
         assert_eq!((low_fast.scale, low_fast.quality), (1.0, 12));
     }
 
