@@ -197,6 +197,7 @@ def json_seeds() -> dict[str, list[object]]:
             {"type": "view", "id": 1, "view": VIEW},
             {"type": "view", "id": 2, "view": VIEW, "still": True},
             {"type": "ack", "frame": 3},
+            {"type": "ack", "frame": 4, "received_ms": 1234.5},
             {"type": "settings", "still_codec": "png", "interactive": True, "interactive_scale": 0.5, "target_fps": 30},
             {"type": "settings", "interactive_codec": "webp", "interactive_quality": 60, "lod": 42, "rest_ms": 100},
             {"type": "settings", "layers": {"base": 0.5}, "background": [1, 2, 3, 4], "max_in_flight": 2},

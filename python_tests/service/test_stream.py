@@ -25,7 +25,7 @@ from websockets.asyncio.client import ClientConnection, connect
 from conftest import DEMO_CAMERAS, MAX_PX, Server, metric, rss_kib, running_server
 
 T = TypeVar("T")
-HEADER = struct.Struct("<4sHBBIIIIffIHH")
+HEADER = struct.Struct("<4sHBBIIIIffIHBB")
 CODECS = {0: "PNG", 1: "JPEG", 2: "WEBP"}
 
 
@@ -52,7 +52,8 @@ class Frame:
     encode_ms: float
     dropped: int
     cameras: int
-    reserved: int
+    jpeg_quality: int
+    flags: int
     image: bytes
     size: int
 
@@ -67,11 +68,11 @@ class Frame:
 def parse_frame(data: bytes) -> Frame:
     assert len(data) > HEADER.size
     (magic, header_len, codec, quality, frame_id, request_id, width, height, render_ms, encode_ms,
-     dropped, cameras, reserved) = HEADER.unpack_from(data)
+     dropped, cameras, jpeg_quality, flags) = HEADER.unpack_from(data)
     assert magic == b"LGF1", magic
     assert header_len == 40
     return Frame(header_len, codec, quality, frame_id, request_id, width, height, render_ms,
-                 encode_ms, dropped, cameras, reserved, data[header_len:], len(data))
+                 encode_ms, dropped, cameras, jpeg_quality, flags, data[header_len:], len(data))
 
 
 class Session:
@@ -157,6 +158,7 @@ def test_hello(server: Server) -> None:
         settings = hello["settings"]
         assert settings["still_codec"] == "jpeg" and settings["interactive_codec"] == "jpeg"
         assert settings["max_in_flight"] == 2 and settings["rest_ms"] == 250
+        assert settings["adaptive"] is True
         await s.ws.close()
 
     run(body)
@@ -185,7 +187,10 @@ def test_session_changes_views_and_gets_matching_frames(server: Server) -> None:
         with pytest.raises(TimeoutError):
             await s.next(timeout=0.6)
         for f in s.frames:
-            assert f.header_len == 40 and f.reserved == 0 and f.cameras == DEMO_CAMERAS
+            assert f.header_len == 40 and f.cameras == DEMO_CAMERAS
+            # JPEG interactive frames at the default q50, lossless PNG stills; the link (loopback,
+            # acks without receive times) never adapted anything.
+            assert f.jpeg_quality == (50 if f.codec == 1 else 0) and f.flags == 0
             assert f.render_ms > 0 and f.encode_ms >= 0 and f.dropped == 0
             assert f.request_id in (11, 12, 13, 14)
         assert [f.frame_id for f in s.frames] == list(range(1, len(s.frames) + 1))
@@ -244,6 +249,8 @@ def test_settings_change_rerenders_with_new_codec_and_lod(server: Server) -> Non
     ({"type": "settings", "layers": {"nope": 1}}, None, "invalid"),
     ({"type": "settings", "bogus": 1}, None, "invalid"),
     ({"type": "ack", "frame": -1}, None, "invalid"),
+    ({"type": "ack", "frame": 1, "received_ms": -5}, None, "invalid"),
+    ({"type": "ack", "frame": 1, "received_ms": "now"}, None, "invalid"),
     (b"\x00\x01binary", None, "bad_message"),
 ])
 def test_bad_messages_answer_errors_and_keep_the_socket(

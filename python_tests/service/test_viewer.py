@@ -8,6 +8,7 @@ from __future__ import annotations
 import base64
 import hashlib
 import io
+import json
 import math
 import os
 from collections.abc import Iterator
@@ -69,6 +70,9 @@ def last(page: Page) -> dict[str, Any]:
 
 
 def test_viewer_loads_draws_and_follows_a_drag(server: Server, page: Page) -> None:
+    sent: list[str] = []
+    page.on("websocket", lambda ws: ws.on(
+        "framesent", lambda payload: sent.append(payload) if isinstance(payload, str) else None))
     page.goto(server.base_url + "/")
     assert page.title() == "lumigraph viewer"
     page.wait_for_function(f"{FRAMES} >= 1", timeout=30_000)
@@ -116,6 +120,14 @@ def test_viewer_loads_draws_and_follows_a_drag(server: Server, page: Page) -> No
     assert f"frames    {frames_after}" in stats_after
     assert page.get_attribute("#stats", "data-quality") == "full"
     assert not page.errors, page.errors  # type: ignore[attr-defined]
+    # Every frame drawn was acked with its receive time (the server measures the link from
+    # them): one ack per frame, in order, times from the page's steady clock, never decreasing.
+    acks = [m for m in map(json.loads, sent) if m["type"] == "ack"]
+    assert [a["frame"] for a in acks] == list(range(1, len(acks) + 1)), acks
+    assert len(acks) >= frames_after
+    times = [a["received_ms"] for a in acks]
+    assert all(isinstance(t, (int, float)) and t >= 0 for t in times), times
+    assert times == sorted(times), times
 
 
 def test_viewer_wheel_zoom_and_settings(server: Server, page: Page) -> None:

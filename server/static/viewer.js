@@ -316,8 +316,6 @@
 
   async function onFrame(buf) {
     const h = parseHeader(buf);
-    // Ack at once: the server renders the next frame while this one is decoded and drawn.
-    send({ type: "ack", frame: h.frameId });
     const blob = new Blob([buf.slice(h.headerLen)], { type: CODECS[h.codec] || "image/png" });
     const bitmap = await createImageBitmap(blob);
     const [w, h2] = [canvas.clientWidth, canvas.clientHeight];
@@ -382,6 +380,11 @@
     statsEl.textContent = "connecting…";
     ws.onmessage = (ev) => {
       if (typeof ev.data !== "string") {
+        // Ack at once, before decoding and behind no earlier frame's drawing: the server renders
+        // the next frame meanwhile, and measures the link from these receive times.
+        if (ev.data.byteLength >= 12) {
+          send({ type: "ack", frame: new DataView(ev.data).getUint32(8, true), received_ms: performance.now() });
+        }
         state.drawing = state.drawing.then(() => onFrame(ev.data)).catch((e) => showError(String(e)));
         return;
       }

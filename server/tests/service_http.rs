@@ -1586,6 +1586,8 @@ struct FrameHeader {
     width: u32,
     height: u32,
     dropped: u32,
+    encoded_quality: u8,
+    flags: u8,
 }
 
 fn parse_frame(bytes: &[u8]) -> (FrameHeader, &[u8]) {
@@ -1601,6 +1603,8 @@ fn parse_frame(bytes: &[u8]) -> (FrameHeader, &[u8]) {
         width: u32_at(16),
         height: u32_at(20),
         dropped: u32_at(32),
+        encoded_quality: bytes[38],
+        flags: bytes[39],
     };
     (header, &bytes[header_len..])
 }
@@ -1981,6 +1985,104 @@ async fn websocket_goals_choose_full_quality_settings() {
         "{error}"
     );
     ws.close(None).await.expect("close");
+    let _ = stop_tx.send(());
+    server.await.expect("join").expect("server");
+}
+
+/// Streams `frames` moving views to a new session, acking frame `i` with the receive time
+/// `i × spacing_ms` (frames arriving that far apart: 5 s is a link of a few hundred bytes a
+/// second for these frames, 1 ms a fast one), and returns each interactive frame's header and
+/// size, then the resting frame's header after a `still` view.
+async fn stream_with_reported_link(
+    addr: std::net::SocketAddr,
+    settings: serde_json::Value,
+    frames: u32,
+    spacing_ms: f64,
+) -> (Vec<(FrameHeader, usize)>, FrameHeader) {
+    let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset=tiny"))
+        .await
+        .expect("connect");
+    assert_eq!(next_json(&mut ws).await["type"], "hello");
+    send_json(&mut ws, settings).await;
+    let mut interactive = Vec::new();
+    for id in 1..=frames {
+        let mut view = view_json(256, 256);
+        view["eye"][0] = (0.3 + 0.05 * f64::from(id)).into();
+        send_json(
+            &mut ws,
+            serde_json::json!({"type": "view", "id": id, "view": view}),
+        )
+        .await;
+        let (header, image) = next_frame(&mut ws).await;
+        assert_eq!((header.request_id, header.quality), (id, 0));
+        let received_ms = f64::from(id) * spacing_ms;
+        send_json(
+            &mut ws,
+            serde_json::json!({"type": "ack", "frame": header.frame_id, "received_ms": received_ms}),
+        )
+        .await;
+        interactive.push((header, image.len()));
+    }
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "view", "id": frames + 1, "view": view_json(256, 256), "still": true}),
+    )
+    .await;
+    let (still, _) = next_frame(&mut ws).await;
+    assert_eq!((still.request_id, still.quality), (frames + 1, 1));
+    ws.close(None).await.expect("close");
+    (interactive, still)
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_client_reporting_a_slow_link_gets_smaller_frames() {
+    let (_dir, state) = setup(None, |_| {}).await;
+    let (addr, stop_tx, server) = serve_on_loopback(state).await;
+    // No resting frame while the views move: each view is answered by one interactive frame.
+    let settings = serde_json::json!({"type": "settings", "rest_ms": 10000, "still_codec": "png"});
+    // Frames 1 ms apart (faster than the server sends them: no link limit seen) and 5 s apart
+    // (far longer than a render here takes, so the sample is the link's): a few hundred bytes a
+    // second, below what even the smallest frame needs at 20 fps.
+    let (fast, fast_still) = stream_with_reported_link(addr, settings.clone(), 6, 1.0).await;
+    let (slow, slow_still) = stream_with_reported_link(addr, settings, 6, 5000.0).await;
+    // The first two frames precede the first bandwidth sample (it needs two receive times).
+    for ((f, f_bytes), (s, s_bytes)) in fast.iter().zip(&slow).skip(3) {
+        assert_eq!(
+            (f.encoded_quality, f.flags),
+            (50, 0),
+            "fast link: q50, not adapted"
+        );
+        assert_eq!(
+            (s.encoded_quality, s.flags, s.width, s.height),
+            (10, 1, 64, 64),
+            "slow link: the smallest frame, flagged"
+        );
+        assert!(s_bytes < f_bytes, "slow {s_bytes} B >= fast {f_bytes} B");
+    }
+    // The resting frame: PNG as asked on the fast link; 256² PNG in a second at a few hundred B/s
+    // cannot arrive in time, so JPEG (still_quality 90), flagged.
+    assert_eq!((fast_still.codec, fast_still.flags), (0, 0));
+    assert_eq!(
+        (
+            slow_still.codec,
+            slow_still.encoded_quality,
+            slow_still.flags
+        ),
+        (1, 90, 2)
+    );
+
+    // `adaptive: false` keeps the settings exactly, and a fixed scale stays under adaptation.
+    let fixed = serde_json::json!({"type": "settings", "rest_ms": 10000, "adaptive": false});
+    let (off, _) = stream_with_reported_link(addr, fixed, 5, 5000.0).await;
+    assert!(
+        off.iter()
+            .all(|(h, _)| (h.encoded_quality, h.flags) == (50, 0))
+    );
+    let scaled =
+        serde_json::json!({"type": "settings", "rest_ms": 10000, "interactive_scale": 0.5});
+    let (kept, _) = stream_with_reported_link(addr, scaled, 5, 5000.0).await;
+    let last = &kept[kept.len() - 1].0;
+    assert_eq!((last.width, last.encoded_quality, last.flags), (128, 10, 1));
     let _ = stop_tx.send(());
     server.await.expect("join").expect("server");
 }

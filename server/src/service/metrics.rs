@@ -31,6 +31,9 @@ pub struct Metrics {
     memory_used: Gauge,
     memory_budget: Gauge,
     devices_lost: Counter,
+    adapted_frames: Family<Labels, Counter>,
+    link_bandwidth: Histogram,
+    link_round_trip: Histogram,
 }
 
 impl Default for Metrics {
@@ -59,6 +62,10 @@ impl Metrics {
         let memory_used = Gauge::default();
         let devices_lost = Counter::default();
         let memory_budget = Gauge::default();
+        let adapted_frames = Family::<Labels, Counter>::default();
+        // 10 kB/s .. 655 MB/s in factors of four: a phone on a bad cell to a LAN.
+        let link_bandwidth = Histogram::new(exponential_buckets(1e4, 4.0, 9));
+        let link_round_trip = latency_histogram();
         registry.register(
             "frames",
             "Frames rendered and sent, by source (http, stream) and quality (interactive, full)",
@@ -125,6 +132,21 @@ impl Metrics {
             "GPU devices lost and replaced by a new one (assets uploaded again)",
             devices_lost.clone(),
         );
+        registry.register(
+            "stream_adapted_frames",
+            "Stream frames changed for the client's measured link, by what: interactive (quality or scale lowered), still_fallback (lossless resting frame sent as JPEG)",
+            adapted_frames.clone(),
+        );
+        registry.register(
+            "stream_link_bandwidth_bytes_per_second",
+            "Stream sessions' estimated link bandwidth (from acks with receive times), observed per frame sent",
+            link_bandwidth.clone(),
+        );
+        registry.register(
+            "stream_link_round_trip_seconds",
+            "Stream sessions' smoothed time from sending a frame to its ack, observed per frame sent",
+            link_round_trip.clone(),
+        );
         Self {
             registry,
             frames,
@@ -141,7 +163,27 @@ impl Metrics {
             memory_used,
             memory_budget,
             devices_lost,
+            adapted_frames,
+            link_bandwidth,
+            link_round_trip,
         }
+    }
+
+    /// Observes a stream session's link estimate (each when known).
+    pub fn link(&self, bytes_per_s: Option<f64>, round_trip_ms: Option<f64>) {
+        if let Some(bytes_per_s) = bytes_per_s {
+            self.link_bandwidth.observe(bytes_per_s);
+        }
+        if let Some(round_trip_ms) = round_trip_ms {
+            self.link_round_trip.observe(round_trip_ms / 1e3);
+        }
+    }
+
+    /// Counts a stream frame adapted to its client's link.
+    pub fn adapted(&self, what: &'static str) {
+        self.adapted_frames
+            .get_or_create(&vec![("what", what.to_owned())])
+            .inc();
     }
 
     /// Counts one frame delivered to a client.

@@ -7,6 +7,7 @@
 //! rendered and a bounded channel of error messages, so a slow client costs dropped frames,
 //! never memory.
 
+mod adapt;
 mod protocol;
 mod session;
 mod settings;

@@ -6,6 +6,8 @@ use serde::{Deserialize, Serialize};
 use crate::service::assets::AssetSummary;
 use crate::service::codecs::ColorFormat;
 
+use super::adapt::MAX_RECEIVED_MS;
+
 /// Version of the stream protocol, sent in `hello`.
 pub const PROTOCOL_VERSION: u32 = 1;
 /// Bytes of the binary frame header.
@@ -25,6 +27,10 @@ pub(super) struct ViewMessage {
 #[serde(deny_unknown_fields)]
 pub(super) struct AckMessage {
     pub(super) frame: u32,
+    /// When the client received the frame whole, ms on any steady clock of the client's
+    /// (`performance.now()`): only differences between acks are used.
+    #[serde(default)]
+    pub(super) received_ms: Option<f64>,
 }
 
 /// A client text message, parsed and checked as far as it can be without a session.
@@ -89,9 +95,21 @@ pub(super) fn parse_client_message(text: &str, max_px: u32) -> Result<ClientMess
             request,
             patch: value,
         }),
-        Some("ack") => serde_json::from_value::<AckMessage>(value)
-            .map(ClientMessage::Ack)
-            .map_err(|e| invalid(request, format!("invalid ack message: {e}"))),
+        Some("ack") => {
+            let ack = serde_json::from_value::<AckMessage>(value)
+                .map_err(|e| invalid(request, format!("invalid ack message: {e}")))?;
+            if let Some(received) = ack.received_ms
+                && !(received.is_finite() && (0.0..=MAX_RECEIVED_MS).contains(&received))
+            {
+                return Err(invalid(
+                    request,
+                    format!(
+                        "invalid ack message: received_ms must be in [0, {MAX_RECEIVED_MS:e}], got {received}"
+                    ),
+                ));
+            }
+            Ok(ClientMessage::Ack(ack))
+        }
         Some(other) => Err(invalid(
             request,
             format!("unknown message type {other:?}: use view, settings or ack"),
@@ -161,9 +179,21 @@ pub struct FrameHeader {
     pub dropped: u32,
     /// Cameras used.
     pub cameras: u16,
+    /// JPEG quality of the image (1..=100), 0 for a lossless codec.
+    pub encoded_quality: u8,
+    /// What adaptation to the link changed in this frame ([`FrameHeader::LINK_LIMITED`],
+    /// [`FrameHeader::STILL_FALLBACK`]).
+    pub flags: u8,
 }
 
 impl FrameHeader {
+    /// Flag: the link made the server lower the interactive quality or scale below the
+    /// settings.
+    pub const LINK_LIMITED: u8 = 1;
+    /// Flag: a resting frame was sent as JPEG because the lossless `still_codec` would have
+    /// taken too long on the link.
+    pub const STILL_FALLBACK: u8 = 2;
+
     pub(super) fn write(&self, out: &mut Vec<u8>) {
         out.extend_from_slice(b"LGF1");
         out.extend_from_slice(&(FRAME_HEADER_LEN as u16).to_le_bytes());
@@ -182,13 +212,40 @@ impl FrameHeader {
         out.extend_from_slice(&self.encode_ms.to_le_bytes());
         out.extend_from_slice(&self.dropped.to_le_bytes());
         out.extend_from_slice(&self.cameras.to_le_bytes());
-        out.extend_from_slice(&0u16.to_le_bytes());
+        out.push(self.encoded_quality);
+        out.push(self.flags);
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn acks_with_and_without_receive_times() {
+        let received = |text: &str| match parse_client_message(text, 64) {
+            Ok(ClientMessage::Ack(ack)) => Ok((ack.frame, ack.received_ms)),
+            Ok(other) => panic!("not an ack: {other:?}"),
+            Err(refusal) => Err(refusal.message),
+        };
+        assert_eq!(received(r#"{"type":"ack","frame":3}"#), Ok((3, None)));
+        assert_eq!(
+            received(r#"{"type":"ack","frame":3,"received_ms":1234.5}"#),
+            Ok((3, Some(1234.5)))
+        );
+        for bad in ["-1", "1e13", "\"soon\"", "1e999", "[1]"] {
+            let text = format!(r#"{{"type":"ack","frame":3,"received_ms":{bad}}}"#);
+            let error = received(&text).expect_err(&text);
+            let out_of_range = ["-1", "1e13"].contains(&bad);
+            assert!(
+                (out_of_range && error.contains("received_ms must be in"))
+                    || (!out_of_range
+                        && (error.starts_with("invalid ack message")
+                            || error.starts_with("malformed JSON"))),
+                "{bad}: {error}"
+            );
+        }
+    }
 
     #[test]
     fn header_is_40_bytes() {
@@ -203,6 +260,8 @@ mod tests {
             encode_ms: 0.25,
             dropped: 3,
             cameras: 162,
+            encoded_quality: 35,
+            flags: FrameHeader::LINK_LIMITED,
         };
         let mut out = Vec::new();
         header.write(&mut out);
@@ -212,5 +271,6 @@ mod tests {
         assert_eq!(out[7], 1);
         assert_eq!(u32::from_le_bytes([out[8], out[9], out[10], out[11]]), 7);
         assert_eq!(u16::from_le_bytes([out[36], out[37]]), 162);
+        assert_eq!((out[38], out[39]), (35, 1));
     }
 }

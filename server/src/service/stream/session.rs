@@ -1,7 +1,7 @@
 //! One session's tasks: the receiver that parses client messages into the wanted frame, and the
 //! sender that renders, encodes and sends frames.
 
-use std::sync::{Arc, Weak};
+use std::sync::{Arc, Mutex, PoisonError, Weak};
 use std::time::{Duration, Instant};
 
 use axum::extract::ws::{CloseFrame, Message, WebSocket, close_code};
@@ -11,13 +11,14 @@ use lumigraph_core::frame::Frame;
 use lumigraph_core::view::View;
 use tokio::sync::{mpsc, watch};
 
+use super::adapt::{self, LinkEstimator};
 use super::protocol::{
     ClientMessage, FRAME_HEADER_LEN, FrameHeader, Hello, PROTOCOL_VERSION, Quality, error_text,
     parse_client_message,
 };
 use super::settings::{Effective, Settings, merge_settings, validate_settings};
 use crate::service::assets::LoadedAsset;
-use crate::service::codecs::{Encoding, encode_blocking, encode_color};
+use crate::service::codecs::{ColorFormat, Encoding, encode_blocking, encode_color};
 use crate::service::error::AppError;
 use crate::service::state::AppState;
 
@@ -88,7 +89,16 @@ pub(super) async fn run_session(socket: WebSocket, state: AppState, asset: Arc<L
     let (wanted_tx, wanted_rx) = watch::channel(wanted);
     let (ack_tx, ack_rx) = watch::channel(0u32);
     let (error_tx, error_rx) = mpsc::channel::<String>(ERROR_QUEUE);
-    let receiver = receive_loop(&mut source, &state, &header, &wanted_tx, &ack_tx, &error_tx);
+    let link = Mutex::new(LinkEstimator::default());
+    let receiver = receive_loop(
+        &mut source,
+        &state,
+        &header,
+        &wanted_tx,
+        &ack_tx,
+        &error_tx,
+        &link,
+    );
     let sender = Sender {
         state: &state,
         asset: &asset,
@@ -100,6 +110,8 @@ pub(super) async fn run_session(socket: WebSocket, state: AppState, asset: Arc<L
         frame_id: 0,
         dropped: 0,
         ms_per_mpx: None,
+        link: &link,
+        jpeg_bytes_per_px_q50: None,
         generation: state.pool().engine().generation,
     };
     let close = tokio::select! {
@@ -152,6 +164,7 @@ async fn receive_loop(
     wanted: &watch::Sender<Wanted>,
     acked: &watch::Sender<u32>,
     errors: &mpsc::Sender<String>,
+    link: &Mutex<LinkEstimator>,
 ) -> Option<CloseFrame> {
     let report = |request: Option<u32>, kind: &str, message: &str| {
         state.metrics().error(kind);
@@ -205,6 +218,11 @@ async fn receive_loop(
                 }
             }
             Ok(ClientMessage::Ack(ack)) => {
+                link.lock().unwrap_or_else(PoisonError::into_inner).on_ack(
+                    ack.frame,
+                    ack.received_ms,
+                    Instant::now(),
+                );
                 acked.send_if_modified(|last| {
                     let newer = ack.frame > *last;
                     if newer {
@@ -229,6 +247,11 @@ struct Sender<'a> {
     dropped: u64,
     /// Measured interactive render cost, milliseconds per megapixel (moving average).
     ms_per_mpx: Option<f64>,
+    /// The link's estimate, fed by the receiver's acks.
+    link: &'a Mutex<LinkEstimator>,
+    /// Measured interactive JPEG size, bytes per pixel normalised to quality 50 (moving
+    /// average).
+    jpeg_bytes_per_px_q50: Option<f64>,
     /// The engine generation when the session started (a later one: the device was replaced).
     generation: u64,
 }
@@ -331,7 +354,7 @@ impl Sender<'_> {
     async fn send_frame(&mut self, want: &Wanted, view: &View, quality: Quality) -> bool {
         let effective = &want.effective;
         let settings = &effective.settings;
-        let (mut view, plan, encoding) = match quality {
+        let (mut view, plan, mut encoding) = match quality {
             Quality::Interactive => (
                 view.clone(),
                 effective.motion.clone(),
@@ -351,11 +374,48 @@ impl Sender<'_> {
                 },
             ),
         };
+        let link_bytes_per_s = if settings.adaptive {
+            self.link
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .bytes_per_s()
+        } else {
+            None
+        };
+        let mut flags = 0u8;
+        // The link a lossless resting frame must arrive over in time, else it is sent as JPEG.
+        let lossless_link = link_bytes_per_s
+            .filter(|_| quality == Quality::Full && encoding.format != ColorFormat::Jpeg);
         if quality == Quality::Interactive {
-            let scale = settings.interactive_scale.map_or_else(
+            let best_scale = settings.interactive_scale.map_or_else(
                 || self.adaptive_scale(&view, settings.target_fps),
                 f64::from,
             );
+            let measured = match (link_bytes_per_s, self.jpeg_bytes_per_px_q50) {
+                (Some(bytes_per_s), Some(bytes_per_px_q50))
+                    if encoding.format == ColorFormat::Jpeg =>
+                {
+                    Some(adapt::Link {
+                        bytes_per_s,
+                        bytes_per_px_q50,
+                    })
+                }
+                _ => None,
+            };
+            let choice = adapt::choose_interactive(
+                f64::from(view.width) * f64::from(view.height),
+                best_scale,
+                settings.interactive_scale.is_some(),
+                settings.interactive_quality,
+                settings.target_fps,
+                measured,
+            );
+            if choice.link_limited {
+                flags |= FrameHeader::LINK_LIMITED;
+                self.state.metrics().adapted("interactive");
+            }
+            encoding.quality = choice.quality;
+            let scale = choice.scale;
             view.width = ((f64::from(view.width) * scale).round() as u32).max(1);
             view.height = ((f64::from(view.height) * scale).round() as u32).max(1);
         }
@@ -401,13 +461,24 @@ impl Sender<'_> {
         let mut frame = rendered.frame;
         let encoded = encode_blocking(move || {
             apply_opacity(&mut frame, opacity);
-            let bytes = encode_color(&frame, encoding).map_err(|e| {
-                AppError::Internal(anyhow::Error::new(e).context("encoding a frame"))
-            })?;
-            Ok((bytes, frame.width, frame.height))
+            let encode = |encoding| {
+                encode_color(&frame, encoding).map_err(|e| {
+                    AppError::Internal(anyhow::Error::new(e).context("encoding a frame"))
+                })
+            };
+            let mut bytes = encode(encoding)?;
+            let mut used = encoding;
+            if !adapt::still_fits(bytes.len(), lossless_link) {
+                used = Encoding {
+                    format: ColorFormat::Jpeg,
+                    ..encoding
+                };
+                bytes = encode(used)?;
+            }
+            Ok((bytes, used, frame.width, frame.height))
         })
         .await;
-        let ((bytes, width, height), encode_ms) = match encoded {
+        let ((bytes, encoding, width, height), encode_ms) = match encoded {
             Ok(ok) => ok,
             Err(err) => {
                 tracing::error!(error = format!("{err:#}"), "stream encode failed");
@@ -419,6 +490,18 @@ impl Sender<'_> {
                 return self.sink.send(Message::Text(text.into())).await.is_ok();
             }
         };
+        if encoding.format != settings.still_codec && quality == Quality::Full {
+            flags |= FrameHeader::STILL_FALLBACK;
+            self.state.metrics().adapted("still_fallback");
+        }
+        let pixels = f64::from(width) * f64::from(height);
+        if quality == Quality::Interactive && encoding.format == ColorFormat::Jpeg && pixels > 0.0 {
+            let sample = bytes.len() as f64 / pixels / adapt::jpeg_size_factor(encoding.quality);
+            self.jpeg_bytes_per_px_q50 = Some(
+                self.jpeg_bytes_per_px_q50
+                    .map_or(sample, |old| 0.5 * old + 0.5 * sample),
+            );
+        }
         self.frame_id += 1;
         let header = FrameHeader {
             codec: encoding.format,
@@ -431,6 +514,12 @@ impl Sender<'_> {
             encode_ms: encode_ms as f32,
             dropped: u32::try_from(self.dropped).unwrap_or(u32::MAX),
             cameras: u16::try_from(cameras).unwrap_or(u16::MAX),
+            encoded_quality: if encoding.format == ColorFormat::Jpeg {
+                encoding.quality
+            } else {
+                0
+            },
+            flags,
         };
         let mut message = Vec::with_capacity(FRAME_HEADER_LEN + bytes.len());
         header.write(&mut message);
@@ -448,6 +537,13 @@ impl Sender<'_> {
             encode_ms,
             encoding.format.name(),
         );
+        // Recorded before the send: on a fast link the ack can arrive while it completes.
+        let (bytes_per_s, round_trip_ms) = {
+            let mut link = self.link.lock().unwrap_or_else(PoisonError::into_inner);
+            link.on_sent(self.frame_id, message.len(), Instant::now());
+            (link.bytes_per_s(), link.round_trip_ms())
+        };
+        self.state.metrics().link(bytes_per_s, round_trip_ms);
         self.sink
             .send(Message::Binary(message.into()))
             .await

@@ -30,6 +30,11 @@ pub struct Settings {
     pub interactive_lod: Option<u32>,
     /// Frame rate the adaptive interactive scale aims for, 1..=120.
     pub target_fps: f32,
+    /// Adapt to the measured link (acks with `received_ms`): `interactive_quality` and the
+    /// interactive scale become ceilings lowered while the link cannot carry `target_fps`, and a
+    /// lossless `still_codec` falls back to JPEG at `still_quality` when it would arrive late.
+    /// `false`: the settings exactly.
+    pub adaptive: bool,
     /// How long the view must rest before the full-quality frame, 0..=10000 ms.
     pub rest_ms: u32,
     /// Frames sent but not acknowledged before the server waits: 1 or 2.
@@ -58,6 +63,7 @@ impl Settings {
             interactive_scale: None,
             interactive_lod: None,
             target_fps: 20.0,
+            adaptive: true,
             rest_ms: u32::try_from(rest.as_millis()).unwrap_or(u32::MAX),
             max_in_flight: 2,
             background: [0; 4],
