@@ -1,6 +1,6 @@
 //! A bake that models only what the scene requires (issue #26 item 4, `lumigraph bake --auto`).
 //!
-//! [`calibrate`] bakes the scene twice at low resolution ([`CALIBRATION_RESOLUTIONS`], all 642
+//! [`calibrate`] bakes the scene thrice at low resolution ([`CALIBRATION_RESOLUTIONS`], all 642
 //! cameras, whose first 12/42/162 are the coarser sets) and renders every camera count × depth
 //! precision (8-bit depth by requantizing at upload) on [`AUTO_VIEWS`] calibration views against
 //! the rasterized mesh, with the render knobs at their defaults. [`QualityModel::fit`] turns the
@@ -8,11 +8,13 @@
 //!
 //! - quality, per camera count C and depth precision b: the mean squared error of the masked
 //!   PSNR `MSE = 255² · 10^(−PSNR/10)` falls with map resolution N as
-//!   `MSE(N) = floor_{C,b} + scale_{C,b} · N^−γ` with [`RESOLUTION_EXPONENT`] γ = 1.25 (the
-//!   floor is what the camera count leaves: parallax between cameras, shading not in the maps;
-//!   the `N^−γ` term is the silhouette band and texel interpolation; on the cow from 96 to
-//!   384 px, γ measured 0.9–1.2 at 162–642 cameras and 1.3–1.5 at 12–42). Two resolutions fix
-//!   both terms per curve.
+//!   `MSE(N) = floor_{C,b} + scale_{C,b} · N^−γ_{C,b}` (the floor is what the camera count
+//!   leaves: parallax between cameras, shading not in the maps; the `N^−γ` term is the
+//!   silhouette band and texel interpolation). Three resolutions fix the three terms per
+//!   curve: γ from the ratio of the error drops, then floor and scale through the two higher
+//!   points. γ is not universal: on the cow from 64 to 384 px it measured 1.5 at 12 cameras,
+//!   1.2 at 42 and 1.0 at 162, so a fixed exponent mispredicts by up to 0.5 dB at 2× the
+//!   calibration resolution.
 //! - size, per camera count and depth precision: the stored bytes of the first C cameras grow
 //!   as `k · N^p` between the two calibration resolutions (zstd pages compress better as maps
 //!   grow, so p < 2).
@@ -21,7 +23,12 @@
 //! reaching a target masked PSNR, or the best predicted masked PSNR within a byte budget; a
 //! target no setting meets gets the closest setting with [`Reach`] saying which way it missed.
 //! [`auto_bake`] then bakes that setting alone and measures it on [`AUTO_VIEWS`] views it did
-//! not calibrate on (another seed), so its report says how well the model predicted.
+//! not calibrate on, so its report says how well the model predicted.
+//!
+//! Views ([`auto_views`]): a masked PSNR differs by ±2.5 dB from one random orbit view to the
+//! next (silhouette length), so two sets of 12 random views can differ by 2 dB in their mean.
+//! The calibration and held-out sets are therefore the even and odd points of one Fibonacci
+//! spiral on the evaluation sphere: disjoint, interleaved, each covering the sphere evenly.
 
 use serde::{Deserialize, Serialize};
 
@@ -35,10 +42,10 @@ use crate::metrics::{self, MetricsError};
 use crate::reference::{ReferenceError, ReferenceRenderer};
 use crate::render::{RenderError, RenderOptions, Renderer, UploadOptions};
 use crate::shading::Shading;
-use crate::view::{View, evaluation_views};
+use crate::view::{EVALUATION_DISTANCE_RADII, EVALUATION_YFOV_DEG, View};
 
 /// Map resolutions of the two calibration bakes, pixels.
-pub const CALIBRATION_RESOLUTIONS: [u32; 2] = [96, 192];
+pub const CALIBRATION_RESOLUTIONS: [u32; 3] = [64, 128, 192];
 /// Cameras baked at 8-bit depth to measure how that depth compresses (their first this many).
 pub const DEPTH8_SIZE_CAMERAS: u32 = 42;
 /// Smallest map resolution the choice considers, pixels.
@@ -48,16 +55,15 @@ pub const AUTO_MIN_RESOLUTION: u32 = 64;
 pub const AUTO_MAX_RESOLUTION: u32 = 512;
 /// Spacing of the map resolutions the choice considers, pixels.
 pub const AUTO_RESOLUTION_STEP: u32 = 16;
-/// Exponent γ of the resolution term of the quality model (module docs).
-pub const RESOLUTION_EXPONENT: f64 = 1.25;
+/// Exponent γ of the resolution term of the quality model when the three calibration points
+/// do not determine one (error not falling, or not convex in `N^−γ`).
+pub const DEFAULT_RESOLUTION_EXPONENT: f64 = 1.25;
+/// Range of the fitted exponent γ.
+pub const RESOLUTION_EXPONENT_RANGE: (f64, f64) = (0.5, 2.5);
 /// Views of the calibration, and again of the held-out measurement.
-pub const AUTO_VIEWS: usize = 12;
+pub const AUTO_VIEWS: usize = 24;
 /// Side of the calibration and held-out views, pixels (the evaluation default).
 pub const AUTO_VIEW_SIZE: u32 = 256;
-/// Seed of the calibration views.
-pub const CALIBRATION_SEED: u64 = 0;
-/// Seed of the held-out views (different random orbit positions).
-pub const HELD_OUT_SEED: u64 = 1;
 /// How close to a target PSNR the measured masked PSNR must land for the target to count as
 /// met, dB (the issue's acceptance bound).
 pub const TARGET_TOLERANCE_DB: f64 = 0.5;
@@ -187,6 +193,8 @@ pub struct QualityCurve {
     pub cameras: u32,
     /// Depth precision.
     pub depth_bits: u8,
+    /// Exponent γ of the resolution term.
+    pub exponent: f64,
     /// Error left at infinite resolution, squared 8-bit steps (≥ 0).
     pub floor_mse: f64,
     /// Coefficient of `N^−γ` (≥ 0).
@@ -194,26 +202,52 @@ pub struct QualityCurve {
 }
 
 impl QualityCurve {
-    /// Fits the curve through two (resolution, masked PSNR) points, keeping it non-increasing
-    /// in error: a higher resolution never predicts a worse PSNR, and the floor is never
-    /// negative (either bound taken through the higher resolution's point).
-    fn fit(cameras: u32, depth_bits: u8, low: (u32, f64), high: (u32, f64)) -> QualityCurve {
+    /// Fits the curve through three (resolution, masked PSNR) points of increasing resolution:
+    /// γ such that the model's error drops between them have the measured ratio (bisection
+    /// over [`RESOLUTION_EXPONENT_RANGE`], [`DEFAULT_RESOLUTION_EXPONENT`] when the drops are
+    /// not both positive), then floor and scale through the two higher points. The curve never
+    /// rises in error with resolution, and the floor is never negative (either bound taken
+    /// through the highest point).
+    fn fit(cameras: u32, depth_bits: u8, points: [(u32, f64); 3]) -> QualityCurve {
         let mse = |db: f64| PEAK_SQUARED * 10f64.powf(-db / 10.0);
-        let term = |n: u32| f64::from(n).powf(-RESOLUTION_EXPONENT);
-        let (m_low, m_high) = (mse(low.1), mse(high.1));
-        let (t_low, t_high) = (term(low.0), term(high.0));
-        let mut scale = (m_low - m_high) / (t_low - t_high);
-        let mut floor = m_high - scale * t_high;
+        let [(n0, m0), (n1, m1), (n2, m2)] = points.map(|(n, db)| (f64::from(n), mse(db)));
+        let exponent = {
+            let measured = (m0 - m1) / (m1 - m2);
+            // (n0^−γ − n1^−γ) / (n1^−γ − n2^−γ) grows with γ.
+            let model = |g: f64| (n0.powf(-g) - n1.powf(-g)) / (n1.powf(-g) - n2.powf(-g));
+            let (mut lo, mut hi) = RESOLUTION_EXPONENT_RANGE;
+            if !(m0 > m1 && m1 > m2 && measured.is_finite()) {
+                DEFAULT_RESOLUTION_EXPONENT
+            } else if measured <= model(lo) {
+                lo
+            } else if measured >= model(hi) {
+                hi
+            } else {
+                for _ in 0..60 {
+                    let mid = 0.5 * (lo + hi);
+                    if model(mid) < measured {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                0.5 * (lo + hi)
+            }
+        };
+        let (t1, t2) = (n1.powf(-exponent), n2.powf(-exponent));
+        let mut scale = (m1 - m2) / (t1 - t2);
+        let mut floor = m2 - scale * t2;
         if !(scale >= 0.0) {
             scale = 0.0;
-            floor = m_high;
+            floor = m2;
         } else if floor < 0.0 {
             floor = 0.0;
-            scale = m_high / t_high;
+            scale = m2 / t2;
         }
         QualityCurve {
             cameras,
             depth_bits,
+            exponent,
             floor_mse: floor,
             scale,
         }
@@ -221,7 +255,7 @@ impl QualityCurve {
 
     /// Predicted masked PSNR at `resolution`, dB (capped like the metrics, at 100 dB).
     pub fn psnr(&self, resolution: u32) -> f64 {
-        let mse = self.floor_mse + self.scale * f64::from(resolution).powf(-RESOLUTION_EXPONENT);
+        let mse = self.floor_mse + self.scale * f64::from(resolution).powf(-self.exponent);
         (10.0 * (PEAK_SQUARED / mse).log10()).min(MAX_TARGET_PSNR)
     }
 }
@@ -354,7 +388,8 @@ pub fn candidate_resolutions() -> impl Iterator<Item = u32> {
 
 impl QualityModel {
     /// Fits the model to calibration samples: for every camera count × depth precision with
-    /// samples at both [`CALIBRATION_RESOLUTIONS`], one quality and one size curve.
+    /// samples at every one of [`CALIBRATION_RESOLUTIONS`], one quality curve and one size
+    /// curve (a power law through the two higher resolutions).
     ///
     /// # Errors
     /// [`AutoBakeError::Unmeasurable`] when a sample is missing or not finite and positive.
@@ -362,7 +397,7 @@ impl QualityModel {
         quality: &[QualitySample],
         size: &[SizeSample],
     ) -> Result<QualityModel, AutoBakeError> {
-        let [low, high] = CALIBRATION_RESOLUTIONS;
+        let [low, mid, high] = CALIBRATION_RESOLUTIONS;
         let mut model = QualityModel {
             quality: Vec::new(),
             size: Vec::new(),
@@ -397,13 +432,16 @@ impl QualityModel {
                 model.quality.push(QualityCurve::fit(
                     cameras,
                     depth_bits,
-                    (low, psnr_at(low)?),
-                    (high, psnr_at(high)?),
+                    [
+                        (low, psnr_at(low)?),
+                        (mid, psnr_at(mid)?),
+                        (high, psnr_at(high)?),
+                    ],
                 ));
                 model.size.push(SizeCurve::fit(
                     cameras,
                     depth_bits,
-                    (low, bytes_at(low)?),
+                    (mid, bytes_at(mid)?),
                     (high, bytes_at(high)?),
                 ));
             }
@@ -481,6 +519,52 @@ impl QualityModel {
         })?;
         Ok(AutoChoice { setting, reach })
     }
+}
+
+/// Which half of the view spiral.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ViewSet {
+    /// The even points: what the calibration measures.
+    Calibration,
+    /// The odd points: what the chosen bake is measured on.
+    HeldOut,
+}
+
+/// [`AUTO_VIEWS`] views of [`AUTO_VIEW_SIZE`]² looking at `center` from the evaluation
+/// distance (2.5 radii, 40°): one half of a Fibonacci spiral of 2 × [`AUTO_VIEWS`] points
+/// (module docs).
+pub fn auto_views(center: [f64; 3], radius: f64, set: ViewSet) -> Vec<View> {
+    let total = 2 * AUTO_VIEWS;
+    let golden_angle = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let first = usize::from(set == ViewSet::HeldOut);
+    (first..total)
+        .step_by(2)
+        .map(|i| {
+            let y = 1.0 - (2.0 * i as f64 + 1.0) / total as f64;
+            let s = (1.0 - y * y).max(0.0).sqrt();
+            let phi = golden_angle * i as f64;
+            let distance = EVALUATION_DISTANCE_RADII * radius;
+            let eye = [
+                center[0] + distance * s * phi.cos(),
+                center[1] + distance * y,
+                center[2] + distance * s * phi.sin(),
+            ];
+            // +y up unless the eye is (almost) straight above or below.
+            let up = if y.abs() > 0.99 {
+                [0.0, 0.0, 1.0]
+            } else {
+                [0.0, 1.0, 0.0]
+            };
+            View {
+                eye,
+                target: center,
+                up,
+                yfov_deg: EVALUATION_YFOV_DEG,
+                width: AUTO_VIEW_SIZE,
+                height: AUTO_VIEW_SIZE,
+            }
+        })
+        .collect()
 }
 
 /// Mean masked PSNR of `asset` rendered with `cameras` (all knobs else at their defaults) at
@@ -607,13 +691,7 @@ pub fn calibrate(
     }
     progress(AutoStage::Measuring);
     let frame = &assets[0].header().frame;
-    let views = evaluation_views(
-        frame.center,
-        frame.radius,
-        AUTO_VIEWS,
-        CALIBRATION_SEED,
-        AUTO_VIEW_SIZE,
-    );
+    let views = auto_views(frame.center, frame.radius, ViewSet::Calibration);
     let truths: Vec<Frame> = views
         .iter()
         .map(|v| reference.render(gpu_mesh, v, shading))
@@ -773,13 +851,7 @@ pub fn auto_bake(
         let verify_start = std::time::Instant::now();
         let asset = AssetFile::from_bytes(bytes)?;
         let frame = &asset.header().frame;
-        let views = evaluation_views(
-            frame.center,
-            frame.radius,
-            AUTO_VIEWS,
-            HELD_OUT_SEED,
-            AUTO_VIEW_SIZE,
-        );
+        let views = auto_views(frame.center, frame.radius, ViewSet::HeldOut);
         let truths: Vec<Frame> = views
             .iter()
             .map(|v| engines.reference.render(&gpu_mesh, v, shading))
@@ -820,18 +892,28 @@ pub fn auto_bake(
             verify_ms,
             calibration: calibration.clone(),
         };
-        // The report goes into the asset; its size is measured on the final bytes.
-        let bytes = attach_report(&encoded, &report)?;
-        report.asset_bytes = bytes.len() as u64;
+        // The report goes into the asset. For a byte budget, whether it is met depends on the
+        // encoded size: encoded first as met, and again as not met when that is over budget
+        // (one byte longer, so still over).
         report.target_met = match target {
             AutoTarget::TargetPsnr(db) => (measured_psnr - db).abs() <= TARGET_TOLERANCE_DB,
-            AutoTarget::MaxBytes(budget) => report.asset_bytes <= budget,
+            AutoTarget::MaxBytes(_) => true,
         };
+        let mut bytes = attach_report(&encoded, &report)?;
+        if let AutoTarget::MaxBytes(budget) = target
+            && bytes.len() as u64 > budget
+        {
+            report.target_met = false;
+            bytes = attach_report(&encoded, &report)?;
+        }
+        report.asset_bytes = bytes.len() as u64;
         return Ok(AutoBake { bytes, report });
     }
 }
 
-/// The asset re-encoded with a summary of `report` under `"auto_bake"` in its quality report.
+/// The asset re-encoded with a summary of `report` under `"auto_bake"` in its quality report:
+/// target, choice (setting, predictions, reach), held-out masked PSNR and views, whether the
+/// target was met and why not.
 fn attach_report(
     asset: &AssetFile,
     report: &AutoBakeReport,
@@ -848,7 +930,8 @@ fn attach_report(
             "choice": report.choice,
             "measured_psnr": report.measured_psnr,
             "held_out_views": AUTO_VIEWS,
-            "held_out_seed": HELD_OUT_SEED,
+            "target_met": report.target_met,
+            "message": report.message,
         }),
     );
     header.quality = Some(serde_json::Value::Object(quality));
@@ -866,7 +949,7 @@ fn attach_report(
 mod tests {
     use super::*;
 
-    /// Samples of a scene whose error is `floor(C) + 4e4 · N^−γ` exactly, sizes
+    /// Samples of a scene whose error is `floor(C) + 4e4 · N^−1.25` exactly, sizes
     /// `C · N^1.8 / 10` (16-bit) and 0.8 of that (8-bit); 8-bit depth costs 0.1 dB.
     fn samples() -> (Vec<QualitySample>, Vec<SizeSample>) {
         let mut quality = Vec::new();
@@ -874,7 +957,7 @@ mod tests {
         for (i, cameras) in CAMERA_COUNTS.into_iter().enumerate() {
             let floor = 200.0 / (1.0 + i as f64);
             for resolution in CALIBRATION_RESOLUTIONS {
-                let mse = floor + 4e4 * f64::from(resolution).powf(-RESOLUTION_EXPONENT);
+                let mse = floor + 4e4 * f64::from(resolution).powf(-1.25);
                 let db = 10.0 * (PEAK_SQUARED / mse).log10();
                 for (depth_bits, penalty, share) in [(16, 0.0, 1.0), (8, 0.1, 0.8)] {
                     quality.push(QualitySample {
@@ -909,6 +992,7 @@ mod tests {
             .find(|c| (c.cameras, c.depth_bits) == (162, 16))
             .expect("curve");
         // Exact data: the fit is exact up to rounding.
+        assert!((curve.exponent - 1.25).abs() < 1e-9, "{curve:?}");
         assert!((curve.floor_mse - 200.0 / 3.0).abs() < 1e-6, "{curve:?}");
         assert!((curve.scale - 4e4).abs() < 1e-4, "{curve:?}");
         let size = m
@@ -933,11 +1017,12 @@ mod tests {
             assert!(bytes.windows(2).all(|w| w[1] >= w[0]), "{size:?}");
         }
         // Noisy samples (higher resolution measured worse) still give a non-increasing error.
-        let flat = QualityCurve::fit(42, 16, (96, 25.0), (192, 24.0));
+        let flat = QualityCurve::fit(42, 16, [(64, 23.0), (128, 25.0), (192, 24.0)]);
         assert_eq!(flat.scale, 0.0);
+        assert_eq!(flat.exponent, DEFAULT_RESOLUTION_EXPONENT);
         assert!((flat.psnr(512) - 24.0).abs() < 1e-9 && (flat.psnr(64) - 24.0).abs() < 1e-9);
-        // A fall steeper than N^−γ never predicts a negative floor.
-        let steep = QualityCurve::fit(42, 16, (96, 15.0), (192, 30.0));
+        // A fall steeper than any γ in range is clamped and never predicts a negative floor.
+        let steep = QualityCurve::fit(42, 16, [(64, 10.0), (128, 15.0), (192, 30.0)]);
         assert!(steep.floor_mse >= 0.0 && steep.psnr(512) > 30.0 && steep.psnr(512).is_finite());
         // Higher targets never choose fewer bytes or a lower prediction.
         let mut last = (0, 0.0);
@@ -1026,6 +1111,35 @@ mod tests {
                 .expect("message")
                 .contains("max bytes 1")
         );
+    }
+
+    #[test]
+    fn calibration_and_held_out_views_are_disjoint_and_even() {
+        let calibration = auto_views([1.0, 2.0, 3.0], 2.0, ViewSet::Calibration);
+        let held_out = auto_views([1.0, 2.0, 3.0], 2.0, ViewSet::HeldOut);
+        assert_eq!(
+            (calibration.len(), held_out.len()),
+            (AUTO_VIEWS, AUTO_VIEWS)
+        );
+        for set in [&calibration, &held_out] {
+            let mut mean = glam::DVec3::ZERO;
+            for v in set {
+                let d = glam::DVec3::from(v.eye) - glam::DVec3::new(1.0, 2.0, 3.0);
+                // On the evaluation sphere (5 = 2.5 radii), rounding only.
+                assert!((d.length() - 5.0).abs() < 1e-9);
+                mean += d / 5.0;
+            }
+            // Even coverage: the mean direction of 24 spiral points is near the centre (a
+            // random set of 24 has |mean| ≈ 0.2; the spiral's is below 0.05).
+            assert!((mean / AUTO_VIEWS as f64).length() < 0.05, "{mean}");
+        }
+        // Disjoint: no held-out eye within 0.1 radii of a calibration eye.
+        for h in &held_out {
+            for c in &calibration {
+                let gap = glam::DVec3::from(h.eye).distance(glam::DVec3::from(c.eye));
+                assert!(gap > 0.2, "{:?} {:?}", h.eye, c.eye);
+            }
+        }
     }
 
     #[test]
