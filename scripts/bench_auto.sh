@@ -22,7 +22,7 @@ for scene in ${SCENES:-bunny cow spot demo}; do
   $LG eval "$dir/default.lfa" "${ref[@]}" --views "$dir/held_out_views.json" --json > "$dir/default-eval.json"
   default_psnr=$(python3 -c "import json,sys; print(round(json.load(open(sys.argv[1]))['mean']['masked_psnr'], 2))" "$dir/default-eval.json")
   default_bytes=$(stat -c %s "$dir/default.lfa")
-  for run in psnr-24 psnr-27 psnr-30 "equal-quality" "equal-bytes"; do
+  for run in equal-quality equal-bytes psnr-27 psnr-24 psnr-30; do
     case $run in
       psnr-*) flags=(--target-psnr "${run#psnr-}") ;;
       equal-quality) flags=(--target-psnr "$default_psnr") ;;

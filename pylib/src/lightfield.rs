@@ -490,7 +490,6 @@ impl PyLightField {
 /// Native bake on a `Mesh` (the Python `bake_mesh` converts other inputs and the progress flag).
 #[pyfunction]
 #[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress, calibrate = false, auto = false, target_psnr = None, max_bytes = None))]
-#[allow(clippy::too_many_arguments)]
 pub fn bake(
     py: Python<'_>,
     mesh: &Bound<'_, PyMesh>,
