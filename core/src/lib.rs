@@ -23,6 +23,8 @@
 //!   [`tradeoff`] sweeps every quality knob and measures its cost and error.
 //! - [`calibration`] measures a scene's error against cost at bake time and serves goals
 //!   (target PSNR, time budget) from it.
+//! - [`auto_bake`] chooses cameras, map resolution and depth bits for a target masked PSNR or
+//!   byte budget from a quick low-resolution calibration, bakes that and measures it.
 //! - [`lod`] chooses cameras and step from an object's projected size under a quality floor.
 //! - [`refine`] accumulates jittered sub-pixel samples of a resting view into an anti-aliased
 //!   still, rejecting stray samples.
@@ -31,6 +33,7 @@
 //! - [`scene`] composites light-field instances and meshes, each with its own transform, by depth.
 
 pub mod asset;
+pub mod auto_bake;
 pub mod bake;
 pub mod calibration;
 pub mod frame;

@@ -6,6 +6,7 @@
 //! are `MeshError`, a `ValueError`.
 
 use lumigraph_core::asset::AssetError as CoreAssetError;
+use lumigraph_core::auto_bake::AutoBakeError;
 use lumigraph_core::bake::BakeError as CoreBakeError;
 use lumigraph_core::gpu::GpuError;
 use lumigraph_core::mesh::MeshError as CoreMeshError;
@@ -102,6 +103,17 @@ pub fn bake(error: &CoreBakeError) -> PyErr {
         }
         CoreBakeError::Shading(e) => shading(e),
         other => BakeError::new_err(chain(other)),
+    }
+}
+
+/// Automatic bakes: bad targets are `ValueError`, bake errors as [`bake`], the rest `BakeError`.
+pub fn auto_bake(error: &AutoBakeError) -> PyErr {
+    match error {
+        AutoBakeError::ConflictingTargets
+        | AutoBakeError::TargetPsnr(_)
+        | AutoBakeError::MaxBytes => PyValueError::new_err(error.to_string()),
+        AutoBakeError::Bake(e) => bake(e),
+        other => BakeError::new_err(format!("automatic bake failed: {}", chain(other))),
     }
 }
 

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 
 use lumigraph_core::asset::{AssetFile, Provenance};
+use lumigraph_core::auto_bake::{self, AutoEngines, AutoStage, AutoTarget};
 use lumigraph_core::bake::BakeOptions;
 use lumigraph_core::calibration;
 use lumigraph_core::frame::Frame;
@@ -488,7 +489,7 @@ impl PyLightField {
 
 /// Native bake on a `Mesh` (the Python `bake_mesh` converts other inputs and the progress flag).
 #[pyfunction]
-#[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress, calibrate = false))]
+#[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress, calibrate = false, auto = false, target_psnr = None, max_bytes = None))]
 pub fn bake(
     py: Python<'_>,
     mesh: &Bound<'_, PyMesh>,
@@ -501,6 +502,9 @@ pub fn bake(
     depth_bits: u8,
     progress: Option<Py<PyAny>>,
     calibrate: bool,
+    auto: bool,
+    target_psnr: Option<f64>,
+    max_bytes: Option<u64>,
 ) -> PyResult<PyLightField> {
     if let Some(callback) = &progress
         && !callback.bind(py).is_callable()
@@ -509,6 +513,15 @@ pub fn bake(
             "progress must be a bool or a callable(done, total)",
         ));
     }
+    let auto_target = if auto {
+        Some(AutoTarget::from_flags(target_psnr, max_bytes).map_err(|e| errors::auto_bake(&e))?)
+    } else if target_psnr.is_some() || max_bytes.is_some() {
+        return Err(PyValueError::new_err(
+            "target_psnr and max_bytes choose the setting of an automatic bake: pass auto=True",
+        ));
+    } else {
+        None
+    };
     let options = BakeOptions {
         cameras,
         resolution,
@@ -537,7 +550,30 @@ pub fn bake(
                 });
             }
         };
-        let bytes = if calibrate {
+        let bytes = if let Some(target) = auto_target {
+            let renderer = engines::renderer().map_err(|e| errors::gpu_for_render(&e))?;
+            let reference = engines::reference().map_err(|e| errors::gpu_for_render(&e))?;
+            let engines = AutoEngines {
+                baker,
+                renderer,
+                reference,
+            };
+            auto_bake::auto_bake(
+                &engines,
+                &core_mesh,
+                &options.shading,
+                target,
+                &provenance,
+                calibrate,
+                &mut |stage| {
+                    if let AutoStage::Bake { done, cameras } = stage {
+                        report(done, cameras);
+                    }
+                },
+            )
+            .map_err(|e| errors::auto_bake(&e))?
+            .bytes
+        } else if calibrate {
             let renderer = engines::renderer().map_err(|e| errors::gpu_for_render(&e))?;
             let reference = engines::reference().map_err(|e| errors::gpu_for_render(&e))?;
             calibration::bake_calibrated(

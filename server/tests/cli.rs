@@ -899,3 +899,74 @@ fn closed_stdout_ends_quietly_not_with_a_panic() {
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert_eq!(o.status.code(), Some(141), "{stderr}");
 }
+
+#[test]
+fn auto_bake_refuses_bad_targets_and_flags() {
+    let out = path("never-auto.lfa");
+    let o = s(&out);
+    let base = ["bake", "--demo", "-o", o];
+    for (extra, needle) in [
+        (&["--auto", "--target-psnr", "nan"][..], "target PSNR"),
+        (&["--auto", "--target-psnr", "inf"][..], "target PSNR"),
+        (&["--auto", "--target-psnr", "-3"][..], "target PSNR"),
+        (&["--auto", "--target-psnr", "0"][..], "target PSNR"),
+        (&["--auto", "--target-psnr", "101"][..], "target PSNR"),
+        (&["--auto", "--max-bytes", "0"][..], "max bytes"),
+        (&["--auto", "--max-bytes", "-5"][..], "max-bytes"),
+        (
+            &["--auto", "--target-psnr", "27", "--max-bytes", "100000"][..],
+            "cannot be used with",
+        ),
+        (&["--auto", "--cameras", "42"][..], "cannot be used with"),
+        (
+            &["--auto", "--resolution", "128"][..],
+            "cannot be used with",
+        ),
+        (&["--auto", "--depth-bits", "8"][..], "cannot be used with"),
+        (&["--target-psnr", "27"][..], "--auto"),
+        (&["--max-bytes", "100000"][..], "--auto"),
+    ] {
+        let args: Vec<&str> = base.iter().copied().chain(extra.iter().copied()).collect();
+        assert_fails(&args, needle);
+    }
+    assert!(!out.exists());
+}
+
+/// A byte budget below every setting: the smallest setting is baked (fast), flagged as not
+/// meeting the budget, with a warning naming it; the report says what was chosen and measured.
+#[test]
+fn auto_bake_below_every_setting_bakes_the_smallest_and_says_so() {
+    let out = path("auto-smallest.lfa");
+    let o = lumigraph(&[
+        "bake",
+        "--demo",
+        "-o",
+        s(&out),
+        "--auto",
+        "--max-bytes",
+        "1",
+        "--no-calibrate",
+        "--json",
+    ]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("warning: max bytes 1 is below the smallest setting"),
+        "{stderr}"
+    );
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON report");
+    assert_eq!(report["choice"]["reach"], "budget_too_small");
+    assert_eq!(report["target_met"], false);
+    let setting = &report["choice"]["setting"];
+    assert_eq!(setting["cameras"], 12);
+    assert_eq!(setting["resolution"], 64);
+    assert!(report["measured_psnr"].as_f64().is_some_and(f64::is_finite));
+    let written = std::fs::metadata(&out).expect("asset written").len();
+    assert_eq!(report["asset_bytes"].as_u64(), Some(written));
+    let info = lumigraph(&["info", s(&out)]);
+    let info = String::from_utf8_lossy(&info.stdout);
+    assert!(
+        info.contains("12 cameras") && info.contains("64×64 px"),
+        "{info}"
+    );
+}

@@ -182,15 +182,18 @@ def _progress_printer() -> Callable[[int, int], None]:
 def bake_mesh(
     mesh: MeshLike,
     *,
-    cameras: int = 162,
-    resolution: int = 256,
+    cameras: int | None = None,
+    resolution: int | None = None,
     light: Sequence[float] = DEFAULT_LIGHT,
     ambient: float = DEFAULT_AMBIENT,
     specular: tuple[float, float] | None = None,
     unlit: bool = False,
-    depth_bits: int = 16,
+    depth_bits: int | None = None,
     progress: bool | Callable[[int, int], object] = True,
     calibrate: bool = False,
+    auto: bool = False,
+    target_psnr: float | None = None,
+    max_bytes: int | None = None,
 ) -> LightField:
     """Bakes a mesh into a spherical light field on the GPU (GIL released).
 
@@ -201,16 +204,17 @@ def bake_mesh(
     Args:
         mesh: a :class:`Mesh`, ``trimesh.Trimesh``, path, or ``(vertices, faces[, colors])``
             (see :func:`as_mesh`).
-        cameras: 12, 42, 162 or 642 (icosphere levels 0-3; coarser sets are prefixes, so the
-            asset also renders at every lower ``lod``).
-        resolution: side of each camera's parabolic map in pixels, 8..4096 (silhouette accuracy
-            grows with it; size and bake time with its square).
+        cameras: 12, 42, 162 (default) or 642 (icosphere levels 0-3; coarser sets are
+            prefixes, so the asset also renders at every lower ``lod``).
+        resolution: side of each camera's parabolic map in pixels, 8..4096, default 256
+            (silhouette accuracy grows with it; size and bake time with its square).
         light: world-space light direction (x, y, z), non-zero; normalized.
         ambient: ambient term in [0, 1].
         specular: ``(ks, shininess)`` with 0 <= ks <= 1 and 0 < shininess <= 10000, or None for
             view-independent (Lambertian) shading.
         unlit: if True, ``color = albedo``.
-        depth_bits: depth precision, 16 (default) or 8.
+        depth_bits: depth precision, 16 (default) or 8. With ``auto=True``, ``cameras``,
+            ``resolution`` and ``depth_bits`` are chosen and must not be given.
         progress: True prints "baking cameras k/n" to stderr; a callable gets
             ``(cameras_done, cameras_total)`` (its first exception is raised after the bake);
             False is silent.
@@ -219,15 +223,39 @@ def bake_mesh(
             mesh; ~4 s at 162 cameras on a 2-core CPU) into the asset's quality report, for
             :meth:`LightField.render` / :meth:`LightField.choose` with ``target_psnr`` or
             ``budget_ms``. ``lumigraph bake`` on the command line calibrates by default.
+        auto: if True, choose cameras, map resolution and depth bits for this scene
+            (``lumigraph bake --auto``, docs/auto-bake.md): two low-resolution calibration bakes
+            measured against the mesh fit a model of masked PSNR and bytes, the setting it
+            picks is baked and measured on held-out views. The report is in
+            ``info["quality"]["auto_bake"]`` (choice with predictions and ``reach``,
+            ``measured_psnr``, ``target_met``, ``message`` for a target out of reach).
+            Tens of seconds on a 2-core CPU; ``progress`` reports the final bake only.
+        target_psnr: with ``auto``: the masked PSNR (dB, in (0, 100]) to reach with the fewest
+            bytes; default 27 when ``max_bytes`` is not given either.
+        max_bytes: with ``auto``: the asset size within which to reach the best masked PSNR.
 
     Returns:
         The baked :class:`LightField` (in memory; :meth:`LightField.save` writes it).
 
     Raises:
-        ValueError: an option out of range (the message names it); MeshError: invalid mesh.
+        ValueError: an option out of range (the message names it), a NaN/infinite/out-of-range
+            target, both targets, or a target or chosen knob with(out) ``auto``; MeshError:
+            invalid mesh.
         TypeError: an argument of the wrong type.
         BakeError: the GPU device failed or is missing (the message names the driver package).
     """
+    if auto:
+        given = [
+            name
+            for name, value in (
+                ("cameras", cameras),
+                ("resolution", resolution),
+                ("depth_bits", depth_bits),
+            )
+            if value is not None
+        ]
+        if given:
+            raise ValueError(f"auto=True chooses {', '.join(given)}: do not pass them")
     native = as_mesh(mesh)
     if progress is True:
         callback: Callable[[int, int], object] | None = _progress_printer()
@@ -237,15 +265,18 @@ def bake_mesh(
         callback = progress
     return _bake(
         native,
-        cameras=cameras,
-        resolution=resolution,
+        cameras=162 if cameras is None else cameras,
+        resolution=256 if resolution is None else resolution,
         light=tuple(light),
         ambient=ambient,
         specular=specular,
         unlit=unlit,
-        depth_bits=depth_bits,
+        depth_bits=16 if depth_bits is None else depth_bits,
         progress=callback,
         calibrate=calibrate,
+        auto=auto,
+        target_psnr=target_psnr,
+        max_bytes=max_bytes,
     )
 
 

@@ -199,6 +199,9 @@ def bake(
     depth_bits: int,
     progress: Callable[[int, int], object] | None,
     calibrate: bool = False,
+    auto: bool = False,
+    target_psnr: float | None = None,
+    max_bytes: int | None = None,
 ) -> LightField: ...
 def reference_render(
     mesh: Mesh,

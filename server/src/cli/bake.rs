@@ -7,6 +7,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use indicatif::ProgressBar;
 use lumigraph_core::asset::Provenance;
+use lumigraph_core::auto_bake::{self, AutoEngines, AutoStage, AutoTarget};
 use lumigraph_core::bake::{BakeOptions, Baker};
 use lumigraph_core::calibration;
 use lumigraph_core::gpu::Gpu;
@@ -45,9 +46,31 @@ pub struct BakeArgs {
     /// report for `render --target-psnr / --budget-ms`; a few seconds on lavapipe).
     #[arg(long)]
     pub no_calibrate: bool,
+    /// Choose cameras, map resolution and depth bits for this scene from a quick
+    /// low-resolution calibration (target: --target-psnr, default 27 dB, or --max-bytes), bake
+    /// that and measure it on held-out views; excludes --cameras, --resolution, --depth-bits.
+    #[arg(long, conflicts_with_all = ["cameras", "resolution", "depth_bits"])]
+    pub auto: bool,
+    /// With --auto: the masked PSNR (dB) to reach with the fewest bytes.
+    #[arg(
+        long,
+        requires = "auto",
+        conflicts_with = "max_bytes",
+        allow_hyphen_values = true
+    )]
+    pub target_psnr: Option<f64>,
+    /// With --auto: the asset size in bytes within which to reach the best masked PSNR.
+    #[arg(long, requires = "auto", allow_hyphen_values = true)]
+    pub max_bytes: Option<u64>,
+    /// With --auto: print the report as JSON on stdout.
+    #[arg(long, requires = "auto")]
+    pub json: bool,
 }
 
 pub(super) fn bake(args: &BakeArgs) -> Result<()> {
+    if args.auto {
+        return bake_auto(args);
+    }
     let options = BakeOptions {
         cameras: args.cameras,
         resolution: args.resolution,
@@ -123,5 +146,86 @@ fn bake_calibrated(
         args.output.display(),
         baked.bytes.len() as f64 / (1024.0 * 1024.0)
     );
+    Ok(())
+}
+
+/// `--auto`: calibrate, choose, bake, verify (lumigraph_core::auto_bake), with progress on
+/// stderr and the report on stdout.
+fn bake_auto(args: &BakeArgs) -> Result<()> {
+    let target = AutoTarget::from_flags(args.target_psnr, args.max_bytes)?;
+    let shading = args.shading.to_shading()?;
+    shading.validate()?;
+    let (mesh, provenance) = load_source(args.mesh.as_deref(), args.demo)?;
+    let gpu = gpu()?;
+    let baker = Baker::new(gpu.clone());
+    let renderer = Renderer::new(gpu.clone());
+    let reference = ReferenceRenderer::new(gpu.clone());
+    let engines = AutoEngines {
+        baker: &baker,
+        renderer: &renderer,
+        reference: &reference,
+    };
+    let bar = progress_bar(1, "calibrating");
+    let baked = auto_bake::auto_bake(
+        &engines,
+        &mesh,
+        &shading,
+        target,
+        &provenance,
+        !args.no_calibrate,
+        &mut |stage| match stage {
+            AutoStage::CalibrationBake {
+                index,
+                total,
+                done,
+                cameras,
+            } => {
+                bar.set_length(u64::from(cameras));
+                bar.set_position(u64::from(done));
+                bar.set_message(format!("calibration bake {index}/{total}"));
+            }
+            AutoStage::Measuring => bar.set_message("measuring the calibration views"),
+            AutoStage::Bake { done, cameras } => {
+                bar.set_length(u64::from(cameras));
+                bar.set_position(u64::from(done));
+                bar.set_message("baking the chosen setting");
+            }
+            AutoStage::Verifying => bar.set_message("measuring held-out views"),
+        },
+    )?;
+    bar.finish_and_clear();
+    lumigraph_core::atomic_write(&args.output, |w| std::io::Write::write_all(w, &baked.bytes))
+        .with_context(|| format!("cannot write {}", args.output.display()))?;
+    let report = &baked.report;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(report)?);
+    } else {
+        let s = &report.choice.setting;
+        let goal = match target {
+            AutoTarget::TargetPsnr(db) => format!("target {db} dB"),
+            AutoTarget::MaxBytes(bytes) => format!("max {bytes} bytes"),
+        };
+        println!(
+            "auto ({goal}): chose {} cameras, {} px, {}-bit depth; predicted {:.2} dB, {} bytes; \
+             measured {:.2} dB on {} held-out views; asset {} bytes: {}; target {}",
+            s.cameras,
+            s.resolution,
+            s.depth_bits,
+            s.predicted_psnr,
+            s.predicted_bytes,
+            report.measured_psnr,
+            auto_bake::AUTO_VIEWS,
+            report.asset_bytes,
+            args.output.display(),
+            if report.target_met { "met" } else { "NOT met" },
+        );
+        println!(
+            "calibrated in {:.0} ms, baked in {:.0} ms, verified in {:.0} ms",
+            report.calibrate_ms, report.bake_ms, report.verify_ms
+        );
+    }
+    if let Some(message) = &report.message {
+        eprintln!("warning: {message}");
+    }
     Ok(())
 }
