@@ -19,49 +19,19 @@ import math
 import os
 import platform
 import signal
-import socket
 import statistics
-import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import httpx
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_service import free_port, pct, start_server  # noqa: E402
+
 ROOT = Path(__file__).resolve().parent.parent
 SIZE = 512
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def pct(values: list[float], q: float) -> float:
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, max(0, math.ceil(q * len(ordered)) - 1))]
-
-
-def start_server(assets: Path, port: int, log: Path) -> subprocess.Popen[bytes]:
-    binary = Path(os.environ.get("LUMIGRAPH_BIN") or ROOT / "target" / "release" / "lumigraph")
-    env = dict(os.environ)
-    env.pop("LUMIGRAPH_TOKEN", None)
-    proc = subprocess.Popen([str(binary), "serve", "--assets", str(assets), "--addr",
-                             f"127.0.0.1:{port}"], stdout=log.open("wb"),
-                            stderr=subprocess.STDOUT, env=env)
-    deadline = time.monotonic() + 300
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise SystemExit(f"server exited:\n{log.read_text()[-3000:]}")
-        try:
-            if httpx.get(f"http://127.0.0.1:{port}/readyz", timeout=2).status_code == 200:
-                return proc
-        except httpx.TransportError:
-            pass
-        time.sleep(0.2)
-    proc.kill()
-    raise SystemExit("server not ready after 300 s")
 
 
 def orbit_eye(target: list[float], az_deg: float, el_deg: float, dist: float) -> list[float]:
