@@ -28,9 +28,34 @@
     last: null,
     dirty: false,
     drawing: Promise.resolve(),
+    // Reprojection (reproject.js): the camera changes, counted, so a drawn image can say which
+    // camera it shows; the warper (null without WebGL2); a log of recent camera changes and
+    // draws ({kind: "frame" | "warp", seq, t}) for the stats and for tests.
+    cameraSeq: 0,
+    seqOfRequest: new Map(),
+    warper: null,
+    warps: 0,
+    changes: [],
+    draws: [],
   };
   // Exposed for tests and for poking at from the console.
   window.lumigraphViewer = state;
+
+  try {
+    state.warper = window.LumigraphReproject ? window.LumigraphReproject.createWarper() : null;
+  } catch (e) {
+    console.warn("reprojection unavailable:", e);
+  }
+  state.warpCanvas = state.warper ? state.warper.canvas : null;
+  const reprojectBox = $("reproject");
+  if (!state.warper) { reprojectBox.checked = false; reprojectBox.disabled = true; }
+  if (new URLSearchParams(location.search).get("reproject") === "0") reprojectBox.checked = false;
+  const reprojecting = () => !!state.warper && reprojectBox.checked;
+
+  function logEntry(list, entry) {
+    list.push(entry);
+    if (list.length > 512) list.shift();
+  }
 
   function showError(message) {
     errorEl.textContent = message;
@@ -63,16 +88,45 @@
 
   // Views are sent at most once per animation frame; the server keeps only the latest anyway.
   function requestView(still) {
-    if (still) { sendView(true); return; }
+    state.cameraSeq += 1;
+    logEntry(state.changes, { seq: state.cameraSeq, t: performance.now() });
+    if (still) { sendView(true); drawWarped(); return; }
     if (state.dirty) return;
     state.dirty = true;
-    requestAnimationFrame(() => { state.dirty = false; sendView(false); });
+    requestAnimationFrame(() => { state.dirty = false; sendView(false); drawWarped(); });
+  }
+
+  // Draws the kept frames reprojected to the current camera, while the frame for it is on its
+  // way; false when reprojection is off or there is nothing to warp.
+  function drawWarped() {
+    if (!reprojecting()) return false;
+    if (!state.warper.draw(currentView())) return false;
+    present(state.warper.canvas, true);
+    state.warps += 1;
+    logEntry(state.draws, { kind: "warp", seq: state.cameraSeq, t: performance.now() });
+    return true;
+  }
+
+  // Puts an image on the visible canvas, over the background where it is transparent.
+  function present(image, overBackground) {
+    const [w, h2] = [canvas.clientWidth, canvas.clientHeight];
+    if (canvas.width !== w || canvas.height !== h2) { canvas.width = w; canvas.height = h2; }
+    ctx.imageSmoothingEnabled = true;
+    if (overBackground) {
+      ctx.fillStyle = $("background").value;
+      ctx.fillRect(0, 0, canvas.width, canvas.height);
+    } else {
+      ctx.clearRect(0, 0, canvas.width, canvas.height);
+    }
+    ctx.drawImage(image, 0, 0, canvas.width, canvas.height);
   }
 
   function sendView(still) {
     state.requestId = (state.requestId + 1) >>> 0;
     state.sentAt.set(state.requestId, performance.now());
     if (state.sentAt.size > 256) state.sentAt.delete(state.sentAt.keys().next().value);
+    state.seqOfRequest.set(state.requestId, state.cameraSeq);
+    if (state.seqOfRequest.size > 256) state.seqOfRequest.delete(state.seqOfRequest.keys().next().value);
     send({ type: "view", id: state.requestId, view: currentView(), still: !!still });
   }
 
@@ -96,6 +150,7 @@
       target_fps: numberOrNull($("target_fps")) || 20,
       rest_ms: Math.round(numberOrNull($("rest_ms")) ?? 250),
       background: [rgb[0], rgb[1], rgb[2], 255],
+      depth: reprojecting(),
     });
   }
 
@@ -103,7 +158,21 @@
     const dv = new DataView(buf);
     const magic = String.fromCharCode(dv.getUint8(0), dv.getUint8(1), dv.getUint8(2), dv.getUint8(3));
     if (magic !== "LGF1") throw new Error("bad frame magic " + magic);
+    const vec3 = (at) => [dv.getFloat32(at, true), dv.getFloat32(at + 4, true), dv.getFloat32(at + 8, true)];
+    // Flag bit 0: the depth extension follows the 40-byte header (docs/protocol.md).
+    const depth = dv.getUint16(38, true) & 1 ? {
+      codec: dv.getUint8(40),
+      colorBytes: dv.getUint32(44, true),
+      near: dv.getFloat32(48, true),
+      far: dv.getFloat32(52, true),
+      eye: vec3(56),
+      target: vec3(68),
+      up: vec3(80),
+      yfovDeg: dv.getFloat32(92, true),
+      depthBytes: dv.getUint32(96, true),
+    } : null;
     return {
+      depth,
       headerLen: dv.getUint16(4, true),
       codec: dv.getUint8(6),
       quality: dv.getUint8(7),
@@ -123,13 +192,22 @@
     const h = parseHeader(buf);
     // Ack at once: the server renders the next frame while this one is decoded and drawn.
     send({ type: "ack", frame: h.frameId });
-    const blob = new Blob([buf.slice(h.headerLen)], { type: CODECS[h.codec] || "image/png" });
-    const bitmap = await createImageBitmap(blob);
-    const [w, h2] = [canvas.clientWidth, canvas.clientHeight];
-    if (canvas.width !== w || canvas.height !== h2) { canvas.width = w; canvas.height = h2; }
-    ctx.imageSmoothingEnabled = true;
-    ctx.clearRect(0, 0, canvas.width, canvas.height);
-    ctx.drawImage(bitmap, 0, 0, canvas.width, canvas.height);
+    const colorEnd = h.depth ? h.headerLen + h.depth.colorBytes : buf.byteLength;
+    const blob = new Blob([buf.slice(h.headerLen, colorEnd)], { type: CODECS[h.codec] || "image/png" });
+    const bitmap = await createImageBitmap(blob, { premultiplyAlpha: "none", colorSpaceConversion: "none" });
+    const shows = state.seqOfRequest.get(h.requestId) ?? -1;
+    if (reprojecting() && h.depth && h.depth.codec === 1) {
+      const d = h.depth;
+      const decoded = await window.LumigraphReproject.decodePng16(
+        new Uint8Array(buf, colorEnd, d.depthBytes), d.near, d.far);
+      state.warper.push(bitmap, decoded, { eye: d.eye, target: d.target, up: d.up, yfov_deg: d.yfovDeg });
+    }
+    // A frame for an older camera than the current one is drawn reprojected to it (it is still
+    // the newest picture); the frame for the current camera replaces any warped one.
+    if (!(shows < state.cameraSeq && drawWarped())) {
+      present(bitmap, false);
+      logEntry(state.draws, { kind: "frame", seq: shows, t: performance.now() });
+    }
     bitmap.close();
     const now = performance.now();
     state.frames += 1;
@@ -155,6 +233,7 @@
       `quality   ${QUALITY[h.quality] || h.quality} ${h.width}x${h.height} ${CODECS[h.codec] || "?"}`,
       `cameras   ${h.cameras}`,
       `frames    ${state.frames} (dropped ${h.dropped})`,
+      `reproject ${reprojecting() ? "on" : state.warper ? "off" : "off (no WebGL2)"} (${state.warps} warped)`,
     ].join("\n");
   }
 
@@ -270,10 +349,16 @@
   canvas.addEventListener("dblclick", () => { resetCamera(); requestView(false); });
   window.addEventListener("resize", () => requestView(false));
 
-  for (const id of ["lod", "method", "step", "tolerance", "auto_lod", "still_codec", "interactive", "target_fps", "rest_ms", "background"]) {
+  reprojectBox.addEventListener("change", () => { if (!reprojectBox.checked && state.warper) state.warper.clear(); });
+  for (const id of ["lod", "method", "step", "tolerance", "auto_lod", "still_codec", "interactive", "target_fps", "rest_ms", "background", "reproject"]) {
     $(id).addEventListener("change", () => { sendSettings(); requestView(false); });
   }
   $("asset").addEventListener("change", (e) => connect(e.target.value));
+
+  // For tests and the console: orbit as a drag does, the current view, a warped draw now.
+  state.orbit = (dAzimuth) => { state.azimuth += dAzimuth; requestView(false); };
+  state.currentView = currentView;
+  state.drawWarped = drawWarped;
 
   function sub(a, b) { return [a[0] - b[0], a[1] - b[1], a[2] - b[2]]; }
   function cross(a, b) { return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]; }
