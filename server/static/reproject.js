@@ -3,7 +3,10 @@
 // in the header's depth extension (docs/protocol.md); each frame becomes a grid mesh, one vertex
 // per pixel, unprojected with its depth (DESIGN §3) and projected into the current view.
 // Triangles across depth discontinuities are cut; the previous frame, drawn behind, fills the
-// holes this leaves where it saw the surface. Plain JS, no build step.
+// holes this leaves where it saw the surface. Large frames get a coarser grid; their depth is
+// first extended a grid step past the silhouette so edge cells survive, and each fragment keeps
+// the coverage of its own source pixel, so silhouettes stay exact to the pixel. Plain JS, no
+// build step.
 "use strict";
 
 window.LumigraphReproject = (() => {
@@ -64,10 +67,18 @@ void main() {
 }`;
   const FRAGMENT = `#version 300 es
 precision highp float;
+precision highp int;
 uniform sampler2D u_color;
 in vec2 v_uv;
 out vec4 color;
-void main() { color = vec4(texture(u_color, v_uv).rgb, 1.0); }`;
+uniform highp sampler2D u_depth;
+uniform ivec2 u_size;
+void main() {
+  // The grid may be coarser than the frame: keep only pixels the frame itself covered.
+  ivec2 px = min(ivec2(v_uv * vec2(u_size)), u_size - 1);
+  if (texelFetch(u_depth, px, 0).g < 0.5) discard;
+  color = vec4(texture(u_color, v_uv).rgb, 1.0);
+}`;
 
   function sub(a, b) { return [a[0] - b[0], a[1] - b[1], a[2] - b[2]]; }
   function cross(a, b) { return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]; }
@@ -136,6 +147,41 @@ void main() { color = vec4(texture(u_color, v_uv).rgb, 1.0); }`;
   }
 
   // A WebGL2 warper on its own canvas; null where WebGL2 is missing.
+  // The grid step of a frame of this size (every step-th pixel a vertex).
+  function gridStep(width, height, maxCells) {
+    return Math.max(1, Math.ceil(Math.sqrt(((width - 1) * (height - 1)) / maxCells)));
+  }
+
+  // Depth and coverage interleaved (RG): missed pixels within `step` pixels of a hit take the
+  // depth of a neighbouring hit (grown one pixel per pass), so grid cells across the silhouette
+  // keep their corners; coverage (G) stays that of the frame.
+  function depthAndCoverage(decoded, step) {
+    const { width, height } = decoded;
+    let depth = decoded.depth;
+    if (step > 1) {
+      depth = depth.slice();
+      for (let pass = 0; pass < step; pass++) {
+        const prev = depth.slice();
+        for (let y = 0; y < height; y++) {
+          for (let x = 0; x < width; x++) {
+            const i = y * width + x;
+            if (prev[i] > 0) continue;
+            const l = x > 0 ? prev[i - 1] : 0, r = x + 1 < width ? prev[i + 1] : 0;
+            const u = y > 0 ? prev[i - width] : 0, d = y + 1 < height ? prev[i + width] : 0;
+            const best = Math.max(l, r, u, d);
+            if (best > 0) depth[i] = best;
+          }
+        }
+      }
+    }
+    const rg = new Float32Array(2 * width * height);
+    for (let i = 0; i < width * height; i++) {
+      rg[2 * i] = depth[i];
+      rg[2 * i + 1] = decoded.depth[i] > 0 ? 1 : 0;
+    }
+    return rg;
+  }
+
   function createWarper() {
     const canvas = document.createElement("canvas");
     // preserveDrawingBuffer: the viewer copies the result onto its 2D canvas (and tests read it)
@@ -187,7 +233,8 @@ void main() { color = vec4(texture(u_color, v_uv).rgb, 1.0); }`;
       gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA8, gl.RGBA, gl.UNSIGNED_BYTE, bitmap);
       gl.bindTexture(gl.TEXTURE_2D, recycled.depth);
       gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
-      gl.texImage2D(gl.TEXTURE_2D, 0, gl.R32F, decoded.width, decoded.height, 0, gl.RED, gl.FLOAT, decoded.depth);
+      const rg = depthAndCoverage(decoded, gridStep(decoded.width, decoded.height, api.maxCells));
+      gl.texImage2D(gl.TEXTURE_2D, 0, gl.RG32F, decoded.width, decoded.height, 0, gl.RG, gl.FLOAT, rg);
       let near = Infinity, far = 0;
       for (const d of decoded.depth) if (d > 0) { if (d < near) near = d; if (d > far) far = d; }
       recycled.view = basis({ ...view, width: decoded.width, height: decoded.height });
@@ -239,7 +286,7 @@ void main() { color = vec4(texture(u_color, v_uv).rgb, 1.0); }`;
         gl.uniform3fv(uniforms.u_srcUp, v.up);
         gl.uniform3fv(uniforms.u_srcForward, v.forward);
         gl.uniform1f(uniforms.u_srcFocal, v.focal);
-        const step = Math.max(1, Math.ceil(Math.sqrt(((v.width - 1) * (v.height - 1)) / api.maxCells)));
+        const step = gridStep(v.width, v.height, api.maxCells);
         const quadsX = Math.ceil((v.width - 1) / step), quadsY = Math.ceil((v.height - 1) / step);
         gl.uniform1i(uniforms.u_step, step);
         gl.uniform1i(uniforms.u_quadsX, quadsX);
