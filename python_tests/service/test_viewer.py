@@ -204,3 +204,22 @@ def test_viewer_without_reprojection_draws_no_warped_frame(server: Server, page:
         assert all(d["kind"] == "frame" for d in page.evaluate("window.lumigraphViewer.draws"))
         assert "reproject off" in page.inner_text("#stats")
         assert not page.errors, page.errors  # type: ignore[attr-defined]
+
+
+def test_viewer_without_webgl2_draws_plainly(server: Server, page: Page) -> None:
+    # A browser without WebGL2: the page's getContext("webgl2") answers null.
+    page.add_init_script("""(() => {
+      const original = HTMLCanvasElement.prototype.getContext;
+      HTMLCanvasElement.prototype.getContext = function (type, ...rest) {
+        return type === "webgl2" ? null : original.call(this, type, ...rest);
+      };
+    })()""")
+    page.goto(server.base_url + "/")
+    page.wait_for_function(SETTLED, timeout=60_000)
+    assert page.is_disabled("#reproject") and not page.is_checked("#reproject")
+    assert page.evaluate("window.lumigraphViewer.last.depth === null")
+    first = motion_to_photon(page, ROTATION)
+    assert first["kind"] == "frame", first
+    assert "reproject off (no WebGL2)" in page.inner_text("#stats")
+    assert canvas(page)["sum"] > 0
+    assert not page.errors, page.errors  # type: ignore[attr-defined]
