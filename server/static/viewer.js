@@ -35,9 +35,34 @@
     lastView: null,
     // Keys the stream settings carry that a later version may add (URL: light, time, focus).
     extra: {},
+    // Reprojection (reproject.js): the camera changes, counted, so a drawn image can say which
+    // camera it shows; the warper (null without WebGL2); a log of recent camera changes and
+    // draws ({kind: "frame" | "warp", seq, t}) for the stats and for tests.
+    cameraSeq: 0,
+    seqOfRequest: new Map(),
+    warper: null,
+    warps: 0,
+    changes: [],
+    draws: [],
   };
   // Exposed for tests and for poking at from the console.
   window.lumigraphViewer = state;
+
+  try {
+    state.warper = window.LumigraphReproject ? window.LumigraphReproject.createWarper() : null;
+  } catch (e) {
+    console.warn("reprojection unavailable:", e);
+  }
+  state.warpCanvas = state.warper ? state.warper.canvas : null;
+  const reprojectBox = $("reproject");
+  if (!state.warper) { reprojectBox.checked = false; reprojectBox.disabled = true; }
+  if (new URLSearchParams(location.search).get("reproject") === "0") reprojectBox.checked = false;
+  const reprojecting = () => !!state.warper && reprojectBox.checked;
+
+  function logEntry(list, entry) {
+    list.push(entry);
+    if (list.length > 512) list.shift();
+  }
 
   // Problems with the URL's state: shown until dismissed (a click), never a blank page.
   function showNotice(lines) {
@@ -77,16 +102,45 @@
 
   // Views are sent at most once per animation frame; the server keeps only the latest anyway.
   function requestView(still) {
-    if (still) { sendView(true); return; }
+    state.cameraSeq += 1;
+    logEntry(state.changes, { seq: state.cameraSeq, t: performance.now() });
+    if (still) { sendView(true); drawWarped(); return; }
     if (state.dirty) return;
     state.dirty = true;
-    requestAnimationFrame(() => { state.dirty = false; sendView(false); });
+    requestAnimationFrame(() => { state.dirty = false; sendView(false); drawWarped(); });
+  }
+
+  // Draws the kept frames reprojected to the current camera, while the frame for it is on its
+  // way; false when reprojection is off or there is nothing to warp.
+  function drawWarped() {
+    if (!reprojecting()) return false;
+    if (!state.warper.draw(currentView())) return false;
+    present(state.warper.canvas, true);
+    state.warps += 1;
+    logEntry(state.draws, { kind: "warp", seq: state.cameraSeq, t: performance.now() });
+    return true;
+  }
+
+  // Puts an image on the visible canvas, over the background where it is transparent.
+  function present(image, overBackground) {
+    const [w, h2] = [canvas.clientWidth, canvas.clientHeight];
+    if (canvas.width !== w || canvas.height !== h2) { canvas.width = w; canvas.height = h2; }
+    ctx.imageSmoothingEnabled = true;
+    if (overBackground) {
+      ctx.fillStyle = $("background").value;
+      ctx.fillRect(0, 0, canvas.width, canvas.height);
+    } else {
+      ctx.clearRect(0, 0, canvas.width, canvas.height);
+    }
+    ctx.drawImage(image, 0, 0, canvas.width, canvas.height);
   }
 
   function sendView(still) {
     state.requestId = (state.requestId + 1) >>> 0;
     state.sentAt.set(state.requestId, performance.now());
     if (state.sentAt.size > 256) state.sentAt.delete(state.sentAt.keys().next().value);
+    state.seqOfRequest.set(state.requestId, state.cameraSeq);
+    if (state.seqOfRequest.size > 256) state.seqOfRequest.delete(state.seqOfRequest.keys().next().value);
     state.lastView = currentView();
     send({ type: "view", id: state.requestId, view: state.lastView, still: !!still });
     scheduleUrlUpdate();
@@ -116,6 +170,7 @@
       target_fps: numberOrNull($("target_fps")) || 20,
       rest_ms: Math.round(numberOrNull($("rest_ms")) ?? 250),
       background: backgroundRgba(),
+      depth: reprojecting(),
     });
     scheduleUrlUpdate();
   }
@@ -170,6 +225,7 @@
     const bg = backgroundRgba();
     if (bg.join() !== CONTROL_DEFAULTS.background.join()) p.push(["background", bg.join(",")]);
     for (const [k, v] of Object.entries(state.extra)) p.push([k, v]);
+    if (state.warper && !reprojectBox.checked) p.push(["reproject", "0"]);
     return p;
   }
 
@@ -206,7 +262,7 @@
   // The URL's state, checked key by key: a bad value is reported and its default used.
   const URL_KEYS = ["asset", "az", "el", "dist", "target", "yfov_deg", "lod", "method", "step",
     "tolerance", "auto_lod", "still_codec", "interactive", "target_fps", "rest_ms", "background",
-    "layers", "state", "light", "time", "focus"];
+    "layers", "state", "light", "time", "focus", "reproject"];
   // Keys the issue reserves for later renderer features: kept in the link, not yet sent.
   const LATER_KEYS = ["light", "time", "focus"];
 
@@ -227,6 +283,8 @@
       if (!URL_KEYS.includes(k)) { out.problems.push(`unknown key ${k}; ignored`); continue; }
       switch (k) {
         case "asset": out.asset = v; break;
+        // Read at start-up (the reprojection switch); here only checked.
+        case "reproject": if (v !== "0" && v !== "1") bad(k, v, "not 0 or 1"); break;
         case "az": { const x = num(k, v, -1e6, 1e6); if (x !== null) out.camera.azimuth = x * DEG; break; }
         case "el": { const x = num(k, v, -88.8, 88.8); if (x !== null) out.camera.elevation = x * DEG; break; }
         case "dist": { const x = num(k, v, 1e-6, 1e12); if (x !== null) out.camera.distance = x; break; }
@@ -298,7 +356,23 @@
     const dv = new DataView(buf);
     const magic = String.fromCharCode(dv.getUint8(0), dv.getUint8(1), dv.getUint8(2), dv.getUint8(3));
     if (magic !== "LGF1") throw new Error("bad frame magic " + magic);
+    const vec3 = (at) => [dv.getFloat32(at, true), dv.getFloat32(at + 4, true), dv.getFloat32(at + 8, true)];
+    // Byte 38: JPEG quality; byte 39: flags (bit 0 adapted to the link, bit 1 still sent as
+    // JPEG, bit 2 the depth extension follows the 40-byte header; docs/protocol.md).
+    const flags = dv.getUint8(39);
+    const depth = flags & 4 ? {
+      codec: dv.getUint8(40),
+      colorBytes: dv.getUint32(44, true),
+      near: dv.getFloat32(48, true),
+      far: dv.getFloat32(52, true),
+      eye: vec3(56),
+      target: vec3(68),
+      up: vec3(80),
+      yfovDeg: dv.getFloat32(92, true),
+      depthBytes: dv.getUint32(96, true),
+    } : null;
     return {
+      depth,
       headerLen: dv.getUint16(4, true),
       codec: dv.getUint8(6),
       quality: dv.getUint8(7),
@@ -310,19 +384,30 @@
       encodeMs: dv.getFloat32(28, true),
       dropped: dv.getUint32(32, true),
       cameras: dv.getUint16(36, true),
+      encodedQuality: dv.getUint8(38),
+      flags,
       bytes: buf.byteLength,
     };
   }
 
   async function onFrame(buf) {
     const h = parseHeader(buf);
-    const blob = new Blob([buf.slice(h.headerLen)], { type: CODECS[h.codec] || "image/png" });
-    const bitmap = await createImageBitmap(blob);
-    const [w, h2] = [canvas.clientWidth, canvas.clientHeight];
-    if (canvas.width !== w || canvas.height !== h2) { canvas.width = w; canvas.height = h2; }
-    ctx.imageSmoothingEnabled = true;
-    ctx.clearRect(0, 0, canvas.width, canvas.height);
-    ctx.drawImage(bitmap, 0, 0, canvas.width, canvas.height);
+    const colorEnd = h.depth ? h.headerLen + h.depth.colorBytes : buf.byteLength;
+    const blob = new Blob([buf.slice(h.headerLen, colorEnd)], { type: CODECS[h.codec] || "image/png" });
+    const bitmap = await createImageBitmap(blob, { premultiplyAlpha: "none", colorSpaceConversion: "none" });
+    const shows = state.seqOfRequest.get(h.requestId) ?? -1;
+    if (reprojecting() && h.depth && h.depth.codec === 1) {
+      const d = h.depth;
+      const decoded = await window.LumigraphReproject.decodePng16(
+        new Uint8Array(buf, colorEnd, d.depthBytes), d.near, d.far);
+      state.warper.push(bitmap, decoded, { eye: d.eye, target: d.target, up: d.up, yfov_deg: d.yfovDeg });
+    }
+    // A frame for an older camera than the current one is drawn reprojected to it (it is still
+    // the newest picture); the frame for the current camera replaces any warped one.
+    if (!(shows < state.cameraSeq && drawWarped())) {
+      present(bitmap, false);
+      logEntry(state.draws, { kind: "frame", seq: shows, t: performance.now() });
+    }
     bitmap.close();
     const now = performance.now();
     state.frames += 1;
@@ -348,6 +433,7 @@
       `quality   ${QUALITY[h.quality] || h.quality} ${h.width}x${h.height} ${CODECS[h.codec] || "?"}`,
       `cameras   ${h.cameras}`,
       `frames    ${state.frames} (dropped ${h.dropped})`,
+      `reproject ${reprojecting() ? "on" : state.warper ? "off" : "off (no WebGL2)"} (${state.warps} warped)`,
     ].join("\n");
   }
 
@@ -496,7 +582,8 @@
   canvas.addEventListener("dblclick", () => { resetCamera(); requestView(false); });
   window.addEventListener("resize", () => requestView(false));
 
-  for (const id of ["lod", "method", "step", "tolerance", "auto_lod", "still_codec", "interactive", "target_fps", "rest_ms", "background"]) {
+  reprojectBox.addEventListener("change", () => { if (!reprojectBox.checked && state.warper) state.warper.clear(); });
+  for (const id of ["lod", "method", "step", "tolerance", "auto_lod", "still_codec", "interactive", "target_fps", "rest_ms", "background", "reproject"]) {
     $(id).addEventListener("change", () => { sendSettings(); requestView(false); });
   }
   $("asset").addEventListener("change", (e) => { state.extra = {}; connect(e.target.value); });
@@ -521,6 +608,11 @@
   }
   $("copy_link").addEventListener("click", (e) => copy(link(), e.currentTarget));
   $("copy_image_link").addEventListener("click", (e) => copy(imageLink(), e.currentTarget));
+
+  // For tests and the console: orbit as a drag does, the current view, a warped draw now.
+  state.orbit = (dAzimuth) => { state.azimuth += dAzimuth; requestView(false); };
+  state.currentView = currentView;
+  state.drawWarped = drawWarped;
 
   function sub(a, b) { return [a[0] - b[0], a[1] - b[1], a[2] - b[2]]; }
   function cross(a, b) { return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]; }

@@ -188,6 +188,10 @@ async fn ops_endpoints_and_viewer() {
     assert!(String::from_utf8_lossy(&page.body).contains("viewer.js"));
     let script = get(&state, "/viewer.js").await;
     assert!(script.header("content-type").starts_with("text/javascript"));
+    assert!(String::from_utf8_lossy(&page.body).contains("reproject.js"));
+    let script = get(&state, "/reproject.js").await;
+    assert!(script.header("content-type").starts_with("text/javascript"));
+    assert!(String::from_utf8_lossy(&script.body).contains("LumigraphReproject"));
     // One render so the histograms have samples, then the metrics.
     assert_eq!(
         render(&state, &serde_json::json!({"view": view_json(16, 16)}))
@@ -2466,4 +2470,100 @@ async fn openapi_documents_the_statuses_and_constraints_the_server_enforces() {
     for field in ["width", "height"] {
         assert_eq!(view[field]["minimum"], 1, "{field}: {}", view[field]);
     }
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn websocket_stream_sends_depth_on_request() {
+    use lumigraph_server::service::stream::{
+        DEPTH_EXTENSION_LEN, FRAME_HEADER_LEN, FrameHeader, decode_depth, parse_frame,
+    };
+    let (_dir, state) = setup(None, |_| {}).await;
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let addr = listener.local_addr().expect("addr");
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let server = tokio::spawn(run(listener, state.clone(), async move {
+        let _ = stop_rx.await;
+    }));
+    let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset=tiny"))
+        .await
+        .expect("connect");
+    let hello = next_json(&mut ws).await;
+    assert_eq!(hello["settings"]["depth"], false);
+    let next_binary = |message: Message| match message {
+        Message::Binary(bytes) => bytes.to_vec(),
+        other => panic!("expected a frame, got {other:?}"),
+    };
+
+    // Off by default: the 40-byte header, no flags (a PNG still on a fast link, so quality 0),
+    // the colour image alone.
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "settings", "interactive": false, "still_codec": "png"}),
+    )
+    .await;
+    let view = view_json(40, 24);
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "view", "id": 1, "view": view}),
+    )
+    .await;
+    let plain = next_binary(next_message(&mut ws).await);
+    let parsed = parse_frame(&plain).expect("frame");
+    assert_eq!(u16::from_le_bytes([plain[4], plain[5]]), 40);
+    assert_eq!((plain[38], plain[39]), (0, 0));
+    assert!(parsed.header.depth.is_none() && parsed.depth.is_none());
+    assert_eq!(parsed.color, &plain[FRAME_HEADER_LEN..]);
+    send_json(&mut ws, serde_json::json!({"type": "ack", "frame": 1})).await;
+
+    // On: the extension carries the view, and the depth decodes to the renderer's depth within
+    // half a quantisation step (`(far - near) / 65534`, plus f32 rounding of the dequantisation).
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "settings", "depth": true}),
+    )
+    .await;
+    let with_depth = next_binary(next_message(&mut ws).await);
+    let parsed = parse_frame(&with_depth).expect("frame with depth");
+    assert_eq!(
+        usize::from(u16::from_le_bytes([with_depth[4], with_depth[5]])),
+        FRAME_HEADER_LEN + DEPTH_EXTENSION_LEN
+    );
+    // Byte 39's depth bit says so; the parsed flags leave it out.
+    assert_eq!(with_depth[39], FrameHeader::DEPTH);
+    assert_eq!(parsed.header.flags, 0);
+    let extension = parsed.header.depth.expect("the depth extension");
+    assert_eq!(extension.eye, [0.3, 0.5, 3.0]);
+    assert_eq!(extension.target, [0.0; 3]);
+    assert_eq!(extension.up, [0.0, 1.0, 0.0]);
+    assert!((extension.yfov_deg - 40.0).abs() < f32::EPSILON);
+    let (w, h, _) = lumigraph_core::image_io::decode_png_rgba8(parsed.color).expect("png");
+    assert_eq!((w, h), (40, 24));
+    let depth = decode_depth(parsed.depth.expect("depth image"), &extension, w, h).expect("depth");
+    let npy = render(
+        &state,
+        &serde_json::json!({"view": view, "format": "none", "depth": "npy"}),
+    )
+    .await;
+    assert_eq!(npy.status, StatusCode::OK);
+    let (_, _, truth) = lumigraph_core::image_io::decode_depth_npy(&npy.body).expect("npy");
+    let finite: Vec<f32> = truth.iter().copied().filter(|d| d.is_finite()).collect();
+    assert!(!finite.is_empty(), "the view sees the object");
+    let near = finite.iter().copied().fold(f32::INFINITY, f32::min);
+    let far = finite.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    assert_eq!((extension.near, extension.far), (near, far));
+    let bound = 0.5 * (far - near) / 65534.0 + 4.0 * f32::EPSILON * far;
+    for (got, want) in depth.iter().zip(&truth) {
+        if want.is_finite() {
+            assert!(
+                (got - want).abs() <= bound,
+                "{got} vs {want} (bound {bound})"
+            );
+        } else {
+            assert!(got.is_infinite(), "{got} where nothing is hit");
+        }
+    }
+    let _ = stop_tx.send(());
+    let _ = server.await;
 }

@@ -51,6 +51,7 @@ pub fn app(state: AppState) -> Router {
     Router::new()
         .route("/", get(viewer::index))
         .route("/viewer.js", get(viewer::script))
+        .route("/reproject.js", get(viewer::reproject_script))
         .route("/healthz", get(http::healthz))
         .route("/readyz", get(http::readyz))
         .route("/metrics", get(http::metrics))

@@ -23,7 +23,10 @@ use serde::Deserialize;
 use super::error::AppError;
 use super::state::AppState;
 
-pub use protocol::{FRAME_HEADER_LEN, FrameHeader, PROTOCOL_VERSION};
+pub use protocol::{
+    DEPTH_CODEC_PNG16, DEPTH_EXTENSION_LEN, DepthExtension, FRAME_HEADER_LEN, FrameError,
+    FrameHeader, PROTOCOL_VERSION, ParsedFrame, decode_depth, parse_frame,
+};
 pub use settings::Settings;
 
 /// Largest client message (and frame) in bytes: a larger one closes the session with 1009

@@ -10,8 +10,13 @@ use super::adapt::MAX_RECEIVED_MS;
 
 /// Version of the stream protocol, sent in `hello`.
 pub const PROTOCOL_VERSION: u32 = 1;
-/// Bytes of the binary frame header.
+/// Bytes of the binary frame header without extensions.
 pub const FRAME_HEADER_LEN: usize = 40;
+/// Bytes of the depth extension appended to the header when the session asks for depth.
+pub const DEPTH_EXTENSION_LEN: usize = 60;
+/// Depth codec of the extension: a 16-bit grey PNG, `round((d - near) / (far - near) · 65534)`,
+/// 65535 where nothing is hit (the HTTP `png16` convention).
+pub const DEPTH_CODEC_PNG16: u8 = 1;
 
 /// Client messages (`type` selects the variant; see docs/protocol.md).
 #[derive(Debug, Deserialize)]
@@ -184,6 +189,237 @@ pub struct FrameHeader {
     /// What adaptation to the link changed in this frame ([`FrameHeader::LINK_LIMITED`],
     /// [`FrameHeader::STILL_FALLBACK`]).
     pub flags: u8,
+    /// The depth extension, present when the session's `depth` setting is on.
+    pub depth: Option<DepthExtension>,
+}
+
+/// What a frame carries for reprojection: where its depth image is, the range its 16-bit values
+/// map and the view it was rendered for (docs/protocol.md, "Depth extension").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DepthExtension {
+    /// Bytes of the colour image; the depth image follows it.
+    pub color_bytes: u32,
+    /// Bytes of the depth image.
+    pub depth_bytes: u32,
+    /// Depth of value 0 (the smallest finite depth), world units.
+    pub near: f32,
+    /// Depth of value 65534 (the largest finite depth), world units.
+    pub far: f32,
+    /// The view's eye.
+    pub eye: [f32; 3],
+    /// The view's target.
+    pub target: [f32; 3],
+    /// The view's up direction, as sent (not yet made orthogonal).
+    pub up: [f32; 3],
+    /// The view's vertical field of view, degrees.
+    pub yfov_deg: f32,
+}
+
+/// Why a binary frame could not be read.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum FrameError {
+    /// The message is shorter than its header says.
+    #[error("frame of {len} bytes is shorter than its header ({needed} bytes)")]
+    Truncated {
+        /// Bytes received.
+        len: usize,
+        /// Bytes the header needs.
+        needed: usize,
+    },
+    /// The first four bytes are not `LGF1`.
+    #[error("bad frame magic {0:?}")]
+    Magic([u8; 4]),
+    /// A codec byte names no known codec.
+    #[error("unknown {kind} codec {code}")]
+    Codec {
+        /// `colour` or `depth`.
+        kind: &'static str,
+        /// The byte.
+        code: u8,
+    },
+    /// The colour and depth lengths do not add up to the message's payload.
+    #[error(
+        "colour ({color} bytes) and depth ({depth} bytes) do not fill the {payload}-byte payload"
+    )]
+    Lengths {
+        /// Colour bytes in the extension.
+        color: u32,
+        /// Depth bytes in the extension.
+        depth: u32,
+        /// Bytes after the header.
+        payload: usize,
+    },
+    /// The depth image is not a 16-bit grey PNG of the frame's size.
+    #[error("depth image: {0}")]
+    Depth(String),
+}
+
+/// A binary frame split into its parts.
+#[derive(Debug)]
+pub struct ParsedFrame<'a> {
+    /// The header, with its depth extension when the flag is set.
+    pub header: FrameHeader,
+    /// The encoded colour image.
+    pub color: &'a [u8],
+    /// The encoded depth image, when the frame has the depth extension.
+    pub depth: Option<&'a [u8]>,
+}
+
+fn u16_at(bytes: &[u8], at: usize) -> u16 {
+    u16::from_le_bytes([bytes[at], bytes[at + 1]])
+}
+
+fn u32_at(bytes: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]])
+}
+
+fn f32_at(bytes: &[u8], at: usize) -> f32 {
+    f32::from_bits(u32_at(bytes, at))
+}
+
+fn vec3_at(bytes: &[u8], at: usize) -> [f32; 3] {
+    [
+        f32_at(bytes, at),
+        f32_at(bytes, at + 4),
+        f32_at(bytes, at + 8),
+    ]
+}
+
+/// Splits a binary frame into header, colour and depth image (the reader's side of
+/// [`FrameHeader::write`]; clients in other languages follow docs/protocol.md).
+///
+/// # Errors
+/// A message too short for its header, a wrong magic, an unknown codec, or extension lengths
+/// that do not match the payload.
+pub fn parse_frame(bytes: &[u8]) -> Result<ParsedFrame<'_>, FrameError> {
+    let truncated = |needed: usize| FrameError::Truncated {
+        len: bytes.len(),
+        needed,
+    };
+    if bytes.len() < FRAME_HEADER_LEN {
+        return Err(truncated(FRAME_HEADER_LEN));
+    }
+    let magic = [bytes[0], bytes[1], bytes[2], bytes[3]];
+    if &magic != b"LGF1" {
+        return Err(FrameError::Magic(magic));
+    }
+    let header_len = usize::from(u16_at(bytes, 4));
+    let flags = bytes[39];
+    let has_depth = flags & FrameHeader::DEPTH != 0;
+    let needed = if has_depth {
+        FRAME_HEADER_LEN + DEPTH_EXTENSION_LEN
+    } else {
+        FRAME_HEADER_LEN
+    };
+    if header_len < needed || bytes.len() < header_len {
+        return Err(truncated(header_len.max(needed)));
+    }
+    let codec = match bytes[6] {
+        0 => ColorFormat::Png,
+        1 => ColorFormat::Jpeg,
+        2 => ColorFormat::Webp,
+        255 => ColorFormat::None,
+        code => {
+            return Err(FrameError::Codec {
+                kind: "colour",
+                code,
+            });
+        }
+    };
+    let quality = if bytes[7] == 0 {
+        Quality::Interactive
+    } else {
+        Quality::Full
+    };
+    let payload = &bytes[header_len..];
+    let (depth, color, depth_image) = if has_depth {
+        let at = FRAME_HEADER_LEN;
+        if bytes[at] != DEPTH_CODEC_PNG16 {
+            return Err(FrameError::Codec {
+                kind: "depth",
+                code: bytes[at],
+            });
+        }
+        let extension = DepthExtension {
+            color_bytes: u32_at(bytes, at + 4),
+            near: f32_at(bytes, at + 8),
+            far: f32_at(bytes, at + 12),
+            eye: vec3_at(bytes, at + 16),
+            target: vec3_at(bytes, at + 28),
+            up: vec3_at(bytes, at + 40),
+            yfov_deg: f32_at(bytes, at + 52),
+            depth_bytes: u32_at(bytes, at + 56),
+        };
+        let color_len = extension.color_bytes as usize;
+        if color_len.checked_add(extension.depth_bytes as usize) != Some(payload.len()) {
+            return Err(FrameError::Lengths {
+                color: extension.color_bytes,
+                depth: extension.depth_bytes,
+                payload: payload.len(),
+            });
+        }
+        let (color, depth_image) = payload.split_at(color_len);
+        (Some(extension), color, Some(depth_image))
+    } else {
+        (None, payload, None)
+    };
+    Ok(ParsedFrame {
+        header: FrameHeader {
+            codec,
+            quality,
+            frame_id: u32_at(bytes, 8),
+            request_id: u32_at(bytes, 12),
+            width: u32_at(bytes, 16),
+            height: u32_at(bytes, 20),
+            render_ms: f32_at(bytes, 24),
+            encode_ms: f32_at(bytes, 28),
+            dropped: u32_at(bytes, 32),
+            cameras: u16_at(bytes, 36),
+            encoded_quality: bytes[38],
+            flags: flags & !FrameHeader::DEPTH,
+            depth,
+        },
+        color,
+        depth: depth_image,
+    })
+}
+
+/// Decodes a frame's depth image (codec [`DEPTH_CODEC_PNG16`]) to z-depths in world units,
+/// `+inf` where nothing is hit, row-major from the top row. The image must be the frame's size.
+///
+/// # Errors
+/// Not a PNG, not 16-bit grey, or another size than `width` × `height`.
+pub fn decode_depth(
+    image: &[u8],
+    extension: &DepthExtension,
+    width: u32,
+    height: u32,
+) -> Result<Vec<f32>, FrameError> {
+    let decoded = image::load_from_memory_with_format(image, image::ImageFormat::Png)
+        .map_err(|e| FrameError::Depth(e.to_string()))?;
+    let image::DynamicImage::ImageLuma16(grey) = decoded else {
+        return Err(FrameError::Depth("not a 16-bit grey PNG".to_owned()));
+    };
+    if grey.dimensions() != (width, height) {
+        return Err(FrameError::Depth(format!(
+            "{}x{} instead of the frame's {width}x{height}",
+            grey.width(),
+            grey.height()
+        )));
+    }
+    let span = extension.far - extension.near;
+    Ok(grey
+        .into_raw()
+        .into_iter()
+        .map(|q| {
+            if q == u16::MAX {
+                f32::INFINITY
+            } else {
+                extension.near + f32::from(q) / 65534.0 * span
+            }
+        })
+        .collect())
 }
 
 impl FrameHeader {
@@ -193,10 +429,20 @@ impl FrameHeader {
     /// Flag: a resting frame was sent as JPEG because the lossless `still_codec` would have
     /// taken too long on the link.
     pub const STILL_FALLBACK: u8 = 2;
+    /// Flag: the depth extension follows the 40-byte header (set by [`FrameHeader::write`]
+    /// when [`FrameHeader::depth`] is present).
+    pub const DEPTH: u8 = 4;
 
+    /// Bytes of this header, extensions included.
+    pub fn encoded_len(&self) -> usize {
+        FRAME_HEADER_LEN + self.depth.map_or(0, |_| DEPTH_EXTENSION_LEN)
+    }
+
+    /// Appends the header (and its depth extension) to `out`; the colour image, then the depth
+    /// image, follow it.
     pub(super) fn write(&self, out: &mut Vec<u8>) {
         out.extend_from_slice(b"LGF1");
-        out.extend_from_slice(&(FRAME_HEADER_LEN as u16).to_le_bytes());
+        out.extend_from_slice(&(self.encoded_len() as u16).to_le_bytes());
         out.push(match self.codec {
             ColorFormat::Png => 0,
             ColorFormat::Jpeg => 1,
@@ -213,7 +459,19 @@ impl FrameHeader {
         out.extend_from_slice(&self.dropped.to_le_bytes());
         out.extend_from_slice(&self.cameras.to_le_bytes());
         out.push(self.encoded_quality);
-        out.push(self.flags);
+        let depth_flag = if self.depth.is_some() { Self::DEPTH } else { 0 };
+        out.push(self.flags | depth_flag);
+        if let Some(depth) = &self.depth {
+            out.extend_from_slice(&[DEPTH_CODEC_PNG16, 0, 0, 0]);
+            out.extend_from_slice(&depth.color_bytes.to_le_bytes());
+            out.extend_from_slice(&depth.near.to_le_bytes());
+            out.extend_from_slice(&depth.far.to_le_bytes());
+            for v in depth.eye.iter().chain(&depth.target).chain(&depth.up) {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+            out.extend_from_slice(&depth.yfov_deg.to_le_bytes());
+            out.extend_from_slice(&depth.depth_bytes.to_le_bytes());
+        }
     }
 }
 
@@ -262,6 +520,7 @@ mod tests {
             cameras: 162,
             encoded_quality: 35,
             flags: FrameHeader::LINK_LIMITED,
+            depth: None,
         };
         let mut out = Vec::new();
         header.write(&mut out);
@@ -271,6 +530,90 @@ mod tests {
         assert_eq!(out[7], 1);
         assert_eq!(u32::from_le_bytes([out[8], out[9], out[10], out[11]]), 7);
         assert_eq!(u16::from_le_bytes([out[36], out[37]]), 162);
+        // Without depth: no extension, no depth flag.
         assert_eq!((out[38], out[39]), (35, 1));
+        let parsed = parse_frame(&out).unwrap();
+        assert_eq!(parsed.header, header);
+        assert!(parsed.depth.is_none() && parsed.color.is_empty());
+    }
+
+    /// Depths covering a range with misses; quantised to 16 bits, the round trip through the
+    /// header and the PNG must come back within half a quantisation step.
+    #[test]
+    fn depth_extension_round_trips_within_half_a_step() {
+        let (width, height) = (37u32, 23u32);
+        let depth: Vec<f32> = (0..width * height)
+            .map(|i| {
+                if i % 7 == 3 {
+                    f32::INFINITY
+                } else {
+                    2.0 + (i as f32 * 0.618_034).fract() * 1.7
+                }
+            })
+            .collect();
+        let (png, (near, far)) =
+            lumigraph_core::image_io::encode_depth_png16(width, height, &depth).unwrap();
+        let color = b"colour bytes".to_vec();
+        let header = FrameHeader {
+            codec: ColorFormat::Png,
+            quality: Quality::Interactive,
+            frame_id: 1,
+            request_id: 2,
+            width,
+            height,
+            render_ms: 3.0,
+            encode_ms: 4.0,
+            dropped: 0,
+            cameras: 12,
+            encoded_quality: 0,
+            flags: 0,
+            depth: Some(DepthExtension {
+                color_bytes: color.len() as u32,
+                depth_bytes: png.len() as u32,
+                near,
+                far,
+                eye: [0.5, 1.0, 3.0],
+                target: [0.0, 0.25, 0.0],
+                up: [0.0, 1.0, 0.0],
+                yfov_deg: 40.0,
+            }),
+        };
+        let mut out = Vec::new();
+        header.write(&mut out);
+        assert_eq!(out.len(), FRAME_HEADER_LEN + DEPTH_EXTENSION_LEN);
+        assert_eq!(usize::from(u16::from_le_bytes([out[4], out[5]])), 100);
+        assert_eq!((out[38], out[39]), (0, FrameHeader::DEPTH));
+        assert_eq!(out[40], DEPTH_CODEC_PNG16);
+        out.extend_from_slice(&color);
+        out.extend_from_slice(&png);
+        let parsed = parse_frame(&out).unwrap();
+        assert_eq!(parsed.header, header);
+        assert_eq!(parsed.color, color.as_slice());
+        let extension = parsed.header.depth.unwrap();
+        let decoded = decode_depth(parsed.depth.unwrap(), &extension, width, height).unwrap();
+        // Half a step of the 65534 steps between near and far, plus f32 rounding of the
+        // dequantisation at these magnitudes (a few ulps of 4.0).
+        let bound = 0.5 * (far - near) / 65534.0 + 4.0 * f32::EPSILON * far;
+        for (sent, got) in depth.iter().zip(&decoded) {
+            if sent.is_finite() {
+                assert!(
+                    (sent - got).abs() <= bound,
+                    "{sent} -> {got}, bound {bound}"
+                );
+            } else {
+                assert!(got.is_infinite());
+            }
+        }
+        // Lengths that do not add up are refused, not read past.
+        let mut short = out.clone();
+        short.pop();
+        assert!(matches!(
+            parse_frame(&short),
+            Err(FrameError::Lengths { .. })
+        ));
+        assert!(matches!(
+            parse_frame(&out[..60]),
+            Err(FrameError::Truncated { .. })
+        ));
     }
 }

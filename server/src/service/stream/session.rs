@@ -13,12 +13,14 @@ use tokio::sync::{mpsc, watch};
 
 use super::adapt::{self, LinkEstimator};
 use super::protocol::{
-    ClientMessage, FRAME_HEADER_LEN, FrameHeader, Hello, PROTOCOL_VERSION, Quality, error_text,
-    parse_client_message,
+    ClientMessage, DepthExtension, FRAME_HEADER_LEN, FrameHeader, Hello, PROTOCOL_VERSION, Quality,
+    error_text, parse_client_message,
 };
 use super::settings::{Effective, Settings, merge_settings, validate_settings};
 use crate::service::assets::LoadedAsset;
-use crate::service::codecs::{ColorFormat, Encoding, encode_blocking, encode_color};
+use crate::service::codecs::{
+    ColorFormat, DepthFormat, Encoding, encode_blocking, encode_color, encode_depth,
+};
 use crate::service::error::AppError;
 use crate::service::state::AppState;
 
@@ -434,6 +436,9 @@ impl Sender<'_> {
             let _ = self.sink.send(Message::Text(text.into())).await;
             return false;
         };
+        // The view the frame is rendered for (interactive frames at their reduced size): the
+        // depth extension carries it so the client can reproject the frame.
+        let rendered_view = view.clone();
         let rendered = match self.state.pool().render(asset, view, plan).await {
             Ok(r) => r,
             Err(err) => {
@@ -458,6 +463,7 @@ impl Sender<'_> {
         }
         let cameras = rendered.decision.cameras();
         let opacity = effective.opacity;
+        let with_depth = settings.depth;
         let mut frame = rendered.frame;
         let encoded = encode_blocking(move || {
             apply_opacity(&mut frame, opacity);
@@ -475,10 +481,19 @@ impl Sender<'_> {
                 };
                 bytes = encode(used)?;
             }
-            Ok((bytes, used, frame.width, frame.height))
+            // The depth image follows the colour image; the header extension says where.
+            let depth = if with_depth {
+                let depth = encode_depth(&frame, DepthFormat::Png16)?;
+                let sizes = (bytes.len(), depth.bytes.len());
+                bytes.extend_from_slice(&depth.bytes);
+                Some((sizes, depth.range.unwrap_or((0.0, 0.0))))
+            } else {
+                None
+            };
+            Ok((bytes, used, frame.width, frame.height, depth))
         })
         .await;
-        let ((bytes, encoding, width, height), encode_ms) = match encoded {
+        let ((bytes, encoding, width, height, depth), encode_ms) = match encoded {
             Ok(ok) => ok,
             Err(err) => {
                 tracing::error!(error = format!("{err:#}"), "stream encode failed");
@@ -520,8 +535,21 @@ impl Sender<'_> {
                 0
             },
             flags,
+            depth: depth.map(|((color_bytes, depth_bytes), (near, far))| {
+                let f32x3 = |v: [f64; 3]| v.map(|x| x as f32);
+                DepthExtension {
+                    color_bytes: u32::try_from(color_bytes).unwrap_or(u32::MAX),
+                    depth_bytes: u32::try_from(depth_bytes).unwrap_or(u32::MAX),
+                    near,
+                    far,
+                    eye: f32x3(rendered_view.eye),
+                    target: f32x3(rendered_view.target),
+                    up: f32x3(rendered_view.up),
+                    yfov_deg: rendered_view.yfov_deg as f32,
+                }
+            }),
         };
-        let mut message = Vec::with_capacity(FRAME_HEADER_LEN + bytes.len());
+        let mut message = Vec::with_capacity(header.encoded_len() + bytes.len());
         header.write(&mut message);
         message.extend_from_slice(&bytes);
         let quality_name = if quality == Quality::Full {

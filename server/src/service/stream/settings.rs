@@ -45,6 +45,9 @@ pub struct Settings {
     pub layers: BTreeMap<String, f32>,
     /// Named state of the asset (lighting, animation frame); absent = the base state.
     pub state: Option<String>,
+    /// Append each frame's depth and view to its header (the depth extension), so the client
+    /// can reproject the frame to a newer camera while the next one is on its way.
+    pub depth: bool,
     /// The quality request (core `Quality`) as its JSON keys: a message's quality key sets
     /// it, `null` clears it. Resting frames render with it; moving frames with its motion
     /// quality (`Quality::for_motion`, `interactive_lod` replacing `lod` without `auto_lod`).
@@ -69,6 +72,7 @@ impl Settings {
             background: [0; 4],
             layers: BTreeMap::new(),
             state: None,
+            depth: false,
             quality: serde_json::Map::new(),
         }
     }
