@@ -77,6 +77,12 @@ def tables(out: Path) -> str:
                 else f"≤ {target['max_bytes']} B",
                 "setting": f"{s['cameras']} × {s['resolution']} px × {s['depth_bits']}-bit",
                 "predicted": s["predicted_psnr"],
+                "corrected": s["predicted_psnr"] + r["choice"]["correction_db"],
+                "bakes": ", ".join(
+                    f"{b['choice']['setting']['cameras']}×{b['choice']['setting']['resolution']}"
+                    + (f": {b['tuning_psnr']:.2f}" if b["tuning_psnr"] is not None else "")
+                    for b in r["bakes"]
+                ),
                 "measured": r["measured_psnr"],
                 "check": check,
                 "bytes": r["asset_bytes"],
@@ -94,8 +100,8 @@ def tables(out: Path) -> str:
             if run == "equal-bytes":
                 equal_b.append(row)
     lines = [
-        "| scene | target | chosen (cameras × map × depth) | predicted dB | measured dB (held-out) | eval check dB | measured − target | asset MiB (predicted) | default MiB | default dB | reach | met | calibration s | wall s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| scene | target | bakes (cameras×map: tuning dB) | kept (cameras × map × depth) | predicted dB (corrected) | measured dB (held-out) | eval check dB | measured − target | asset MiB (predicted) | default MiB | default dB | reach | met | calibration s | wall s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         if r["run"] == "equal-bytes":
@@ -104,7 +110,7 @@ def tables(out: Path) -> str:
             t = float(r["target"].split()[0])
             delta = f"{r['measured'] - t:+.2f}"
         lines.append(
-            f"| {r['scene']} | {r['target']} | {r['setting']} | {r['predicted']:.2f} | {r['measured']:.2f} | "
+            f"| {r['scene']} | {r['target']} | {r['bakes']} | {r['setting']} | {r['predicted']:.2f} ({r['corrected']:.2f}) | {r['measured']:.2f} | "
             f"{r['check']:.2f} | {delta} | {mib(r['bytes'])} ({mib(r['predicted_bytes'])}) | {mib(r['default_bytes'])} | "
             f"{r['default_psnr']:.2f} | {r['reach']} | {'yes' if r['met'] else 'no'} | {r['calibrate_s']:.1f} | {r['wall_s']:.1f} |"
         )

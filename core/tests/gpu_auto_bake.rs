@@ -1,6 +1,6 @@
 //! The automatic bake on the GPU (issue #26 item 4): the setting chosen from the low-resolution
-//! calibration, baked, measures on held-out views what the model predicted, and the asset holds
-//! exactly that setting.
+//! calibration and corrected on tuning views, baked, measures on held-out views what the tuning
+//! measured, and the asset holds exactly that setting.
 
 use std::sync::Arc;
 
@@ -18,6 +18,11 @@ use lumigraph_core::shading::Shading;
 /// highest) and the difference between the calibration and held-out view sets for one and the
 /// same asset (up to 0.6 dB on the cow, 24 views each).
 const PREDICTION_TOLERANCE_DB: f64 = 1.0;
+
+/// How far the held-out masked PSNR of one asset may lie from its tuning masked PSNR, dB: the
+/// difference between two even view sets of 24 and 40 views (−0.38…+0.24 dB measured on the dev
+/// meshes and the demo; this bound leaves room for lavapipe's rounding).
+const TUNING_TO_HELD_OUT_DB: f64 = 0.5;
 
 #[test]
 fn the_chosen_bake_measures_what_the_model_predicted() {
@@ -45,7 +50,45 @@ fn the_chosen_bake_measures_what_the_model_predicted() {
     let report = &baked.report;
     let setting = report.choice.setting;
     assert_eq!(report.choice.reach, Reach::Within, "{report:?}");
-    assert!(setting.predicted_psnr >= 24.0, "{setting:?}");
+    // The kept bake is one of the bakes made, whose corrected prediction reached the target
+    // (the first choice aims above it; corrections aim above it too).
+    assert!(
+        (1..=auto_bake::MAX_AUTO_BAKES).contains(&report.bakes.len()),
+        "{:?}",
+        report.bakes
+    );
+    let kept = report
+        .bakes
+        .iter()
+        .find(|b| b.choice == report.choice)
+        .expect("the kept choice is one of the bakes");
+    assert!(
+        setting.predicted_psnr + report.choice.correction_db >= 24.0,
+        "{:?}",
+        report.choice
+    );
+    let tuned = kept.tuning_psnr.expect("a target PSNR is tuned");
+    // Either the kept bake's tuning measurement is in the band, or every bake was spent (or a
+    // correction came back to a setting already baked) and the closest was kept.
+    let (below, above) = auto_bake::TUNING_BAND_DB;
+    assert!(
+        (24.0 + below..=24.0 + above).contains(&tuned)
+            || report.bakes.iter().all(|b| {
+                let off = b.tuning_psnr.expect("tuned") - 24.0;
+                (off - auto_bake::CORRECTED_MARGIN_DB).abs()
+                    >= (tuned - 24.0 - auto_bake::CORRECTED_MARGIN_DB).abs()
+            }),
+        "{:?}",
+        report.bakes
+    );
+    // On held-out views the kept bake lands where its tuning measurement said, within what the
+    // two view sets differ for one asset (TUNING_TO_HELD_OUT_DB).
+    assert!(
+        (report.measured_psnr - tuned).abs() <= TUNING_TO_HELD_OUT_DB,
+        "held-out {} dB, tuning {tuned} dB",
+        report.measured_psnr
+    );
+    // And the model alone, before any correction, was within its stated error.
     assert!(
         (report.measured_psnr - setting.predicted_psnr).abs() <= PREDICTION_TOLERANCE_DB,
         "measured {} dB, predicted {} dB",
@@ -67,6 +110,10 @@ fn the_chosen_bake_measures_what_the_model_predicted() {
     let stored = &header.quality.as_ref().expect("quality report")["auto_bake"];
     assert_eq!(stored["choice"]["setting"]["cameras"], setting.cameras);
     assert_eq!(stored["target_met"], report.target_met);
+    assert_eq!(
+        stored["bakes"].as_array().map(Vec::len),
+        Some(report.bakes.len())
+    );
     // Every calibration sample was measured.
     assert_eq!(
         report.calibration.quality.len(),

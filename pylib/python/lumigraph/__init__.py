@@ -224,12 +224,14 @@ def bake_mesh(
             :meth:`LightField.render` / :meth:`LightField.choose` with ``target_psnr`` or
             ``budget_ms``. ``lumigraph bake`` on the command line calibrates by default.
         auto: if True, choose cameras, map resolution and depth bits for this scene
-            (``lumigraph bake --auto``, docs/auto-bake.md): two low-resolution calibration bakes
-            measured against the mesh fit a model of masked PSNR and bytes, the setting it
-            picks is baked and measured on held-out views. The report is in
-            ``info["quality"]["auto_bake"]`` (choice with predictions and ``reach``,
-            ``measured_psnr``, ``target_met``, ``message`` for a target out of reach).
-            Tens of seconds on a 2-core CPU; ``progress`` reports the final bake only.
+            (``lumigraph bake --auto``, docs/auto-bake.md): three low-resolution calibration
+            bakes measured against the mesh fit a model of masked PSNR and bytes; the setting it
+            picks is baked and, for a target PSNR, measured on tuning views and corrected (at
+            most three bakes); the kept bake is measured on held-out views. The report is in
+            ``info["quality"]["auto_bake"]`` (choice with predictions, ``correction_db`` and
+            ``reach``, ``bakes`` with each one's tuning PSNR, ``measured_psnr``,
+            ``target_met``, ``message`` for a target out of reach). Tens of seconds on a 2-core
+            CPU; ``progress`` reports the bakes of the chosen settings only.
         target_psnr: with ``auto``: the masked PSNR (dB, in (0, 100]) to reach with the fewest
             bytes; default 27 when ``max_bytes`` is not given either.
         max_bytes: with ``auto``: the asset size within which to reach the best masked PSNR.

@@ -190,6 +190,9 @@ fn bake_auto(args: &BakeArgs) -> Result<()> {
                 bar.set_position(u64::from(done));
                 bar.set_message("baking the chosen setting");
             }
+            AutoStage::Tuning { bake } => {
+                bar.set_message(format!("measuring bake {bake} on the tuning views"));
+            }
             AutoStage::Verifying => bar.set_message("measuring held-out views"),
         },
     )?;
@@ -219,6 +222,28 @@ fn bake_auto(args: &BakeArgs) -> Result<()> {
             args.output.display(),
             if report.target_met { "met" } else { "NOT met" },
         );
+        if report.choice.correction_db != 0.0 {
+            println!(
+                "  corrected on the tuning views by {:+.2} dB: predicted {:.2} dB",
+                report.choice.correction_db,
+                s.predicted_psnr + report.choice.correction_db
+            );
+        }
+        for (i, bake) in report.bakes.iter().enumerate() {
+            let b = &bake.choice.setting;
+            if let Some(tuned) = bake.tuning_psnr {
+                println!(
+                    "  bake {}: {} cameras, {} px, {}-bit depth, {} bytes: {tuned:.2} dB on {} \
+                     tuning views",
+                    i + 1,
+                    b.cameras,
+                    b.resolution,
+                    b.depth_bits,
+                    bake.bytes,
+                    auto_bake::AUTO_TUNING_VIEWS
+                );
+            }
+        }
         println!(
             "calibrated in {:.0} ms, baked in {:.0} ms, verified in {:.0} ms",
             report.calibrate_ms, report.bake_ms, report.verify_ms
