@@ -348,6 +348,38 @@ def test_bake_job(server: Server) -> None:
     assert server.asset_files() == files
 
 
+def test_auto_bake_job(server: Server) -> None:
+    """`POST /v1/bake` with `auto`: the calibration, the choice and the held-out measurement run
+    in the job; a budget below every setting bakes the smallest setting and says so."""
+    files = server.asset_files()
+    response = httpx.post(
+        f"{server.base_url}/v1/bake",
+        files={"mesh": ("cube.off", CUBE_OFF, "application/octet-stream")},
+        data={"auto": json.dumps({"max_bytes": 1}), "calibrate": "false", "id": "cube-auto",
+              "options": json.dumps({"shading": {"ambient": 0.3}})},
+        timeout=60,
+    )
+    assert response.status_code == 202, response.text
+    job = response.json()
+    deadline = time.monotonic() + 600
+    while job["state"] not in ("done", "failed") and time.monotonic() < deadline:
+        time.sleep(0.5)
+        job = httpx.get(f"{server.base_url}/v1/jobs/{job['id']}").json()
+    assert job["state"] == "done", job
+    report = job["report"]
+    assert (report["cameras"], report["resolution"]) == (12, 64), report
+    auto = report["auto_bake"]
+    assert auto["target"] == {"max_bytes": 1}
+    assert auto["choice"]["reach"] == "budget_too_small" and auto["target_met"] is False
+    assert "max bytes 1 is below the smallest setting" in auto["message"]
+    assert math.isfinite(auto["measured_psnr"]) and auto["held_out_views"] == 24
+    info = httpx.get(f"{server.base_url}/v1/assets/cube-auto").json()
+    assert (info["camera_count"], info["resolution_px"]) == (12, 64), info
+    assert render(server, {"view": VIEW}, asset="cube-auto").status_code == 200
+    assert httpx.delete(f"{server.base_url}/v1/assets/cube-auto").status_code == 204
+    assert server.asset_files() == files
+
+
 # --- bad input ---------------------------------------------------------------------------------
 
 BODY = json.dumps({"view": VIEW})

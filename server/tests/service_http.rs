@@ -1335,6 +1335,51 @@ async fn post_bake(
     send(state, request.body(Body::from(body)).expect("request")).await
 }
 
+/// `POST /v1/bake` with `auto` (docs/auto-bake.md): bad targets and options that name what
+/// the automatic bake chooses are refused at once, before a job exists.
+#[tokio::test(flavor = "multi_thread")]
+async fn auto_bake_jobs() {
+    let (_dir, state) = setup(None, |_| {}).await;
+    let obj = icosahedron_obj();
+    for (auto, options, why) in [
+        ("maybe", "", "expected true, false"),
+        (r#"{"target_psnr": 27, "max_bytes": 10}"#, "", "not both"),
+        (r#"{"target_psnr": -1}"#, "", "target PSNR"),
+        (r#"{"target_psnr": 1e999}"#, "", "expected true, false"),
+        (r#"{"max_bytes": 0}"#, "", "max bytes"),
+        (r#"{"budget": 1}"#, "", "unknown field"),
+        (
+            "true",
+            r#"{"cameras": 42, "depth_bits": 8}"#,
+            "cameras, depth_bits",
+        ),
+    ] {
+        let mut fields: Vec<(&str, Option<&str>, &[u8])> = vec![
+            ("mesh", Some("ico.obj"), obj.as_bytes()),
+            ("auto", None, auto.as_bytes()),
+            ("id", None, b"ico"),
+        ];
+        if !options.is_empty() {
+            fields.push(("options", None, options.as_bytes()));
+        }
+        let reply = post_bake(&state, None, &fields).await;
+        let body = String::from_utf8_lossy(&reply.body).into_owned();
+        assert_eq!(
+            reply.status,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "{auto}: {body}"
+        );
+        assert!(body.contains(why), "{auto}: {body}");
+    }
+
+    // Nothing was accepted (the whole bake runs in the service end-to-end tests): the id of a
+    // refused request is still free.
+    assert_eq!(
+        get(&state, "/v1/assets/ico").await.status,
+        StatusCode::NOT_FOUND
+    );
+}
+
 #[tokio::test(flavor = "multi_thread")]
 async fn bake_jobs() {
     let (dir, state) = setup(Some(TOKEN), |c| c.max_mesh_bytes = 64 << 10).await;

@@ -12,6 +12,7 @@ use axum::http::{HeaderMap, HeaderName, HeaderValue, StatusCode, Uri, header};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use futures_util::StreamExt as _;
+use lumigraph_core::auto_bake::AutoTarget;
 use lumigraph_core::bake::BakeOptions;
 use lumigraph_core::mesh::{MeshFormat, load_mesh_from_bytes};
 use lumigraph_core::quality::Quality;
@@ -822,6 +823,40 @@ pub struct BakeForm {
     /// `budget_ms`.
     #[schema(pattern = "^\\s*(true|false)\\s*$")]
     pub calibrate: Option<String>,
+    /// The automatic bake (`lumigraph bake --auto`, docs/auto-bake.md): `true` (target 27 dB
+    /// masked PSNR), `{"target_psnr": DB}` or `{"max_bytes": N}`; camera count, map
+    /// resolution and depth bits are chosen for the scene, so `options` may give the shading
+    /// only. Tens of seconds to minutes: three calibration bakes come first. The job's report
+    /// has the choice, its predicted and held-out masked PSNR and whether the target was met.
+    pub auto: Option<String>,
+}
+
+/// The form's `auto` object.
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct AutoField {
+    target_psnr: Option<f64>,
+    max_bytes: Option<u64>,
+}
+
+/// Reads the form's `auto` field: `true`/`false` or an object with one target.
+fn parse_auto(text: &str) -> Result<Option<AutoTarget>, AppError> {
+    let invalid = |why: String| AppError::Invalid(format!("auto: {why}"));
+    let field: AutoField = match text.trim() {
+        "false" => return Ok(None),
+        "true" => AutoField {
+            target_psnr: None,
+            max_bytes: None,
+        },
+        json => serde_json::from_str(json).map_err(|e| {
+            invalid(format!(
+                "expected true, false, {{\"target_psnr\": DB}} or {{\"max_bytes\": N}} ({e})"
+            ))
+        })?,
+    };
+    AutoTarget::from_flags(field.target_psnr, field.max_bytes)
+        .map(Some)
+        .map_err(|e| invalid(e.to_string()))
 }
 
 /// Uploads a mesh and starts a bake job (token-protected when a token is configured). The
@@ -857,6 +892,7 @@ pub async fn bake(
     let mut options_json = None;
     let mut id = None;
     let mut calibrate = true;
+    let mut auto = None;
     while let Some(field) = multipart.next_field().await.map_err(field_error)? {
         let name = field.name().unwrap_or_default().to_owned();
         match name.as_str() {
@@ -878,9 +914,11 @@ pub async fn bake(
                     }
                 };
             }
+            "auto" => auto = parse_auto(&field.text().await.map_err(field_error)?)?,
             other => {
                 return Err(AppError::Invalid(format!(
-                    "unknown form field {other:?}: expected mesh, format, options, id, calibrate"
+                    "unknown form field {other:?}: expected mesh, format, options, id, \
+                     calibrate, auto"
                 )));
             }
         }
@@ -890,10 +928,35 @@ pub async fn bake(
             "the form needs a `mesh` file field".to_owned(),
         ));
     };
-    let options: BakeOptions = match options_json.as_deref().map(str::trim) {
-        None | Some("") => BakeOptions::default(),
-        Some(json) => serde_json::from_str(json).map_err(|e| AppError::from_json(&e))?,
+    let options_value: Option<serde_json::Value> = match options_json.as_deref().map(str::trim) {
+        None | Some("") => None,
+        Some(json) => Some(serde_json::from_str(json).map_err(|e| AppError::from_json(&e))?),
     };
+    if auto.is_some()
+        && let Some(serde_json::Value::Object(map)) = &options_value
+    {
+        let chosen: Vec<&str> = ["cameras", "resolution", "depth_bits"]
+            .into_iter()
+            .filter(|k| map.contains_key(*k))
+            .collect();
+        if !chosen.is_empty() {
+            return Err(AppError::Invalid(format!(
+                "auto chooses {} for the scene: leave them out of options",
+                chosen.join(", ")
+            )));
+        }
+    }
+    let mut options: BakeOptions = match options_value {
+        None => BakeOptions::default(),
+        Some(value) => serde_json::from_value(value).map_err(|e| AppError::from_json(&e))?,
+    };
+    if auto.is_some() {
+        // The smallest setting the automatic bake can choose must fit the asset budget; the
+        // job's counter counts the cameras of each bake of a chosen setting.
+        options.cameras = lumigraph_core::geometry::CAMERA_COUNTS[0];
+        options.resolution = lumigraph_core::auto_bake::AUTO_MIN_RESOLUTION;
+        options.depth_bits = 8;
+    }
     options
         .validate()
         .map_err(|e| AppError::Invalid(format!("invalid bake options: {e}")))?;
@@ -935,6 +998,7 @@ pub async fn bake(
         options,
         format: mesh_format.extension().to_owned(),
         calibrate,
+        auto,
         source_name: file_name.unwrap_or_else(|| format!("upload.{}", mesh_format.extension())),
         mesh_bytes: mesh_bytes.len() as u64,
         mesh_sha256,

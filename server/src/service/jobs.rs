@@ -322,7 +322,55 @@ fn bake_blocking(
     };
     let path = state.assets().path_for(&job.asset);
     let mut progress = |done, total| job.progress(done, total);
-    let report = if spec.calibrate {
+    let report = if let Some(target) = spec.auto {
+        let engine = state.pool().engine();
+        let engines = lumigraph_core::auto_bake::AutoEngines {
+            baker: &engine.baker,
+            renderer: &engine.renderer,
+            reference: &engine.reference,
+        };
+        let baked = lumigraph_core::auto_bake::auto_bake(
+            &engines,
+            &mesh,
+            &options.shading,
+            target,
+            &source,
+            spec.calibrate,
+            // The counter follows each bake in turn: the three calibration bakes, then the
+            // bakes of chosen settings.
+            &mut |stage| match stage {
+                lumigraph_core::auto_bake::AutoStage::CalibrationBake { done, cameras, .. }
+                | lumigraph_core::auto_bake::AutoStage::Bake { done, cameras } => {
+                    job.progress(done, cameras);
+                }
+                _ => {}
+            },
+        )
+        .map_err(|e| format!("automatic bake failed: {e}"))?;
+        lumigraph_core::atomic_write(&path, |w| std::io::Write::write_all(w, &baked.bytes))
+            .map_err(|e| format!("writing {}: {e}", path.display()))?;
+        let report = &baked.report;
+        let setting = &report.choice.setting;
+        serde_json::json!({
+            "cameras": setting.cameras,
+            "resolution": setting.resolution,
+            "depth_bits": setting.depth_bits,
+            "triangles": mesh.triangles.len(),
+            "auto_bake": {
+                "target": report.target,
+                "choice": report.choice,
+                "bakes": report.bakes,
+                "measured_psnr": report.measured_psnr,
+                "held_out_views": lumigraph_core::auto_bake::AUTO_VIEWS,
+                "target_met": report.target_met,
+                "message": report.message,
+            },
+            "calibrate_ms": report.calibrate_ms,
+            "bake_ms": report.bake_ms,
+            "verify_ms": report.verify_ms,
+            "asset_bytes": report.asset_bytes,
+        })
+    } else if spec.calibrate {
         let baked = state
             .bake_calibrated(&mesh, &options, &source, &path, &mut progress)
             .map_err(|e| format!("bake failed: {e:#}"))?;

@@ -65,6 +65,11 @@ pub struct JobSpec {
     pub format: String,
     /// Whether the bake is calibrated.
     pub calibrate: bool,
+    /// The automatic bake's target (`lumigraph bake --auto`): cameras, resolution and depth
+    /// bits are chosen for the scene, `options` gives the shading only. Absent in entries of
+    /// plain bakes (and of servers before it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub auto: Option<lumigraph_core::auto_bake::AutoTarget>,
     /// The uploaded mesh's file name, recorded in the asset's provenance.
     pub source_name: String,
     /// Length of the mesh in bytes.
@@ -382,6 +387,7 @@ mod tests {
             options: BakeOptions::default(),
             format: "obj".to_owned(),
             calibrate: false,
+            auto: None,
             source_name: "ico.obj".to_owned(),
             mesh_bytes: mesh.len() as u64,
             mesh_sha256: lumigraph_core::bake::sha256_hex(mesh),
