@@ -174,6 +174,9 @@ pub(super) struct Link {
     pub(super) bytes_per_s: f64,
     /// Measured interactive JPEG bytes per pixel, normalised to quality 50.
     pub(super) bytes_per_px_q50: f64,
+    /// Measured depth-image bytes per pixel when frames carry depth (0 otherwise); it does
+    /// not shrink with the JPEG quality, only with the scale.
+    pub(super) depth_bytes_per_px: f64,
 }
 
 /// The interactive frame's scale and JPEG quality.
@@ -215,8 +218,16 @@ pub(super) fn choose_interactive(
         return best;
     };
     let budget_bytes = link.bytes_per_s * LINK_SHARE / f64::from(target_fps.max(1.0));
+    let depth_bytes_per_px = if link.depth_bytes_per_px.is_finite() {
+        link.depth_bytes_per_px.max(0.0)
+    } else {
+        0.0
+    };
     let bytes = |scale: f64, quality: u8| {
-        full_px * scale * scale * link.bytes_per_px_q50 * jpeg_size_factor(quality)
+        full_px
+            * scale
+            * scale
+            * (link.bytes_per_px_q50 * jpeg_size_factor(quality) + depth_bytes_per_px)
     };
     let mut candidates = vec![(best_scale, best_quality)];
     let lower = |q: &&u8| **q < best_quality;
@@ -381,6 +392,7 @@ mod tests {
         Link {
             bytes_per_s: mbit_per_s * 1e6 / 8.0,
             bytes_per_px_q50: BPP_Q50,
+            depth_bytes_per_px: 0.0,
         }
     }
 
@@ -443,14 +455,45 @@ mod tests {
             let measured = Some(Link {
                 bytes_per_s: bad,
                 bytes_per_px_q50: BPP_Q50,
+                depth_bytes_per_px: 0.0,
             });
             let choice = choose_interactive(FULL_PX, 1.0, false, 50, 20.0, measured);
             assert!(!choice.link_limited);
             let measured = Some(Link {
                 bytes_per_s: 1e6,
                 bytes_per_px_q50: bad,
+                depth_bytes_per_px: 0.0,
             });
             assert!(!choose_interactive(FULL_PX, 1.0, false, 50, 20.0, measured).link_limited);
+            // A nonsense depth size counts as none.
+            let measured = Some(Link {
+                depth_bytes_per_px: bad,
+                ..link(1000.0)
+            });
+            assert!(!choose_interactive(FULL_PX, 1.0, false, 50, 20.0, measured).link_limited);
+        }
+    }
+
+    /// Frames that carry depth: the depth bytes count against the link too, and only the
+    /// scale shrinks them, so the same link gets a smaller scale than without depth.
+    #[test]
+    fn depth_bytes_count_against_the_link() {
+        let with_depth = |mbit: f64| Link {
+            // A 16-bit depth PNG is several times the q50 colour.
+            depth_bytes_per_px: 5.0 * BPP_Q50,
+            ..link(mbit)
+        };
+        let budget = |mbit: f64| mbit * 1e6 / 8.0 * LINK_SHARE / 20.0;
+        for mbit in [50.0, 20.0, 10.0] {
+            let plain = choose_interactive(FULL_PX, 1.0, false, 50, 20.0, Some(link(mbit)));
+            let deep = choose_interactive(FULL_PX, 1.0, false, 50, 20.0, Some(with_depth(mbit)));
+            let bytes = FULL_PX
+                * deep.scale
+                * deep.scale
+                * (BPP_Q50 * jpeg_size_factor(deep.quality) + 5.0 * BPP_Q50);
+            assert!(bytes <= budget(mbit), "{mbit} Mbit/s: {deep:?}");
+            assert!(deep.scale <= plain.scale, "{mbit}: {deep:?} vs {plain:?}");
+            assert!(deep.scale < 1.0 && deep.link_limited, "{mbit}: {deep:?}");
         }
     }
 

@@ -114,6 +114,7 @@ pub(super) async fn run_session(socket: WebSocket, state: AppState, asset: Arc<L
         ms_per_mpx: None,
         link: &link,
         jpeg_bytes_per_px_q50: None,
+        depth_bytes_per_px: None,
         generation: state.pool().engine().generation,
     };
     let close = tokio::select! {
@@ -254,6 +255,9 @@ struct Sender<'a> {
     /// Measured interactive JPEG size, bytes per pixel normalised to quality 50 (moving
     /// average).
     jpeg_bytes_per_px_q50: Option<f64>,
+    /// Measured depth-image size of frames with the depth extension, bytes per pixel (moving
+    /// average; `None` until one was sent; counted only while the `depth` setting is on).
+    depth_bytes_per_px: Option<f64>,
     /// The engine generation when the session started (a later one: the device was replaced).
     generation: u64,
 }
@@ -400,6 +404,11 @@ impl Sender<'_> {
                     Some(adapt::Link {
                         bytes_per_s,
                         bytes_per_px_q50,
+                        depth_bytes_per_px: if settings.depth {
+                            self.depth_bytes_per_px.unwrap_or(0.0)
+                        } else {
+                            0.0
+                        },
                     })
                 }
                 _ => None,
@@ -510,8 +519,20 @@ impl Sender<'_> {
             self.state.metrics().adapted("still_fallback");
         }
         let pixels = f64::from(width) * f64::from(height);
+        // The colour and depth images are measured apart: only the colour shrinks with the JPEG
+        // quality.
+        let color_len = depth.map_or(bytes.len(), |((color, _), _)| color);
+        if let Some(((_, depth_len), _)) = depth
+            && pixels > 0.0
+        {
+            let sample = depth_len as f64 / pixels;
+            self.depth_bytes_per_px = Some(
+                self.depth_bytes_per_px
+                    .map_or(sample, |old| 0.5 * old + 0.5 * sample),
+            );
+        }
         if quality == Quality::Interactive && encoding.format == ColorFormat::Jpeg && pixels > 0.0 {
-            let sample = bytes.len() as f64 / pixels / adapt::jpeg_size_factor(encoding.quality);
+            let sample = color_len as f64 / pixels / adapt::jpeg_size_factor(encoding.quality);
             self.jpeg_bytes_per_px_q50 = Some(
                 self.jpeg_bytes_per_px_q50
                     .map_or(sample, |old| 0.5 * old + 0.5 * sample),
