@@ -52,6 +52,7 @@ pub mod scene;
 pub mod shaders;
 pub mod shading;
 pub mod tradeoff;
+pub mod two_plane;
 pub mod view;
 
 pub use fsutil::{atomic_write, sync_dir, temp_target};
