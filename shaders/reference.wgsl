@@ -10,9 +10,11 @@ struct ReferenceParams {
     forward: vec3<f32>,
     near: f32,
     depth_scale: f32,
-    pad0: f32,
-    pad1: f32,
-    pad2: f32,
+    // Vertical focal length and the principal point's offset from the image centre (pixels,
+    // +x right, +y up): a DESIGN §3 view has focal_y_px = focal_px and a centred principal point;
+    // two-plane cameras are off-axis.
+    focal_y_px: f32,
+    center_px: vec2<f32>,
     shading: Shading,
 }
 
@@ -42,10 +44,11 @@ fn vs_main(@builtin(vertex_index) vertex_index: u32) -> VertexOut {
     let v = vertices[vi];
     let q = v.position - params.eye;
     let z = dot(q, params.forward);
-    // Pixel convention of DESIGN §3: x = (j+0.5−W/2)/f ⇒ NDC x = x·f/(W/2). Reverse-Z with an
-    // infinite far plane: depth = near / z, so precision is best where it matters.
-    let x_ndc_w = dot(q, params.right) * params.focal_px / (0.5 * params.width);
-    let y_ndc_w = dot(q, params.up) * params.focal_px / (0.5 * params.height);
+    // Pixel convention of DESIGN §3: x = (j+0.5−W/2)/f ⇒ NDC x = x·f/(W/2); off-axis, the pixel
+    // offset is centre + f·x, so NDC·z = (f·x_view + centre·z)/(W/2). Reverse-Z with an infinite
+    // far plane: depth = near / z, so precision is best where it matters.
+    let x_ndc_w = (dot(q, params.right) * params.focal_px + params.center_px.x * z) / (0.5 * params.width);
+    let y_ndc_w = (dot(q, params.up) * params.focal_y_px + params.center_px.y * z) / (0.5 * params.height);
     var out: VertexOut;
     out.clip = vec4<f32>(x_ndc_w, y_ndc_w, params.near, z);
     out.position = v.position;

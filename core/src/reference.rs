@@ -27,6 +27,37 @@ pub enum ReferenceError {
     /// The device failed.
     #[error(transparent)]
     Gpu(#[from] GpuError),
+    /// A projection ([`ReferenceRenderer::render_projection`]) is invalid.
+    #[error("invalid projection: {0}")]
+    Projection(String),
+}
+
+/// A pinhole camera more general than a [`View`]: separate horizontal and vertical focal lengths
+/// and a principal point off the image centre (the off-axis frusta of two-plane cameras). Pixel
+/// `(row i, column j)` sees the direction `x·right + y·up + forward` with
+/// `x = (j + ½ − W/2 − center_px[0]) / focal_px[0]` and
+/// `y = (H/2 − i − ½ − center_px[1]) / focal_px[1]`; a [`View`] is the case of equal focal lengths
+/// and a centred principal point (DESIGN §3).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Projection {
+    /// Camera position, world units.
+    pub eye: glam::DVec3,
+    /// Unit image-right axis.
+    pub right: glam::DVec3,
+    /// Unit image-up axis, orthogonal to `right`.
+    pub up: glam::DVec3,
+    /// Unit viewing axis, orthogonal to both.
+    pub forward: glam::DVec3,
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Horizontal and vertical focal lengths, pixels.
+    pub focal_px: [f64; 2],
+    /// Principal point offset from the image centre, pixels (+x right, +y up).
+    pub center_px: [f64; 2],
+    /// Near clipping distance along `forward`, world units: nearer geometry is not drawn.
+    pub near: f64,
 }
 
 #[repr(C)]
@@ -41,7 +72,8 @@ struct ReferenceParams {
     forward: [f32; 3],
     near: f32,
     depth_scale: f32,
-    pad: [f32; 3],
+    focal_y_px: f32,
+    center_px: [f32; 2],
     shading: GpuShading,
 }
 const _: () = assert!(std::mem::size_of::<ReferenceParams>() == 112);
@@ -180,9 +212,93 @@ impl ReferenceRenderer {
             forward: basis.forward.as_vec3().to_array(),
             near: near as f32,
             depth_scale: scale as f32,
-            pad: [0.0; 3],
+            focal_y_px: basis.focal_px as f32,
+            center_px: [0.0; 2],
             shading: shading.to_gpu(),
         };
+        self.draw(mesh, &params, view.width, view.height, start)
+    }
+
+    /// Rasterizes `mesh` through a general pinhole [`Projection`] (world coordinates) with
+    /// `shading`; depth is the z-depth along `forward` in world units, `+inf` where nothing is hit.
+    ///
+    /// # Errors
+    /// [`ReferenceError::Projection`] for non-finite or non-orthonormal axes, a size of 0 or over
+    /// the device's limit, focal lengths that are not finite and positive, or a near distance
+    /// that is not finite and positive; bad shading; a device failure.
+    pub fn render_projection(
+        &self,
+        mesh: &GpuMesh,
+        projection: &Projection,
+        shading: &Shading,
+    ) -> Result<Frame, ReferenceError> {
+        shading.validate()?;
+        let p = projection;
+        let bad = |why: String| Err(ReferenceError::Projection(why));
+        let max_px = DEFAULT_MAX_VIEW_PX.min(self.gpu.device.limits().max_texture_dimension_2d);
+        if p.width == 0 || p.height == 0 || p.width > max_px || p.height > max_px {
+            return bad(format!(
+                "{}x{} pixels (1..={max_px} per side)",
+                p.width, p.height
+            ));
+        }
+        if !(p.eye.is_finite() && p.right.is_finite() && p.up.is_finite() && p.forward.is_finite())
+        {
+            return bad("eye and axes must be finite".to_owned());
+        }
+        let orthonormal = [p.right, p.up, p.forward]
+            .iter()
+            .all(|a| (a.length() - 1.0).abs() <= 1e-6)
+            && p.right.dot(p.up).abs() <= 1e-6
+            && p.right.dot(p.forward).abs() <= 1e-6
+            && p.up.dot(p.forward).abs() <= 1e-6;
+        if !orthonormal {
+            return bad("right, up and forward must be orthonormal".to_owned());
+        }
+        if !p.focal_px.iter().all(|f| f.is_finite() && *f > 0.0)
+            || !p.center_px.iter().all(|c| c.is_finite())
+        {
+            return bad(format!(
+                "focal lengths {:?} must be finite and positive, the centre {:?} finite",
+                p.focal_px, p.center_px
+            ));
+        }
+        if !(p.near.is_finite() && p.near > 0.0) {
+            return bad(format!("near {} must be finite and positive", p.near));
+        }
+        let start = Instant::now();
+        let frame = &mesh.frame;
+        let scale = frame.world_from_lf_scale();
+        let eye = (p.eye - glam::DVec3::from(frame.center)) / scale;
+        let near = p.near / scale;
+        if !(eye.is_finite() && near.is_finite() && near > 0.0) {
+            return bad("the eye or near distance is out of range of the mesh's frame".to_owned());
+        }
+        let params = ReferenceParams {
+            eye: eye.as_vec3().to_array(),
+            width: p.width as f32,
+            right: p.right.as_vec3().to_array(),
+            height: p.height as f32,
+            up: p.up.as_vec3().to_array(),
+            focal_px: p.focal_px[0] as f32,
+            forward: p.forward.as_vec3().to_array(),
+            near: near as f32,
+            depth_scale: scale as f32,
+            focal_y_px: p.focal_px[1] as f32,
+            center_px: [p.center_px[0] as f32, p.center_px[1] as f32],
+            shading: shading.to_gpu(),
+        };
+        self.draw(mesh, &params, p.width, p.height, start)
+    }
+
+    fn draw(
+        &self,
+        mesh: &GpuMesh,
+        params: &ReferenceParams,
+        width: u32,
+        height: u32,
+        start: Instant,
+    ) -> Result<Frame, ReferenceError> {
         let _guard = self
             .lock
             .lock()
@@ -192,7 +308,7 @@ impl ReferenceRenderer {
             use wgpu::util::DeviceExt;
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("reference params"),
-                contents: bytemuck::bytes_of(&params),
+                contents: bytemuck::bytes_of(params),
                 usage: wgpu::BufferUsages::UNIFORM,
             })
         };
@@ -206,8 +322,8 @@ impl ReferenceRenderer {
         });
         let mesh_group = mesh_bind_group(&self.gpu, &self.mesh_layout, mesh, &self.sampler);
         let size = wgpu::Extent3d {
-            width: view.width,
-            height: view.height,
+            width,
+            height,
             depth_or_array_layers: 1,
         };
         let make = |label, format, usage| {
@@ -280,9 +396,9 @@ impl ReferenceRenderer {
             pass.draw(0..mesh.triangles * 3, 0..1);
         }
         // Rows padded to 256 bytes for the copy.
-        let row_bytes = view.width * 4;
+        let row_bytes = width * 4;
         let padded = row_bytes.div_ceil(256) * 256;
-        let buffer_size = u64::from(padded) * u64::from(view.height);
+        let buffer_size = u64::from(padded) * u64::from(height);
         let readback = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("reference readback"),
             size: buffer_size * 2,
@@ -297,7 +413,7 @@ impl ReferenceRenderer {
                     layout: wgpu::TexelCopyBufferLayout {
                         offset: buffer_size * i as u64,
                         bytes_per_row: Some(padded),
-                        rows_per_image: Some(view.height),
+                        rows_per_image: Some(height),
                     },
                 },
                 size,
@@ -305,7 +421,7 @@ impl ReferenceRenderer {
         }
         self.gpu.queue.submit([encoder.finish()]);
         let bytes = self.gpu.map_read(&readback)?;
-        let (w, h) = (view.width as usize, view.height as usize);
+        let (w, h) = (width as usize, height as usize);
         let mut color_out = Vec::with_capacity(w * h * 4);
         let mut depth_out = Vec::with_capacity(w * h);
         let half = buffer_size as usize;
@@ -319,8 +435,8 @@ impl ReferenceRenderer {
         }
         let covered = depth_out.iter().filter(|z| z.is_finite()).count() as u64;
         Ok(Frame {
-            width: view.width,
-            height: view.height,
+            width,
+            height,
             color: color_out,
             depth: depth_out,
             stats: FrameStats {

@@ -24,6 +24,11 @@
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
+use crate::frame::Frame;
+use crate::gpu::mesh::GpuMesh;
+use crate::reference::{Projection, ReferenceError, ReferenceRenderer};
+use crate::shading::Shading;
+
 /// Most cameras in a uv grid: one GPU array layer per camera, within lavapipe's 2048 layers.
 pub const MAX_CAMERAS: u32 = 2048;
 /// Largest st resolution per axis, texels.
@@ -116,6 +121,11 @@ pub struct TwoPlanes {
     /// The image plane.
     pub st: StPlane,
 }
+
+/// Near clipping distance of a capture camera, as a fraction of the plane separation: the
+/// capture records the first surface beyond the camera (geometry between the planes included),
+/// so only what lies within this sliver in front of the uv plane is lost.
+pub const CAPTURE_NEAR_FRACTION: f64 = 1e-6;
 
 /// Where a ray crosses the two planes ([`TwoPlanes::cross`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -252,6 +262,37 @@ impl TwoPlanes {
         c + depth * (self.st_point(i, j) - c)
     }
 
+    /// The off-axis pinhole of camera `(a, b)`: it looks along `−normal` from its uv position,
+    /// and its `ns × nt` pixels are exactly the st texels (texel `(i, j)`'s centre `S` projects
+    /// to the centre of pixel `(i, j)`). Its near distance is [`CAPTURE_NEAR_FRACTION`] of the
+    /// separation.
+    pub fn projection(&self, a: u32, b: u32) -> Projection {
+        let (right, up) = self.axes();
+        let forward = -self.normal();
+        let eye = self.camera(a, b);
+        let distance = self.separation();
+        let [ns, nt] = self.st.resolution;
+        let [w, h] = self.st.size;
+        let focal = [f64::from(ns) * distance / w, f64::from(nt) * distance / h];
+        // The st centre relative to the camera, across the view; it projects to the image
+        // centre, so the principal point sits opposite it.
+        let to_center = DVec3::from(self.st.center) - eye;
+        Projection {
+            eye,
+            right,
+            up,
+            forward,
+            width: ns,
+            height: nt,
+            focal_px: focal,
+            center_px: [
+                -focal[0] * to_center.dot(right) / distance,
+                -focal[1] * to_center.dot(up) / distance,
+            ],
+            near: CAPTURE_NEAR_FRACTION * distance,
+        }
+    }
+
     /// The stored depth of a surface point `hit` seen by camera `(a, b)` through texel
     /// `(i, j)`: `|hit − C| / |S − C|`.
     pub fn depth_of(&self, a: u32, b: u32, i: u32, j: u32, hit: DVec3) -> f64 {
@@ -333,6 +374,43 @@ impl TwoPlanes {
         let t = (plane - eye).dot(n) / along;
         t.is_finite().then(|| eye + t * dir)
     }
+}
+
+/// Captures a two-plane light field of `mesh` (DESIGN §9): one off-axis rasterization per camera,
+/// row by row from the top-left camera (`b · nu + a`), each an `ns × nt` [`Frame`] whose colour
+/// is the shaded surface and whose depth is the stored depth `|hit − C| / |S − C|` (the
+/// camera's z-depth over the plane separation, since `S` lies at the separation along the
+/// viewing axis), `+inf` where the line meets nothing. `progress(done, total)` after each camera.
+///
+/// # Errors
+/// [`ReferenceError`] for bad shading or a device failure; invalid planes are refused as
+/// [`ReferenceError::Projection`] with the reason.
+pub fn capture(
+    reference: &ReferenceRenderer,
+    mesh: &GpuMesh,
+    planes: &TwoPlanes,
+    shading: &Shading,
+    progress: &mut dyn FnMut(u32, u32),
+) -> Result<Vec<Frame>, ReferenceError> {
+    planes
+        .validate()
+        .map_err(|e| ReferenceError::Projection(e.to_string()))?;
+    let [nu, nv] = planes.uv.grid;
+    let total = planes.camera_count();
+    let distance = planes.separation();
+    let mut frames = Vec::with_capacity(total as usize);
+    for b in 0..nv {
+        for a in 0..nu {
+            let mut frame = reference.render_projection(mesh, &planes.projection(a, b), shading)?;
+            for d in &mut frame.depth {
+                // The z-depth is in world units; +inf stays +inf.
+                *d = (f64::from(*d) / distance) as f32;
+            }
+            frames.push(frame);
+            progress(b * nu + a + 1, total);
+        }
+    }
+    Ok(frames)
 }
 
 /// The four cameras (or texels) around a continuous coordinate pair and their bilinear weights,
@@ -555,6 +633,35 @@ mod tests {
             .cross(DVec3::new(-0.49, 0.0, 3.0), -DVec3::Z)
             .expect("inside");
         assert_eq!(half_cell.a, 0.0);
+    }
+
+    /// Every camera's projection maps each texel centre to that pixel's centre (DESIGN §3's
+    /// pixel convention with the off-axis principal point), in any placement.
+    #[test]
+    fn capture_projections_put_texels_on_pixel_centres() {
+        let rotation = glam::DQuat::from_axis_angle(DVec3::new(1.0, 2.0, 0.5).normalize(), 0.7);
+        for p in [
+            example(),
+            placed(1e-3, rotation, DVec3::new(5.0, -2.0, 1.0)),
+        ] {
+            for (a, b) in [(0, 0), (7, 3), (3, 1)] {
+                let pr = p.projection(a, b);
+                assert!((pr.near / p.separation() - CAPTURE_NEAR_FRACTION).abs() < 1e-18);
+                for (i, j) in [(0, 0), (127, 255), (40, 3)] {
+                    let q = p.st_point(i, j) - pr.eye;
+                    let z = q.dot(pr.forward);
+                    assert!((z - p.separation()).abs() < 1e-9 * p.separation());
+                    let col = 0.5 * f64::from(pr.width)
+                        + pr.center_px[0]
+                        + pr.focal_px[0] * q.dot(pr.right) / z;
+                    let row = 0.5 * f64::from(pr.height)
+                        - pr.center_px[1]
+                        - pr.focal_px[1] * q.dot(pr.up) / z;
+                    assert!((col - (f64::from(j) + 0.5)).abs() < 1e-6, "{col} vs {j}");
+                    assert!((row - (f64::from(i) + 0.5)).abs() < 1e-6, "{row} vs {i}");
+                }
+            }
+        }
     }
 
     #[test]
