@@ -7,6 +7,7 @@ from __future__ import annotations
 import ast
 import contextlib
 import http.client
+import http.server
 import io
 import json
 import math
@@ -14,6 +15,7 @@ import signal
 import socket
 import struct
 import subprocess
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -22,7 +24,8 @@ import httpx
 import pytest
 from PIL import Image
 
-from conftest import DEMO_CAMERAS, MAX_PX, TOKEN, Server, metric, running_server
+from conftest import (BIN, DEMO_CAMERAS, MAX_PX, TOKEN, Server, free_port, metric, runtime_env,
+                      running_server)
 
 VIEW: dict[str, Any] = {"eye": [0.3, 1.0, 10.0], "target": [0, 0, 0], "up": [0, 1, 0],
                         "yfov_deg": 40, "width": 96, "height": 64}
@@ -378,6 +381,53 @@ def test_auto_bake_job(server: Server) -> None:
     assert render(server, {"view": VIEW}, asset="cube-auto").status_code == 200
     assert httpx.delete(f"{server.base_url}/v1/assets/cube-auto").status_code == 204
     assert server.asset_files() == files
+
+
+def healthcheck(port: int, *extra: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([str(BIN), "healthcheck", "--addr", f"127.0.0.1:{port}", *extra],
+                          capture_output=True, text=True, timeout=60, env=runtime_env())
+
+
+def test_healthcheck_command(server: Server) -> None:
+    """`lumigraph healthcheck` (for container HEALTHCHECKs): exit 0 with the readiness JSON
+    from a ready service; a clear error and exit 1 when nothing listens, when the service
+    answers 503 (its reason shown), or when it does not answer in time."""
+    ok = healthcheck(server.port)
+    assert ok.returncode == 0, ok.stderr
+    assert ok.stdout.startswith("ready: ") and json.loads(ok.stdout[7:])["ready"] is True
+
+    closed = free_port()
+    refused = healthcheck(closed)
+    assert refused.returncode == 1 and "cannot connect" in refused.stderr, refused.stderr
+
+    # A stand-in answering 503 the way the service does while it loads; then one that accepts
+    # and never answers.
+    class NotReady(http.server.BaseHTTPRequestHandler):
+        def do_GET(self) -> None:  # noqa: N802 (the handler API's name)
+            body = json.dumps({"error": {"kind": "unavailable",
+                                         "message": "loading assets"}}).encode()
+            self.send_response(503)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, *args: Any) -> None:
+            pass
+
+    stand_in = http.server.HTTPServer(("127.0.0.1", 0), NotReady)
+    thread = threading.Thread(target=stand_in.serve_forever, daemon=True)
+    thread.start()
+    try:
+        busy = healthcheck(stand_in.server_address[1])
+        assert busy.returncode == 1, busy
+        assert "503" in busy.stderr and "loading assets" in busy.stderr, busy.stderr
+    finally:
+        stand_in.shutdown()
+        stand_in.server_close()
+    with socket.create_server(("127.0.0.1", 0)) as silent:
+        slow = healthcheck(silent.getsockname()[1], "--timeout-secs", "0.5")
+        assert slow.returncode == 1 and "no answer" in slow.stderr, slow.stderr
 
 
 # --- bad input ---------------------------------------------------------------------------------

@@ -1,5 +1,5 @@
 //! The `lumigraph` command line: `bake`, `render`, `reference`, `eval`, `info`, `bench` (and
-//! `serve`).
+//! `serve`, `healthcheck`).
 //!
 //! Every command validates its input before touching the GPU and reports any failure as one
 //! line (`error: …`) with a non-zero exit status; nothing here panics on bad input.
@@ -12,6 +12,7 @@ mod bake;
 mod bench;
 mod common;
 mod eval;
+mod healthcheck;
 mod info;
 mod plot;
 mod render;
@@ -21,6 +22,7 @@ pub use args::{DepthArgs, ShadingArgs, ViewArgs};
 pub use bake::BakeArgs;
 pub use bench::{BenchArgs, BenchCommand, TradeoffArgs};
 pub use eval::EvalArgs;
+pub use healthcheck::HealthcheckArgs;
 pub use info::InfoArgs;
 pub use render::{ReferenceArgs, RenderArgs};
 pub use serve::ServeArgs;
@@ -51,6 +53,9 @@ pub enum Command {
     Bench(BenchArgs),
     /// Serve the HTTP/WebSocket render service and the web viewer (bakes the demo on first start).
     Serve(ServeArgs),
+    /// Ask a running service whether it is ready (`GET /readyz`): exit status 0 when it is, for
+    /// container health checks.
+    Healthcheck(HealthcheckArgs),
 }
 
 /// Runs a parsed command.
@@ -68,5 +73,6 @@ pub fn run(cli: Cli) -> Result<()> {
             BenchCommand::Tradeoff(args) => bench::bench_tradeoff(&args),
         },
         Command::Serve(args) => serve::serve(&args),
+        Command::Healthcheck(args) => healthcheck::healthcheck(&args),
     }
 }

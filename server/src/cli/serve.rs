@@ -56,7 +56,7 @@ pub struct ServeArgs {
 }
 
 /// A positive, finite number of seconds, at most a day.
-fn parse_seconds(s: &str) -> Result<std::time::Duration, String> {
+pub(super) fn parse_seconds(s: &str) -> Result<std::time::Duration, String> {
     match s.trim().parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 && v <= 86_400.0 => {
             Ok(std::time::Duration::from_secs_f64(v))
