@@ -202,21 +202,19 @@ impl ReferenceRenderer {
         // closer than 1e-5 of the distance: reverse-Z keeps precision far beyond it.
         let dist = eye.length();
         let near = (dist - std::f64::consts::FRAC_1_SQRT_2 * 1.01).max(dist.max(1.0) * 1e-5);
-        let params = ReferenceParams {
-            eye: eye.as_vec3().to_array(),
-            width: view.width as f32,
-            right: basis.right.as_vec3().to_array(),
-            height: view.height as f32,
-            up: basis.true_up.as_vec3().to_array(),
-            focal_px: basis.focal_px as f32,
-            forward: basis.forward.as_vec3().to_array(),
-            near: near as f32,
-            depth_scale: scale as f32,
-            focal_y_px: basis.focal_px as f32,
+        // The view as a centred projection, in the mesh's frame.
+        let in_frame = Projection {
+            eye,
+            right: basis.right,
+            up: basis.true_up,
+            forward: basis.forward,
+            width: view.width,
+            height: view.height,
+            focal_px: [basis.focal_px; 2],
             center_px: [0.0; 2],
-            shading: shading.to_gpu(),
+            near,
         };
-        self.draw(mesh, &params, view.width, view.height, start)
+        self.draw(mesh, &in_frame, scale, shading, start)
     }
 
     /// Rasterizes `mesh` through a general pinhole [`Projection`] (world coordinates) with
@@ -274,31 +272,35 @@ impl ReferenceRenderer {
         if !(eye.is_finite() && near.is_finite() && near > 0.0) {
             return bad("the eye or near distance is out of range of the mesh's frame".to_owned());
         }
+        let in_frame = Projection { eye, near, ..*p };
+        self.draw(mesh, &in_frame, scale, shading, start)
+    }
+
+    /// Draws through `p`, whose eye and near distance are in the mesh's light-field frame
+    /// (`scale` world units per frame unit, for world z-depths).
+    fn draw(
+        &self,
+        mesh: &GpuMesh,
+        p: &Projection,
+        scale: f64,
+        shading: &Shading,
+        start: Instant,
+    ) -> Result<Frame, ReferenceError> {
+        let (width, height) = (p.width, p.height);
         let params = ReferenceParams {
-            eye: eye.as_vec3().to_array(),
-            width: p.width as f32,
+            eye: p.eye.as_vec3().to_array(),
+            width: width as f32,
             right: p.right.as_vec3().to_array(),
-            height: p.height as f32,
+            height: height as f32,
             up: p.up.as_vec3().to_array(),
             focal_px: p.focal_px[0] as f32,
             forward: p.forward.as_vec3().to_array(),
-            near: near as f32,
+            near: p.near as f32,
             depth_scale: scale as f32,
             focal_y_px: p.focal_px[1] as f32,
             center_px: [p.center_px[0] as f32, p.center_px[1] as f32],
             shading: shading.to_gpu(),
         };
-        self.draw(mesh, &params, p.width, p.height, start)
-    }
-
-    fn draw(
-        &self,
-        mesh: &GpuMesh,
-        params: &ReferenceParams,
-        width: u32,
-        height: u32,
-        start: Instant,
-    ) -> Result<Frame, ReferenceError> {
         let _guard = self
             .lock
             .lock()
@@ -308,7 +310,7 @@ impl ReferenceRenderer {
             use wgpu::util::DeviceExt;
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("reference params"),
-                contents: bytemuck::bytes_of(params),
+                contents: bytemuck::bytes_of(&params),
                 usage: wgpu::BufferUsages::UNIFORM,
             })
         };
