@@ -1700,14 +1700,7 @@ async fn send_json(ws: &mut Ws, value: serde_json::Value) {
 #[tokio::test(flavor = "multi_thread")]
 async fn websocket_stream_on_a_real_server() {
     let (_dir, state) = setup(None, |c| c.max_sessions = 1).await;
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
-        .await
-        .expect("bind");
-    let addr = listener.local_addr().expect("addr");
-    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    let server = tokio::spawn(run(listener, state, async move {
-        let _ = stop_rx.await;
-    }));
+    let (addr, stop_tx, server) = serve_on_loopback(state).await;
     let url = format!("ws://{addr}/v1/stream?asset=tiny");
 
     // Unknown asset: 404 before the upgrade.
@@ -1917,14 +1910,7 @@ async fn websocket_goals_choose_full_quality_settings() {
         .expect("join")
         .expect("state");
     state.load_assets().await.expect("loading assets");
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
-        .await
-        .expect("bind");
-    let addr = listener.local_addr().expect("addr");
-    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    let server = tokio::spawn(run(listener, state, async move {
-        let _ = stop_rx.await;
-    }));
+    let (addr, stop_tx, server) = serve_on_loopback(state).await;
 
     let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset=cal"))
         .await
@@ -2145,14 +2131,7 @@ async fn deleting_an_asset_a_stream_shows_frees_it_at_once() {
     )
     .await;
     assert_eq!(created.status, StatusCode::CREATED);
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
-        .await
-        .expect("bind");
-    let addr = listener.local_addr().expect("addr");
-    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    let server = tokio::spawn(run(listener, state.clone(), async move {
-        let _ = stop_rx.await;
-    }));
+    let (addr, stop_tx, server) = serve_on_loopback(state.clone()).await;
     let (mut ws, _) =
         tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset=shown"))
             .await
@@ -2523,14 +2502,7 @@ async fn websocket_stream_sends_depth_on_request() {
         DEPTH_EXTENSION_LEN, FRAME_HEADER_LEN, FrameHeader, decode_depth, parse_frame,
     };
     let (_dir, state) = setup(None, |_| {}).await;
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
-        .await
-        .expect("bind");
-    let addr = listener.local_addr().expect("addr");
-    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-    let server = tokio::spawn(run(listener, state.clone(), async move {
-        let _ = stop_rx.await;
-    }));
+    let (addr, stop_tx, server) = serve_on_loopback(state.clone()).await;
     let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset=tiny"))
         .await
         .expect("connect");
