@@ -37,7 +37,7 @@ import httpx
 from websockets.asyncio.client import connect
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_service import free_port, pct, start_server  # noqa: E402
+from bench_service import finish_report, free_port, pct, start_server  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 # magic, header_len, codec, quality level, frame, request, width, height, render ms, encode ms,
@@ -244,12 +244,7 @@ def main() -> None:
             f"{s['scale']:.2f} | {s['limited']:.0f} % | {s['p50']:.0f} / {s['p95']:.0f} | "
             f"{rest} |")
     lines += ["", f"Server exit code after SIGTERM: {code}.", ""]
-    report = "\n".join(lines)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(report)
-    print(report)
-    if code != 0:
-        sys.exit(f"server exited with {code}")
+    finish_report(args.out, lines, code)
 
 
 if __name__ == "__main__":

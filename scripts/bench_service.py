@@ -155,6 +155,17 @@ def start_server(assets: Path, port: int, log: Path) -> subprocess.Popen[bytes]:
     raise SystemExit("server not ready after 300 s")
 
 
+def finish_report(out: Path, lines: list[str], code: int) -> None:
+    """Writes the report's lines to `out`, prints them and exits non-zero when the server's
+    exit `code` after SIGTERM was not 0."""
+    report = "\n".join(lines)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(report)
+    print(report)
+    if code != 0:
+        sys.exit(f"server exited with {code}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "bench_service.md")
@@ -219,12 +230,7 @@ def main() -> None:
                      f"{c['encode_p95']:.1f} | {c['render_p50']:.0f} |")
     lines += ["", f"Dropped frames during the run: {dropped:.0f} (closed-loop clients never "
               f"outrun the server). Server exit code after SIGTERM: {code}.", ""]
-    report = "\n".join(lines)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(report)
-    print(report)
-    if code != 0:
-        sys.exit(f"server exited with {code}")
+    finish_report(args.out, lines, code)
 
 
 if __name__ == "__main__":
