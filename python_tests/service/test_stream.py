@@ -273,6 +273,23 @@ def test_bad_messages_answer_errors_and_keep_the_socket(
     assert httpx.get(f"{server.base_url}/readyz").status_code == 200
 
 
+def test_a_refused_message_is_answered_before_the_next_frame(server: Server) -> None:
+    """Refused settings then a view, sent back to back: the error comes first, every time (the
+    order the client sent them), though the sender may find the view waiting when it wakes."""
+    async def body() -> None:
+        s = await open_session(server)
+        for request_id in range(1, 31):
+            await s.send({"type": "settings", "still_codec": "gif"})
+            await s.view(request_id, view(0.1 * request_id), still=True)
+            first = await s.next()
+            assert isinstance(first, dict), f"round {request_id}: a frame came before the error"
+            assert first["kind"] == "invalid" and "gif" in first["message"], first
+            await s.frame(lambda f, r=request_id: f.request_id == r)
+        await s.ws.close()
+
+    run(body)
+
+
 @pytest.mark.parametrize(("asset", "status", "kind"), [
     ("nope", 404, "not_found"), ("..%2Fdemo", 422, "invalid"), ("%2e%2e", 422, "invalid"),
     ("demo.lfa", 422, "invalid")])

@@ -279,6 +279,11 @@ impl Sender<'_> {
             if *self.shutdown.borrow() {
                 break;
             }
+            // Errors go out before the next frame: a refused message the client sent before a
+            // view is answered before that view's frame, in the order the client sent them.
+            if !self.send_queued_errors().await {
+                break;
+            }
             let want = self.wanted.borrow_and_update().clone();
             let in_flight = self
                 .frame_id
@@ -338,6 +343,16 @@ impl Sender<'_> {
         if unrendered > 0 {
             self.state.metrics().dropped(unrendered);
         }
+    }
+
+    /// Sends the errors already queued; false when the socket is gone.
+    async fn send_queued_errors(&mut self) -> bool {
+        while let Ok(text) = self.errors.try_recv() {
+            if self.sink.send(Message::Text(text.into())).await.is_err() {
+                return false;
+            }
+        }
+        true
     }
 
     async fn wait(&mut self, rest_deadline: Option<tokio::time::Instant>) -> Wake {
