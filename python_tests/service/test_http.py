@@ -388,6 +388,50 @@ def healthcheck(port: int, *extra: str) -> subprocess.CompletedProcess[str]:
                           capture_output=True, text=True, timeout=60, env=runtime_env())
 
 
+def test_a_gpu_asked_for_and_absent_fails_readiness_with_the_reason(tmp_path: Path) -> None:
+    """`LUMIGRAPH_ADAPTER=gpu` on a machine with only a software rasterizer: the process stays
+    up (liveness 200, no crash loop), /readyz and every other path answer 503 with the reason,
+    the log says it once, `healthcheck` fails, and SIGTERM ends it cleanly."""
+    port = free_port()
+    log = tmp_path / "serve.log"
+    env = {**runtime_env(), "LUMIGRAPH_ADAPTER": "gpu"}
+    with open(log, "w") as log_file:
+        proc = subprocess.Popen([str(BIN), "serve", "--assets", str(tmp_path / "assets"),
+                                 "--addr", f"127.0.0.1:{port}"], env=env, stdout=log_file,
+                                stderr=subprocess.STDOUT)
+    try:
+        base = f"http://127.0.0.1:{port}"
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                alive = httpx.get(f"{base}/healthz", timeout=5)
+                break
+            except httpx.TransportError:
+                assert proc.poll() is None, log.read_text()
+                assert time.monotonic() < deadline, "serve did not start listening"
+                time.sleep(0.2)
+        assert alive.status_code == 200
+        ready = httpx.get(f"{base}/readyz", timeout=5)
+        if ready.status_code == 200:
+            pytest.skip("this machine has a hardware GPU: LUMIGRAPH_ADAPTER=gpu found it")
+        assert ready.status_code == 503 and ready.headers["retry-after"] == "1"
+        message = ready.json()["error"]["message"]
+        assert "LUMIGRAPH_ADAPTER=gpu: no such adapter; found" in message, message
+        assert "only software rasterizers" in message and "llvmpipe" in message, message
+        other = httpx.post(f"{base}/v1/assets/demo/render", json={}, timeout=5)
+        assert other.status_code == 503 and other.json()["error"]["message"] == message
+        check = healthcheck(port)
+        assert check.returncode == 1 and "LUMIGRAPH_ADAPTER=gpu" in check.stderr, check.stderr
+        assert not (tmp_path / "assets").exists() or not any((tmp_path / "assets").iterdir())
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(timeout=30)
+    text = log.read_text()
+    assert code == 0, text
+    assert text.count("not ready") == 1 and "LUMIGRAPH_ADAPTER=gpu" in text, text
+    assert "panicked" not in text, text
+
+
 def test_healthcheck_command(server: Server) -> None:
     """`lumigraph healthcheck` (for container HEALTHCHECKs): exit 0 with the readiness JSON
     from a ready service; a clear error and exit 1 when nothing listens, when the service

@@ -3,7 +3,8 @@
 //!
 //! On CPU-only servers the adapter is Mesa's lavapipe (Vulkan) or llvmpipe (GL); on machines with
 //! a GPU it is the GPU. `LUMIGRAPH_BACKEND` (vulkan | gl | metal | dx12 | auto) restricts the
-//! backend.
+//! backend; `LUMIGRAPH_ADAPTER` (auto | gpu | software | a name) picks the adapter among those the
+//! backend offers ([`AdapterChoice`]).
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Once, OnceLock};
@@ -15,6 +16,21 @@ pub enum GpuError {
     /// `LUMIGRAPH_BACKEND` holds an unknown value.
     #[error("LUMIGRAPH_BACKEND={0:?} is not one of vulkan, gl, metal, dx12, auto")]
     BadBackend(String),
+    /// `LUMIGRAPH_ADAPTER` holds an empty or unusable value.
+    #[error(
+        "LUMIGRAPH_ADAPTER={0:?} is not auto, gpu, software or a non-empty part of an adapter name"
+    )]
+    BadAdapterChoice(String),
+    /// An adapter was asked for by kind or name and none of those found is one.
+    #[error("LUMIGRAPH_ADAPTER={choice}: no such adapter; found {found}{hint}")]
+    AdapterNotFound {
+        /// What was asked for.
+        choice: String,
+        /// The adapters there are, one `name [kind, backend]` each, or "none".
+        found: String,
+        /// What to do about it.
+        hint: &'static str,
+    },
     /// No adapter was found.
     #[error(
         "no GPU adapter found for backend {backend}: on a CPU-only Debian/Ubuntu machine install Mesa's \
@@ -162,6 +178,86 @@ fn set_runtime_dir(dir: &Path) {
     unsafe { std::env::set_var("XDG_RUNTIME_DIR", dir) };
 }
 
+/// Which adapter to open, from `LUMIGRAPH_ADAPTER`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum AdapterChoice {
+    /// wgpu's high-performance choice: the GPU where there is one, else the software rasterizer
+    /// (the default; unset or `auto`).
+    Auto,
+    /// A hardware adapter, discrete before integrated; none is an error
+    /// ([`GpuError::AdapterNotFound`]) instead of falling back to the CPU (`gpu`).
+    Gpu,
+    /// The software rasterizer (lavapipe, llvmpipe) even where a GPU exists (`software`).
+    Software,
+    /// The first adapter whose name contains this text, case-insensitive (e.g. `H200`).
+    Name(String),
+}
+
+impl AdapterChoice {
+    /// Parses `auto`, `gpu`, `software` (also `cpu`) or a name part.
+    ///
+    /// # Errors
+    /// [`GpuError::BadAdapterChoice`] for an empty value.
+    pub fn parse(value: &str) -> Result<AdapterChoice, GpuError> {
+        let trimmed = value.trim();
+        Ok(match trimmed.to_ascii_lowercase().as_str() {
+            "" => return Err(GpuError::BadAdapterChoice(value.to_owned())),
+            "auto" => AdapterChoice::Auto,
+            "gpu" | "hardware" => AdapterChoice::Gpu,
+            "software" | "cpu" => AdapterChoice::Software,
+            _ => AdapterChoice::Name(trimmed.to_owned()),
+        })
+    }
+
+    /// The choice `LUMIGRAPH_ADAPTER` makes (unset: [`AdapterChoice::Auto`]).
+    ///
+    /// # Errors
+    /// [`GpuError::BadAdapterChoice`] for an empty or non-UTF-8 value.
+    pub fn from_env() -> Result<AdapterChoice, GpuError> {
+        match std::env::var("LUMIGRAPH_ADAPTER") {
+            Ok(value) => AdapterChoice::parse(&value),
+            Err(std::env::VarError::NotPresent) => Ok(AdapterChoice::Auto),
+            Err(std::env::VarError::NotUnicode(raw)) => Err(GpuError::BadAdapterChoice(
+                raw.to_string_lossy().into_owned(),
+            )),
+        }
+    }
+
+    fn describe(&self) -> String {
+        match self {
+            AdapterChoice::Auto => "auto".to_owned(),
+            AdapterChoice::Gpu => "gpu".to_owned(),
+            AdapterChoice::Software => "software".to_owned(),
+            AdapterChoice::Name(name) => format!("{name:?}"),
+        }
+    }
+
+    /// The rank of an adapter for this choice (lower is better), or `None` where it does not
+    /// qualify.
+    fn rank(&self, name: &str, device_type: wgpu::DeviceType) -> Option<u8> {
+        let software = is_software_adapter(name, device_type);
+        match self {
+            AdapterChoice::Auto => Some(0),
+            AdapterChoice::Gpu if software => None,
+            AdapterChoice::Gpu => Some(match device_type {
+                wgpu::DeviceType::DiscreteGpu => 0,
+                wgpu::DeviceType::IntegratedGpu => 1,
+                _ => 2,
+            }),
+            AdapterChoice::Software => software.then_some(0),
+            AdapterChoice::Name(part) => name
+                .to_lowercase()
+                .contains(&part.to_lowercase())
+                .then_some(0),
+        }
+    }
+}
+
+/// Whether wgpu's adapter is a software rasterizer (lavapipe, llvmpipe, any CPU device).
+fn is_software_adapter(name: &str, device_type: wgpu::DeviceType) -> bool {
+    device_type == wgpu::DeviceType::Cpu || name.contains("llvmpipe") || name.contains("lavapipe")
+}
+
 fn backends_from_env() -> Result<(wgpu::Backends, String), GpuError> {
     let value = std::env::var("LUMIGRAPH_BACKEND").unwrap_or_else(|_| "auto".to_owned());
     let backends = match value.to_ascii_lowercase().as_str() {
@@ -196,6 +292,7 @@ impl Gpu {
     pub fn new() -> Result<Gpu, GpuError> {
         ensure_runtime_dir();
         let (backends, backend_name) = backends_from_env()?;
+        let choice = AdapterChoice::from_env()?;
         // `auto` tries the native backends first (Vulkan/Metal/DX12: lavapipe on CPU-only Linux)
         // and falls back to GL only when none has an adapter.
         let attempts = if backends == wgpu::Backends::all() {
@@ -205,10 +302,32 @@ impl Gpu {
         };
         let mut last_error = String::from("no backend tried");
         let mut found = None;
+        let mut seen = Vec::new();
         for attempt in attempts {
             let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
             desc.backends = attempt;
             let instance = wgpu::Instance::new(desc);
+            if choice != AdapterChoice::Auto {
+                let adapters = pollster::block_on(instance.enumerate_adapters(attempt));
+                let best = adapters
+                    .into_iter()
+                    .filter_map(|adapter| {
+                        let info = adapter.get_info();
+                        seen.push(format!(
+                            "{} [{:?}, {:?}]",
+                            info.name, info.device_type, info.backend
+                        ));
+                        choice
+                            .rank(&info.name, info.device_type)
+                            .map(|rank| (rank, adapter))
+                    })
+                    .min_by_key(|(rank, _)| *rank);
+                if let Some((_, adapter)) = best {
+                    found = Some(adapter);
+                    break;
+                }
+                continue;
+            }
             match pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
                 power_preference: wgpu::PowerPreference::HighPerformance,
                 force_fallback_adapter: false,
@@ -222,14 +341,39 @@ impl Gpu {
                 Err(e) => last_error = e.to_string(),
             }
         }
-        let adapter = found.ok_or_else(|| GpuError::NoAdapter {
-            backend: backend_name.clone(),
-            detail: last_error,
-        })?;
+        let adapter = match found {
+            Some(adapter) => adapter,
+            None if choice == AdapterChoice::Auto => {
+                return Err(GpuError::NoAdapter {
+                    backend: backend_name,
+                    detail: last_error,
+                });
+            }
+            None => {
+                return Err(GpuError::AdapterNotFound {
+                    choice: choice.describe(),
+                    found: if seen.is_empty() {
+                        "none".to_owned()
+                    } else {
+                        seen.join(", ")
+                    },
+                    hint: match choice {
+                        AdapterChoice::Gpu => {
+                            " (only software rasterizers: in a container, give it the GPU, e.g. \
+                             the NVIDIA container toolkit with --gpus all, which mounts the \
+                             driver's Vulkan ICD; or set LUMIGRAPH_ADAPTER=auto to accept the CPU)"
+                        }
+                        AdapterChoice::Software => {
+                            " (install Mesa's software Vulkan driver: apt-get install -y \
+                             mesa-vulkan-drivers libvulkan1)"
+                        }
+                        _ => "",
+                    },
+                });
+            }
+        };
         let adapter_info = adapter.get_info();
-        let is_software = adapter_info.device_type == wgpu::DeviceType::Cpu
-            || adapter_info.name.contains("llvmpipe")
-            || adapter_info.name.contains("lavapipe");
+        let is_software = is_software_adapter(&adapter_info.name, adapter_info.device_type);
         // Ask for everything the adapter can do: camera arrays need up to 642+1 layers and large
         // storage buffers, far above wgpu's portable defaults.
         let limits = adapter.limits();
@@ -594,3 +738,42 @@ pub(crate) fn array_view(texture: &wgpu::Texture) -> wgpu::TextureView {
 }
 pub mod bvh;
 pub mod mesh;
+
+#[cfg(test)]
+mod tests {
+    use super::AdapterChoice;
+    use wgpu::DeviceType;
+
+    #[test]
+    fn adapter_choices_parse() {
+        assert_eq!(AdapterChoice::parse("auto").ok(), Some(AdapterChoice::Auto));
+        assert_eq!(AdapterChoice::parse(" GPU ").ok(), Some(AdapterChoice::Gpu));
+        assert_eq!(
+            AdapterChoice::parse("cpu").ok(),
+            Some(AdapterChoice::Software)
+        );
+        assert_eq!(
+            AdapterChoice::parse("H200").ok(),
+            Some(AdapterChoice::Name("H200".to_owned()))
+        );
+        let empty = AdapterChoice::parse("  ").err().map(|e| e.to_string());
+        assert!(empty.is_some_and(|m| m.contains("LUMIGRAPH_ADAPTER")));
+    }
+
+    #[test]
+    fn adapter_choices_rank() {
+        let lavapipe = "llvmpipe (LLVM 15.0.6, 256 bits)";
+        let gpu = AdapterChoice::Gpu;
+        assert_eq!(gpu.rank(lavapipe, DeviceType::Cpu), None);
+        assert_eq!(gpu.rank("NVIDIA H200", DeviceType::DiscreteGpu), Some(0));
+        assert_eq!(gpu.rank("Intel UHD", DeviceType::IntegratedGpu), Some(1));
+        // A software rasterizer that calls itself something else is still software.
+        assert_eq!(gpu.rank(lavapipe, DeviceType::Other), None);
+        let software = AdapterChoice::Software;
+        assert_eq!(software.rank(lavapipe, DeviceType::Cpu), Some(0));
+        assert_eq!(software.rank("NVIDIA H200", DeviceType::DiscreteGpu), None);
+        let name = AdapterChoice::Name("h200".to_owned());
+        assert_eq!(name.rank("NVIDIA H200", DeviceType::DiscreteGpu), Some(0));
+        assert_eq!(name.rank(lavapipe, DeviceType::Cpu), None);
+    }
+}

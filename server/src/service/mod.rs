@@ -203,9 +203,12 @@ pub async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     }
     std::fs::create_dir_all(&config.assets_dir)
         .with_context(|| format!("creating the assets folder {}", config.assets_dir.display()))?;
-    let gpu = tokio::task::spawn_blocking(Gpu::shared)
-        .await?
-        .context("opening the GPU")?;
+    let gpu = match tokio::task::spawn_blocking(Gpu::shared).await? {
+        Ok(gpu) => gpu,
+        // Alive but never ready, with the reason in the log and in /readyz: an orchestrator
+        // keeps the replica out of rotation and shows why, instead of a crash loop.
+        Err(err) => return serve_unready(config.addr, format!("cannot open the GPU: {err}")).await,
+    };
     tracing::info!(adapter = gpu.adapter_summary(), "device ready");
     let addr = config.addr;
     let state = tokio::task::spawn_blocking(move || AppState::new(config, gpu)).await??;
@@ -224,6 +227,27 @@ pub async fn serve(config: ServeConfig) -> anyhow::Result<()> {
         }
     });
     run(listener, state, shutdown_signal()).await
+}
+
+/// Serves `/healthz` (200) and, for every other path, `/readyz` included, 503 with `reason`,
+/// until Ctrl-C or SIGTERM: what `serve` does when it cannot start (no usable GPU adapter, e.g.
+/// `LUMIGRAPH_ADAPTER=gpu` on a machine with only a software rasterizer).
+async fn serve_unready(addr: std::net::SocketAddr, reason: String) -> anyhow::Result<()> {
+    tracing::error!(reason = %reason, "not ready: /readyz answers 503 until restarted with a working configuration");
+    let listener = TcpListener::bind(addr)
+        .await
+        .with_context(|| format!("binding {addr}"))?;
+    let reason = Arc::new(reason);
+    let app = Router::new()
+        .route("/healthz", get(http::healthz))
+        .fallback(move || {
+            let reason = reason.clone();
+            async move { error::AppError::Unavailable(format!("not ready: {reason}")) }
+        });
+    axum::serve(listener, app)
+        .with_graceful_shutdown(shutdown_signal())
+        .await
+        .context("serving")
 }
 
 /// Resolves on Ctrl-C or SIGTERM.
