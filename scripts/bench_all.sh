@@ -28,4 +28,6 @@ source scripts/common.sh
 make_venv .venv-bench 10
 pip_install_once .venv-bench "httpx websockets pillow" httpx websockets pillow
 .venv-bench/bin/python scripts/bench_service.py --out "$OUT/service.md"
+step "batch baking (scripts/bench_distributed.sh)" "$OUT/distributed/table.md: 'Batch baking'"
+bash scripts/bench_distributed.sh "$OUT/distributed"
 echo "== done: tables in $OUT"
