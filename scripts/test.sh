@@ -2,7 +2,8 @@
 # Runs every test on a fresh machine: installs the software Vulkan driver, fetches the real-mesh
 # fixtures (into $LUMIGRAPH_FIXTURES, default ./fixtures), checks formatting and lints, then runs
 # the Rust test suite (GPU tests on lavapipe where there is no GPU), the Python bindings' suite and
-# the service's end-to-end suite.
+# the service's end-to-end suite, and validates the Kubernetes manifests (LUMIGRAPH_DOCKER=1 also
+# builds the container image and smoke-tests it).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
@@ -22,4 +23,13 @@ echo "== Python bindings (maturin build, stubtest, pytest, examples)"
 bash scripts/test_python.sh
 echo "== service end to end (HTTP, WebSocket, headless Chromium)"
 bash scripts/test_service_e2e.sh
+echo "== deployment manifests (docker/k8s/validate.sh)"
+bash docker/k8s/validate.sh
+# The container image build and its smoke run take minutes and a Debian mirror: asked for with
+# LUMIGRAPH_DOCKER=1 (run them alone with `bash docker/build.sh && bash docker/smoke.sh`).
+if [ "${LUMIGRAPH_DOCKER:-0}" = 1 ]; then
+  echo "== container image (docker/build.sh, docker/smoke.sh)"
+  bash docker/build.sh
+  bash docker/smoke.sh
+fi
 echo "== all tests passed"
