@@ -50,6 +50,10 @@ pub enum GpuError {
         /// wgpu's reason.
         detail: String,
     },
+    /// The process-wide device could not be opened ([`Gpu::shared`] repeats the first
+    /// attempt's error, kept as text).
+    #[error("{0}")]
+    Unavailable(String),
     /// A readback or submission failed.
     #[error("GPU operation failed: {0}")]
     Operation(String),
@@ -281,7 +285,7 @@ impl Gpu {
         SHARED
             .get_or_init(|| Gpu::new().map(Arc::new).map_err(|e| e.to_string()))
             .clone()
-            .map_err(GpuError::Operation)
+            .map_err(GpuError::Unavailable)
     }
 
     /// Opens a new headless device on the backend `LUMIGRAPH_BACKEND` selects.
