@@ -2,7 +2,7 @@
 # End-to-end tests of the render service (python_tests/service/): creates ./.venv-e2e with
 # pytest, pytest-timeout, httpx, websockets, pillow, playwright, schemathesis (the schema fuzzing
 # test) and matplotlib (the soak plot), installs Debian's `chromium` when missing (playwright
-# drives it through executable_path; no browser download), builds the release `lumigraph` binary
+# drives it through executable_path; no browser download) and `haproxy` (the replica tests), builds the release `lumigraph` binary
 # and runs pytest (strict: python_tests/service/pytest.ini). The test fixtures start and stop
 # their own servers on free loopback ports in temporary folders. Then scripts/soak.py runs for
 # LUMIGRAPH_SOAK_SECONDS (default 60; 0 skips it), its report and plot in $CARGO_TARGET_DIR/soak.
@@ -14,6 +14,10 @@ source scripts/setup.sh
 CHROMIUM=${LUMIGRAPH_CHROMIUM:-/usr/bin/chromium}
 if [ ! -x "$CHROMIUM" ]; then
   apt_install chromium
+fi
+# HAProxy: the router of test_replicas.py (docker/k8s/router.yaml's balancing).
+if ! command -v haproxy >/dev/null && [ ! -x /usr/sbin/haproxy ]; then
+  apt_install haproxy
 fi
 VENV=$ROOT/.venv-e2e
 make_venv "$VENV" 10

@@ -13,8 +13,7 @@ pip_install_once "$TOOLS" "$(sha256sum docker/requirements-tools.txt | cut -d' '
 KUBERNETES_VERSION=${KUBERNETES_VERSION:-1.30}
 echo "== kubernetes-validate --strict -k $KUBERNETES_VERSION docker/k8s/*.yaml"
 "$TOOLS/bin/kubernetes-validate" --strict -k "$KUBERNETES_VERSION" docker/k8s/*.yaml
-command -v haproxy >/dev/null || apt-get install -y -q haproxy >/dev/null \
-  || { apt-get update -q >/dev/null && apt-get install -y -q haproxy >/dev/null; }
+command -v haproxy >/dev/null || [ -x /usr/sbin/haproxy ] || apt_install haproxy
 config=$(mktemp)
 trap 'rm -f "$config"' EXIT
 "$TOOLS/bin/python" - "$config" <<'PY'
@@ -25,5 +24,5 @@ with open("docker/k8s/router.yaml") as f:
 open(sys.argv[1], "w").write(docs[0]["data"]["haproxy.cfg"])
 PY
 echo "== haproxy -c (the router's configuration)"
-haproxy -c -f "$config"
+"$(command -v haproxy || echo /usr/sbin/haproxy)" -c -f "$config"
 echo "== manifests valid"
