@@ -30,4 +30,6 @@ pip_install_once .venv-bench "httpx websockets pillow" httpx websockets pillow
 .venv-bench/bin/python scripts/bench_service.py --out "$OUT/service.md"
 step "batch baking (scripts/bench_distributed.sh)" "$OUT/distributed/table.md: 'Batch baking'"
 bash scripts/bench_distributed.sh "$OUT/distributed"
+step "replicas behind the router (scripts/bench_replicas.sh)" "$OUT/replicas.md: 'Replicas behind the router'"
+bash scripts/bench_replicas.sh "$OUT/replicas.md"
 echo "== done: tables in $OUT"

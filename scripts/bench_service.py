@@ -87,12 +87,14 @@ class Client:
                 return (time.perf_counter() - start) * 1e3, header, len(message) - header[1]
 
 
-async def latency_level(url: str, clients: int, seconds: float) -> dict[str, Any]:
-    conns = [await Client.open(url, {"interactive": False, "still_codec": "jpeg"})
-             for _ in range(clients)]
+async def closed_loops(conns: list[Client], seconds: float, warm_s: float = 1.0
+                       ) -> tuple[list[float], list[float], list[float]]:
+    """Every client in a closed loop (a new orbit angle, its frame, ack, repeat) for `warm_s`
+    unrecorded, then `seconds` recorded; closes them. Returns (latencies ms, render ms, fps per
+    client)."""
     latencies: list[float] = []
     render_ms: list[float] = []
-    counts = [0] * clients
+    counts = [0] * len(conns)
 
     async def loop(index: int, until: float, record: bool) -> None:
         angle = index * 0.7
@@ -104,14 +106,20 @@ async def latency_level(url: str, clients: int, seconds: float) -> dict[str, Any
                 render_ms.append(header[8])
                 counts[index] += 1
 
-    warm = time.perf_counter() + 1.0
-    await asyncio.gather(*(loop(i, warm, False) for i in range(clients)))
+    warm = time.perf_counter() + warm_s
+    await asyncio.gather(*(loop(i, warm, False) for i in range(len(conns))))
     start = time.perf_counter()
-    await asyncio.gather(*(loop(i, start + seconds, True) for i in range(clients)))
+    await asyncio.gather(*(loop(i, start + seconds, True) for i in range(len(conns))))
     elapsed = time.perf_counter() - start
     for c in conns:
         await c.ws.close()
-    fps = [n / elapsed for n in counts]
+    return latencies, render_ms, [n / elapsed for n in counts]
+
+
+async def latency_level(url: str, clients: int, seconds: float) -> dict[str, Any]:
+    conns = [await Client.open(url, {"interactive": False, "still_codec": "jpeg"})
+             for _ in range(clients)]
+    latencies, render_ms, fps = await closed_loops(conns, seconds)
     return {"clients": clients, "frames": len(latencies), "p50": pct(latencies, 0.5),
             "p95": pct(latencies, 0.95), "fps_mean": statistics.mean(fps), "fps_min": min(fps),
             "fps_max": max(fps), "render_p50": pct(render_ms, 0.5)}
