@@ -248,19 +248,12 @@ fn encode_rgb_jpeg(
     })
 }
 
+#[cfg(not(feature = "turbojpeg"))]
+use encode_rgb_jpeg_rust as encode_rgb_jpeg;
+
 /// Baseline JPEG of packed RGB8, full-resolution chroma (4:4:4), in pure Rust (`jpeg-encoder`
 /// with SIMD): the same bytes and PSNR per quality as the `image` crate's encoder gave, in a
 /// third of its time; libjpeg-turbo (feature `turbojpeg`) takes a quarter of this one's.
-#[cfg(not(feature = "turbojpeg"))]
-fn encode_rgb_jpeg(
-    rgb: &[u8],
-    width: u16,
-    height: u16,
-    quality: u8,
-) -> Result<Vec<u8>, ImageIoError> {
-    encode_rgb_jpeg_rust(rgb, width, height, quality)
-}
-
 #[cfg_attr(all(feature = "turbojpeg", not(test)), allow(dead_code))]
 fn encode_rgb_jpeg_rust(
     rgb: &[u8],
