@@ -53,6 +53,17 @@ pub struct ServeArgs {
     /// header before anything is decoded), same units. Default: the memory budget.
     #[arg(long, value_parser = parse_bytes)]
     pub max_asset_decoded_bytes: Option<u64>,
+    /// The content-addressed asset store replicas share: `file:///ABS/PATH` or
+    /// `s3://BUCKET[/PREFIX]` (credentials, region and endpoint from AWS_ACCESS_KEY_ID,
+    /// AWS_SECRET_ACCESS_KEY, AWS_REGION, AWS_ENDPOINT_URL). Uploads and bakes are published to
+    /// it, assets it names are fetched (and verified) on start and on first use. Default:
+    /// LUMIGRAPH_STORE, else none (the assets folder alone).
+    #[arg(long)]
+    pub store: Option<String>,
+    /// Most bytes this replica's cache of the store keeps (in ASSETS/.store-cache), same units;
+    /// the least recently used files no loaded asset holds are evicted first.
+    #[arg(long, default_value = "8G", value_parser = parse_bytes)]
+    pub store_cache_bytes: u64,
 }
 
 /// A positive, finite number of seconds, at most a day.
@@ -113,6 +124,10 @@ pub(super) fn serve(args: &ServeArgs) -> Result<()> {
         .asset_memory_budget
         .unwrap_or(config.memory_budget / 3 * 2);
     config.render_stall_timeout = args.render_stall_secs;
+    if let Some(store) = &args.store {
+        config.store = Some(store.clone());
+    }
+    config.store_cache_bytes = args.store_cache_bytes;
     config.max_asset_decoded_bytes = args
         .max_asset_decoded_bytes
         .unwrap_or(config.asset_memory_budget);

@@ -436,6 +436,16 @@ impl AssetStore {
             .collect()
     }
 
+    /// The files of the loaded assets.
+    pub fn paths(&self) -> Vec<PathBuf> {
+        self.assets
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .values()
+            .map(|a| a.path.clone())
+            .collect()
+    }
+
     /// Number of loaded assets.
     pub fn len(&self) -> usize {
         self.assets

@@ -26,6 +26,7 @@ use super::assets::{
 use super::codecs::{
     ColorFormat, DepthFormat, Encoding, encode_blocking, encode_color, encode_depth,
 };
+use super::content_store::StoreError;
 use super::error::{AppError, ErrorBody, ErrorKind};
 use super::jobs::{self, BakeWork, JobStatus};
 use super::journal::{JobSpec, now_unix_ms};
@@ -126,6 +127,9 @@ pub struct Readiness {
     (status = 503, body = ErrorBody, description = "loading, or the render path is stuck")))]
 pub async fn readyz(State(state): State<AppState>) -> Result<Json<Readiness>, AppError> {
     if !state.is_ready() {
+        if let Some(reason) = state.store_failure() {
+            return Err(AppError::Unavailable(format!("not ready: {reason}")));
+        }
         return Err(AppError::Unavailable(
             "loading assets (baking the demo scene on first start)".to_owned(),
         ));
@@ -205,7 +209,7 @@ pub async fn get_asset(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Json<AssetDetail>, AppError> {
-    let asset = state.assets().get(&id)?;
+    let asset = state.asset(&id).await?;
     Ok(Json(detail(&asset)?))
 }
 
@@ -222,6 +226,20 @@ pub async fn delete_asset(
     Path(id): Path<String>,
 ) -> Result<StatusCode, AppError> {
     state.authorize(&headers)?;
+    if let Some(store) = state.store() {
+        // The name goes first: once the 204 is sent no replica loads the asset anew (those
+        // that hold it keep serving it until they restart or evict it).
+        let named = store
+            .resolve(&id)
+            .await
+            .map_err(store_unavailable)?
+            .is_some();
+        store.remove_name(&id).await.map_err(store_unavailable)?;
+        if named && !state.assets().contains(&id) {
+            tracing::info!(id, "asset deleted from the store");
+            return Ok(StatusCode::NO_CONTENT);
+        }
+    }
     state.assets().get(&id)?;
     let Some(asset) = state.assets().remove(&id) else {
         return Err(AppError::NotFound(format!("no asset with id {id:?}")));
@@ -244,6 +262,29 @@ pub async fn delete_asset(
     .map_err(AppError::Internal)?;
     tracing::info!(id, "asset deleted");
     Ok(StatusCode::NO_CONTENT)
+}
+
+/// A store failure as the client sees it (503, the reason in the message and the log).
+fn store_unavailable(err: StoreError) -> AppError {
+    tracing::error!(error = %err, "the asset store failed");
+    match err {
+        StoreError::NameTaken { .. } => AppError::Conflict(err.to_string()),
+        err => AppError::Unavailable(err.to_string()),
+    }
+}
+
+/// 409 when the shared store already names `id` (another replica's upload or bake).
+async fn check_store_free(state: &AppState, id: &str) -> Result<(), AppError> {
+    if let Some(store) = state.store()
+        && let Some(record) = store.resolve(id).await.map_err(store_unavailable)?
+    {
+        return Err(AppError::Conflict(format!(
+            "asset id {id:?} is taken in the asset store (it names content {}): delete it \
+             first or choose another id",
+            record.sha256
+        )));
+    }
+    Ok(())
 }
 
 /// Query of `POST /v1/assets`.
@@ -302,6 +343,7 @@ pub async fn upload_asset(
     }
     let id = query.id.unwrap_or_else(|| random_id("asset"));
     let reservation = state.assets().reserve(&id)?;
+    check_store_free(&state, &id).await?;
     let temp = TempFile(Some(
         state
             .assets()
@@ -359,6 +401,14 @@ pub async fn upload_asset(
         .map_err(internal)?;
     let mut temp = temp;
     temp.0 = None;
+    if let Some(store) = state.store() {
+        // Published before it is listed: an acknowledged upload is in the store, and one the
+        // store refused leaves nothing behind.
+        if let Err(err) = store.publish(&id, &final_path).await {
+            let _ = tokio::fs::remove_file(&final_path).await;
+            return Err(store_unavailable(err));
+        }
+    }
     let mut asset = loaded;
     asset.path = final_path;
     let summary = asset.summary();
@@ -525,7 +575,7 @@ pub async fn render_asset(
     body: Result<Bytes, BytesRejection>,
 ) -> Result<Response, AppError> {
     let body = body.map_err(|e| body_error(&e, state.config().max_json_bytes))?;
-    let asset = state.assets().get(&id)?;
+    let asset = state.asset(&id).await?;
     let body = RenderBody::parse(&body, state.config().max_px)?;
     let plan = plan(&body.knobs, &asset)?;
     render_response(&state, asset, body, plan).await
@@ -561,7 +611,7 @@ pub async fn render_link(
     query: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Response, AppError> {
     let Query(pairs) = query.map_err(|e| AppError::Invalid(e.body_text()))?;
-    let asset = state.assets().get(&id)?;
+    let asset = state.asset(&id).await?;
     let map = render_query::body_from_query(&pairs)?;
     let canonical = serde_json::to_string(&map).map_err(|e| AppError::Internal(e.into()))?;
     let body = RenderBody::from_map(map, state.config().max_px)?;
@@ -980,6 +1030,7 @@ pub async fn bake(
         .unwrap_or_else(|| random_id("mesh"));
     validate_id(&id)?;
     let reservation = state.assets().reserve(&id)?;
+    check_store_free(&state, &id).await?;
     let parsed = tokio::task::spawn_blocking(move || {
         load_mesh_from_bytes(&mesh_bytes, mesh_format).map(|mesh| {
             (

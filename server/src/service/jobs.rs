@@ -247,6 +247,19 @@ pub(crate) fn spawn(state: AppState, job: Arc<Job>, reservation: Reservation, wo
                 tracing::error!(job = job.id, %err, "bake task panicked");
                 Err("internal error while baking".to_owned())
             });
+        let outcome = match (outcome, state.store()) {
+            (Ok((report, asset)), Some(store)) => {
+                match store.publish(&job.asset, &asset.path).await {
+                    Ok(_) => Ok((report, asset)),
+                    Err(err) => {
+                        tracing::error!(job = job.id, error = %err, "cannot publish the baked asset to the store");
+                        let _ = tokio::fs::remove_file(&asset.path).await;
+                        Err(format!("the asset was baked but not published: {err}"))
+                    }
+                }
+            }
+            (outcome, _) => outcome,
+        };
         let (outcome, asset) = match outcome {
             Ok((report, asset)) => (Ok(report), Some(asset)),
             Err(message) => {

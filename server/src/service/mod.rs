@@ -12,6 +12,7 @@
 pub mod assets;
 pub mod budget;
 pub mod codecs;
+pub mod content_store;
 pub mod error;
 pub mod http;
 pub mod jobs;
@@ -203,6 +204,12 @@ pub async fn serve(config: ServeConfig) -> anyhow::Result<()> {
     }
     std::fs::create_dir_all(&config.assets_dir)
         .with_context(|| format!("creating the assets folder {}", config.assets_dir.display()))?;
+    if let Some(url) = &config.store {
+        let cache = config.assets_dir.join(state::STORE_CACHE_DIR);
+        if let Err(err) = content_store::ContentStore::open(url, cache, config.store_cache_bytes) {
+            return serve_unready(config.addr, err.to_string()).await;
+        }
+    }
     let gpu = match tokio::task::spawn_blocking(Gpu::shared).await? {
         Ok(gpu) => gpu,
         // Alive but never ready, with the reason in the log and in /readyz: an orchestrator

@@ -13,8 +13,9 @@ use lumigraph_core::bake::BakeOptions;
 use lumigraph_core::gpu::Gpu;
 use tokio::sync::{Semaphore, mpsc, watch};
 
-use super::assets::{self, AssetLimits, AssetStore, Reservation};
+use super::assets::{self, AssetLimits, AssetStore, LoadError, LoadedAsset, Reservation};
 use super::budget::MemoryBudget;
+use super::content_store::{ContentStore, StoreError};
 use super::error::AppError;
 use super::jobs::{self, BakeWork, Job, Jobs, MAX_JOBS};
 use super::journal::{JobSpec, Journal, Recovery};
@@ -80,6 +81,11 @@ pub struct ServeConfig {
     pub bake_demo_if_empty: bool,
     /// Options of that demo bake.
     pub demo_bake: BakeOptions,
+    /// The content-addressed store replicas share (`file:///path` or `s3://bucket[/prefix]`),
+    /// or `None` for the assets folder alone.
+    pub store: Option<String>,
+    /// Most bytes this replica's cache of the store keeps (`ASSETS/.store-cache`).
+    pub store_cache_bytes: u64,
 }
 
 impl ServeConfig {
@@ -110,6 +116,8 @@ impl ServeConfig {
             rest_delay: Duration::from_millis(250),
             bake_demo_if_empty: true,
             demo_bake: BakeOptions::default(),
+            store: None,
+            store_cache_bytes: 8 << 30,
         }
     }
 
@@ -117,6 +125,9 @@ impl ServeConfig {
     pub fn from_env(assets_dir: impl Into<PathBuf>, addr: SocketAddr) -> Self {
         let mut config = Self::new(assets_dir, addr);
         config.token = std::env::var("LUMIGRAPH_TOKEN")
+            .ok()
+            .filter(|t| !t.is_empty());
+        config.store = std::env::var("LUMIGRAPH_STORE")
             .ok()
             .filter(|t| !t.is_empty());
         config
@@ -166,6 +177,12 @@ fn mem_total_bytes(meminfo: &str) -> Option<u64> {
     }
 }
 
+/// The folder, inside the assets folder, of this replica's cache of the store.
+pub const STORE_CACHE_DIR: &str = ".store-cache";
+
+/// Seconds between two attempts to reach a store that failed at start-up.
+const STORE_RETRY: Duration = Duration::from_secs(5);
+
 /// Shared state of every handler and session.
 #[derive(Clone)]
 pub struct AppState {
@@ -191,6 +208,14 @@ pub(super) struct Inner {
     pub(super) resumed: Mutex<Vec<Resumed>>,
     pub(super) metrics: Metrics,
     pub(super) ready: AtomicBool,
+    /// The shared content-addressed store, when configured.
+    pub(super) store: Option<ContentStore>,
+    /// Why the store keeps the service from being ready (unreachable, credentials refused,
+    /// a corrupt object): what `/readyz` says while [`AppState::load_assets`] retries.
+    pub(super) store_failure: std::sync::Mutex<Option<String>>,
+    /// Serializes fetches from the store, so that concurrent first uses of one asset fetch
+    /// and upload it once.
+    pub(super) store_loads: tokio::sync::Mutex<()>,
     pub(super) sessions: Arc<Semaphore>,
     pub(super) shutdown: watch::Sender<bool>,
 }
@@ -244,8 +269,22 @@ impl AppState {
         let recovery = journal
             .recover(MAX_JOBS)
             .with_context(|| format!("reading the job journal {}", journal.dir().display()))?;
+        let store = config
+            .store
+            .as_deref()
+            .map(|url| {
+                ContentStore::open(
+                    url,
+                    config.assets_dir.join(STORE_CACHE_DIR),
+                    config.store_cache_bytes,
+                )
+            })
+            .transpose()?;
         let state = Self {
             inner: Arc::new(Inner {
+                store,
+                store_failure: std::sync::Mutex::new(None),
+                store_loads: tokio::sync::Mutex::new(()),
                 assets: AssetStore::new(
                     config.assets_dir.clone(),
                     AssetLimits {
@@ -332,6 +371,169 @@ impl AppState {
     /// The asset store.
     pub fn assets(&self) -> &AssetStore {
         &self.inner.assets
+    }
+
+    /// The shared content-addressed store, when configured.
+    pub fn store(&self) -> Option<&ContentStore> {
+        self.inner.store.as_ref()
+    }
+
+    /// Why the store keeps the service from being ready, if it does.
+    pub fn store_failure(&self) -> Option<String> {
+        self.inner
+            .store_failure
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone()
+    }
+
+    /// The asset `id`: loaded already, or (with a store) fetched, verified and loaded from the
+    /// store on first use.
+    ///
+    /// # Errors
+    /// 404 when neither this replica nor the store has it; 503 before start-up loading is
+    /// done, when the store fails or holds a corrupt object; 413 when the asset exceeds a
+    /// limit.
+    pub async fn asset(&self, id: &str) -> Result<Arc<LoadedAsset>, AppError> {
+        match self.inner.assets.get(id) {
+            // Until start-up loading is done an unknown id may be one not loaded yet.
+            Err(AppError::NotFound(_)) if !self.is_ready() => {
+                Err(AppError::Unavailable(match self.store_failure() {
+                    Some(reason) => format!("not ready: {reason}"),
+                    None => "loading assets; retry shortly".to_owned(),
+                }))
+            }
+            Err(AppError::NotFound(message)) if self.inner.store.is_some() => {
+                self.load_from_store(id, message).await
+            }
+            other => other,
+        }
+    }
+
+    async fn load_from_store(
+        &self,
+        id: &str,
+        not_found: String,
+    ) -> Result<Arc<LoadedAsset>, AppError> {
+        let Some(store) = &self.inner.store else {
+            return Err(AppError::NotFound(not_found));
+        };
+        let _one = self.inner.store_loads.lock().await;
+        if let Ok(asset) = self.inner.assets.get(id) {
+            return Ok(asset);
+        }
+        let unavailable = |err: StoreError| {
+            tracing::error!(id, error = %err, "cannot fetch an asset from the store");
+            match err {
+                StoreError::TooLarge { .. } => AppError::OverLimit(err.to_string()),
+                err => AppError::Unavailable(err.to_string()),
+            }
+        };
+        let Some(record) = store.resolve(id).await.map_err(unavailable)? else {
+            return Err(AppError::NotFound(not_found));
+        };
+        let path = store
+            .fetch(id, &record, &self.cached_in_use())
+            .await
+            .map_err(unavailable)?;
+        let state = self.clone();
+        let owned = id.to_owned();
+        let loaded = tokio::task::spawn_blocking(move || {
+            let engine = state.inner.pool.engine();
+            assets::load_file(&state.inner.assets, &engine.renderer, &owned, &path)
+                .map_err(|e| (e, engine))
+        })
+        .await
+        .map_err(|e| AppError::Internal(e.into()))?;
+        let asset = loaded.map_err(|(err, engine)| match err {
+            LoadError::OverLimit(message) => AppError::OverLimit(message),
+            LoadError::Busy(message) => AppError::Unavailable(message),
+            other => self.inner.pool.device_lost(&engine).unwrap_or_else(|| {
+                tracing::error!(id, error = %other, "an asset of the store cannot be loaded");
+                AppError::Unavailable(format!(
+                    "asset {id:?} of the store cannot be loaded: {other}"
+                ))
+            }),
+        })?;
+        tracing::info!(id, sha256 = record.sha256, "asset loaded from the store");
+        self.inner.assets.insert(asset);
+        self.inner.metrics.set_assets(self.inner.assets.len());
+        self.inner.assets.get(id)
+    }
+
+    /// The cached store files that loaded assets use (never evicted).
+    fn cached_in_use(&self) -> std::collections::HashSet<PathBuf> {
+        self.inner.assets.paths().into_iter().collect()
+    }
+
+    /// Fetches and loads every asset the store names that is not loaded, while the cache has
+    /// room (the rest load on first use); the first store failure or corrupt object ends it.
+    async fn load_store_names(&self, ids: &[String]) -> Result<(), StoreError> {
+        let Some(store) = &self.inner.store else {
+            return Ok(());
+        };
+        let mut room = store.cache_limit();
+        for id in ids {
+            if self.inner.assets.contains(id) {
+                continue;
+            }
+            let Some(record) = store.resolve(id).await? else {
+                continue;
+            };
+            if record.bytes > room {
+                tracing::info!(
+                    id,
+                    bytes = record.bytes,
+                    "the store cache is full: this asset loads on first use"
+                );
+                continue;
+            }
+            room -= record.bytes;
+            let path = store.fetch(id, &record, &self.cached_in_use()).await?;
+            self.load_files(vec![(id.clone(), path)]).await;
+        }
+        Ok(())
+    }
+
+    /// Records why the store keeps the service from being ready, logging a new reason once.
+    fn note_store_failure(&self, reason: String) {
+        let mut failure = self
+            .inner
+            .store_failure
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        if failure.as_deref() != Some(reason.as_str()) {
+            tracing::error!(reason = %reason, "not ready: the asset store fails; retrying every {} s", STORE_RETRY.as_secs());
+            *failure = Some(reason);
+        }
+    }
+
+    /// Runs `attempt` until it succeeds, every [`STORE_RETRY`], with each new failure in the
+    /// log and in `/readyz`.
+    async fn until_store_works<T, F, Fut>(&self, mut attempt: F) -> T
+    where
+        F: FnMut() -> Fut,
+        Fut: std::future::Future<Output = Result<T, StoreError>>,
+    {
+        loop {
+            match attempt().await {
+                Ok(value) => {
+                    if self.store_failure().is_some() {
+                        tracing::info!("the asset store works again");
+                    }
+                    *self
+                        .inner
+                        .store_failure
+                        .lock()
+                        .unwrap_or_else(PoisonError::into_inner) = None;
+                    return value;
+                }
+                Err(err) => {
+                    self.note_store_failure(err.to_string());
+                    tokio::time::sleep(STORE_RETRY).await;
+                }
+            }
+        }
     }
 
     /// The server's memory budget.
@@ -432,12 +634,20 @@ impl AppState {
             .assets
             .scan()
             .with_context(|| format!("reading {}", dir.display()))?;
-        if found.is_empty() && self.inner.config.bake_demo_if_empty {
+        let named = match &self.inner.store {
+            Some(store) => self.until_store_works(|| store.list_names()).await,
+            None => Vec::new(),
+        };
+        if found.is_empty() && named.is_empty() && self.inner.config.bake_demo_if_empty {
             let path = self.inner.assets.path_for("demo");
             self.bake_demo(path.clone()).await?;
             found.push(("demo".to_owned(), path));
         }
         self.load_files(found).await;
+        if self.inner.store.is_some() {
+            self.until_store_works(|| self.load_store_names(&named))
+                .await;
+        }
         self.start_recovery_task();
         self.inner.ready.store(true, Ordering::Release);
         for (job, reservation, spec) in to_bake {

@@ -86,7 +86,7 @@ pub async fn stream(
 ) -> Result<Response, AppError> {
     let Query(query) = query.map_err(|e| AppError::Invalid(e.body_text()))?;
     let asset = match &query.asset {
-        Some(id) => state.assets().get(id)?,
+        Some(id) => state.asset(id).await?,
         None => state.assets().first().ok_or_else(|| {
             if state.is_ready() {
                 AppError::NotFound("no asset is loaded".to_owned())
