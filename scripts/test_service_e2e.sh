@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # End-to-end tests of the render service (python_tests/service/): creates ./.venv-e2e with
 # pytest, pytest-timeout, httpx, websockets, pillow, playwright, schemathesis (the schema fuzzing
-# test) and matplotlib (the soak plot), installs Debian's `chromium` when missing (playwright
-# drives it through executable_path; no browser download) and `haproxy` (the replica tests), builds the release `lumigraph` binary
+# test), matplotlib (the soak plot), moto[server] and boto3 (the S3-protocol server of the asset
+# store tests), installs Debian's `chromium` when missing (playwright drives it through
+# executable_path; no browser download) and `haproxy` (the replica tests), builds the release
+# `lumigraph` binary
 # and runs pytest (strict: python_tests/service/pytest.ini). The test fixtures start and stop
 # their own servers on free loopback ports in temporary folders. Then scripts/soak.py runs for
 # LUMIGRAPH_SOAK_SECONDS (default 60; 0 skips it), its report and plot in $CARGO_TARGET_DIR/soak.
@@ -21,7 +23,7 @@ if ! command -v haproxy >/dev/null && [ ! -x /usr/sbin/haproxy ]; then
 fi
 VENV=$ROOT/.venv-e2e
 make_venv "$VENV" 10
-PACKAGES="pytest pytest-timeout httpx websockets playwright pillow schemathesis==4.32.5 matplotlib"
+PACKAGES="pytest pytest-timeout httpx websockets playwright pillow schemathesis==4.32.5 matplotlib moto[server]==5.2.5 boto3==1.44.8"
 pip_install_once "$VENV" "$PACKAGES" $PACKAGES
 
 # LUMIGRAPH_PROFILE=dev (scripts/test.sh) reuses the binary `cargo test` just built.
