@@ -124,7 +124,7 @@ pub struct Readiness {
 /// `--render-stall-secs` with no render completing (a stuck device or driver).
 #[utoipa::path(get, path = "/readyz", tag = "ops", responses(
     (status = 200, body = Readiness),
-    (status = 503, body = ErrorBody, description = "loading, or the render path is stuck")))]
+    (status = 503, body = ErrorBody, description = "loading, the render path is stuck, or the asset store fails (the message says why)")))]
 pub async fn readyz(State(state): State<AppState>) -> Result<Json<Readiness>, AppError> {
     if !state.is_ready() {
         if let Some(reason) = state.store_failure() {
@@ -204,7 +204,8 @@ fn detail(asset: &LoadedAsset) -> Result<AssetDetail, AppError> {
 /// One asset: header (kind, cameras, resolution, layers, states, quality report).
 #[utoipa::path(get, path = "/v1/assets/{id}", tag = "assets",
     params(("id" = String, Path, description = "asset id", pattern = "^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$", min_length = 1, max_length = 64)),
-    responses((status = 200, body = AssetDetail), (status = 404, body = ErrorBody), (status = 422, body = ErrorBody)))]
+    responses((status = 200, body = AssetDetail), (status = 404, body = ErrorBody), (status = 413, body = ErrorBody),
+        (status = 422, body = ErrorBody), (status = 503, body = ErrorBody, description = "loading, or the asset store fails")))]
 pub async fn get_asset(
     State(state): State<AppState>,
     Path(id): Path<String>,
@@ -219,7 +220,8 @@ pub async fn get_asset(
     params(("id" = String, Path, description = "asset id", pattern = "^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$", min_length = 1, max_length = 64)),
     security(("bearer" = [])),
     responses((status = 204), (status = 401, body = ErrorBody), (status = 404, body = ErrorBody),
-        (status = 422, body = ErrorBody, description = "invalid id")))]
+        (status = 422, body = ErrorBody, description = "invalid id"),
+        (status = 503, body = ErrorBody, description = "the asset store fails")))]
 pub async fn delete_asset(
     State(state): State<AppState>,
     headers: HeaderMap,
@@ -328,7 +330,8 @@ impl Drop for TempFile {
     security(("bearer" = [])),
     responses((status = 201, body = AssetSummary), (status = 401, body = ErrorBody),
         (status = 408, body = ErrorBody, description = "the body stalled"), (status = 409, body = ErrorBody),
-        (status = 413, body = ErrorBody), (status = 422, body = ErrorBody)))]
+        (status = 413, body = ErrorBody), (status = 422, body = ErrorBody),
+        (status = 503, body = ErrorBody, description = "memory busy, or the asset store fails")))]
 pub async fn upload_asset(
     State(state): State<AppState>,
     headers: HeaderMap,
@@ -568,7 +571,7 @@ fn ms_header(value: f64) -> HeaderValue {
         (status = 408, body = ErrorBody, description = "the body stalled or did not arrive in time"),
         (status = 413, body = ErrorBody),
         (status = 422, body = ErrorBody, description = "invalid view or knobs"),
-        (status = 503, body = ErrorBody, description = "render queue full")))]
+        (status = 503, body = ErrorBody, description = "render queue full, loading, or the asset store fails")))]
 pub async fn render_asset(
     State(state): State<AppState>,
     Path(id): Path<String>,
@@ -603,7 +606,7 @@ const RENDER_LINK_MAX_AGE_S: u32 = 300;
         (status = 404, body = ErrorBody),
         (status = 413, body = ErrorBody),
         (status = 422, body = ErrorBody, description = "unknown, repeated, missing, malformed or out-of-range parameter (the message names it)"),
-        (status = 503, body = ErrorBody, description = "render queue full")))]
+        (status = 503, body = ErrorBody, description = "render queue full, loading, or the asset store fails")))]
 pub async fn render_link(
     State(state): State<AppState>,
     Path(id): Path<String>,
@@ -918,7 +921,8 @@ fn parse_auto(text: &str) -> Result<Option<AutoTarget>, AppError> {
     security(("bearer" = [])),
     responses((status = 202, body = JobStatus), (status = 400, body = ErrorBody), (status = 401, body = ErrorBody),
         (status = 408, body = ErrorBody, description = "the body stalled"),
-        (status = 409, body = ErrorBody), (status = 413, body = ErrorBody), (status = 422, body = ErrorBody)))]
+        (status = 409, body = ErrorBody), (status = 413, body = ErrorBody), (status = 422, body = ErrorBody),
+        (status = 503, body = ErrorBody, description = "the asset store fails")))]
 pub async fn bake(
     State(state): State<AppState>,
     headers: HeaderMap,
