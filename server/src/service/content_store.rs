@@ -3,8 +3,9 @@
 //! (`s3://bucket[/prefix]`, configured by the standard `AWS_*` variables).
 //!
 //! Layout under the store's root:
-//! - `sha256/<hex>.lfa`: an asset file, named by the SHA-256 of its bytes. Written create-only:
-//!   a key never changes content, so any replica may cache it for ever.
+//! - `sha256/<hex>.lfa`: an asset file, named by the SHA-256 of its bytes. A key never changes
+//!   content, so any replica may cache it for ever; a writer that finds it there (at the right
+//!   length) does not send it again.
 //! - `names/<id>.json`: `{"sha256": "<hex>", "bytes": N}`, which content an asset id names.
 //!   Written create-only too (an id is not rebound while it exists), removed when the asset is
 //!   deleted; the content object stays (other ids may name it).
@@ -34,6 +35,34 @@ use super::assets::{describe_bytes, validate_id};
 
 /// Largest name record read from the store: a record is about 100 bytes.
 const MAX_RECORD_BYTES: u64 = 4096;
+
+/// Files above this many bytes are published in parts of this size (S3 allows 5 MiB to 5 GiB
+/// per part and 10,000 parts: 160 GiB at this size).
+pub const MULTIPART_BYTES: usize = 16 << 20;
+
+/// Parts of one multipart upload in flight at once (memory: this many parts).
+const MULTIPART_PARALLEL: usize = 4;
+
+/// The record of the file at `path`: its SHA-256 and length, read in 1 MiB pieces.
+fn hash_file(path: &Path) -> std::io::Result<Record> {
+    use std::io::Read;
+    let mut file = std::fs::File::open(path)?;
+    let mut hasher = Sha256::new();
+    let mut buf = vec![0u8; 1 << 20];
+    let mut bytes = 0u64;
+    loop {
+        let n = file.read(&mut buf)?;
+        if n == 0 {
+            break;
+        }
+        hasher.update(&buf[..n]);
+        bytes += n as u64;
+    }
+    Ok(Record {
+        sha256: hex(&hasher.finalize()),
+        bytes,
+    })
+}
 
 /// Why a store operation failed.
 #[derive(Debug, thiserror::Error)]
@@ -501,42 +530,35 @@ impl ContentStore {
         Ok(())
     }
 
-    /// Publishes the asset file at `path` as `id`: its content under its hash (create-only;
-    /// content already there is the same content), then the name (create-only). Publishing the
-    /// same content under the same id again succeeds. The file is read into memory once.
+    /// Publishes the asset file at `path` as `id`: its content under its hash, then the name
+    /// (create-only). Publishing the same content under the same id again succeeds. The file is
+    /// read twice (hashed, then sent) and never held in memory whole: files above
+    /// [`MULTIPART_BYTES`] go up in parts of that size, at most [`MULTIPART_PARALLEL`] at once.
+    ///
+    /// The content key needs no create-only write: whatever a concurrent writer puts there is
+    /// the same bytes, and an object of the wrong length there (a corrupt one) is replaced.
     ///
     /// # Errors
     /// [`StoreError::NameTaken`] when `id` names other content; the store or the file fails.
     pub async fn publish(&self, id: &str, path: &Path) -> Result<Record, StoreError> {
-        let bytes = tokio::fs::read(path)
-            .await
-            .map_err(|error| StoreError::Local {
-                what: "reading",
-                path: path.to_path_buf(),
-                error,
-            })?;
-        let (record, bytes) = tokio::task::spawn_blocking(move || {
-            let sha256 = hex(&Sha256::digest(&bytes));
-            let record = Record {
-                sha256,
-                bytes: bytes.len() as u64,
-            };
-            (record, bytes)
-        })
-        .await
-        .map_err(|e| StoreError::Local {
-            what: "hashing",
+        let local = |what: &'static str, error: std::io::Error| StoreError::Local {
+            what,
             path: path.to_path_buf(),
-            error: std::io::Error::other(e),
-        })?;
-        let blob = Self::blob_key(&record.sha256);
-        match self
-            .store
-            .put_opts(&blob, PutPayload::from(bytes), PutMode::Create.into())
+            error,
+        };
+        let hashed = path.to_path_buf();
+        let record = tokio::task::spawn_blocking(move || hash_file(&hashed))
             .await
-        {
-            Ok(_) | Err(object_store::Error::AlreadyExists { .. }) => {}
-            Err(e) => return Err(self.backend("write", &blob, e)),
+            .map_err(|e| local("hashing", std::io::Error::other(e)))?
+            .map_err(|e| local("hashing", e))?;
+        let blob = Self::blob_key(&record.sha256);
+        let present = match self.store.head(&blob).await {
+            Ok(meta) => meta.size == record.bytes,
+            Err(object_store::Error::NotFound { .. }) => false,
+            Err(e) => return Err(self.backend("read", &blob, e)),
+        };
+        if !present {
+            self.upload(path, &blob, record.bytes).await?;
         }
         let name = Self::name_key(id);
         let body = serde_json::to_vec(&record).unwrap_or_default();
@@ -574,6 +596,63 @@ impl ContentStore {
             "asset published to the store"
         );
         Ok(record)
+    }
+
+    /// Sends the file at `path` (`bytes` long) to `key`: one request up to
+    /// [`MULTIPART_BYTES`], a multipart upload above.
+    async fn upload(&self, path: &Path, key: &Key, bytes: u64) -> Result<(), StoreError> {
+        let local = |what: &'static str, error: std::io::Error| StoreError::Local {
+            what,
+            path: path.to_path_buf(),
+            error,
+        };
+        if bytes <= MULTIPART_BYTES as u64 {
+            let data = tokio::fs::read(path)
+                .await
+                .map_err(|e| local("reading", e))?;
+            self.store
+                .put(key, PutPayload::from(data))
+                .await
+                .map_err(|e| self.backend("write", key, e))?;
+            return Ok(());
+        }
+        let upload = self
+            .store
+            .put_multipart(key)
+            .await
+            .map_err(|e| self.backend("write", key, e))?;
+        let mut writer = object_store::WriteMultipart::new_with_chunk_size(upload, MULTIPART_BYTES);
+        let sent = async {
+            let mut file = tokio::fs::File::open(path)
+                .await
+                .map_err(|e| local("reading", e))?;
+            let mut buf = vec![0u8; MULTIPART_BYTES];
+            loop {
+                let n = tokio::io::AsyncReadExt::read(&mut file, &mut buf)
+                    .await
+                    .map_err(|e| local("reading", e))?;
+                if n == 0 {
+                    return Ok(());
+                }
+                writer
+                    .wait_for_capacity(MULTIPART_PARALLEL)
+                    .await
+                    .map_err(|e| self.backend("write", key, e))?;
+                writer.write(&buf[..n]);
+            }
+        }
+        .await;
+        match sent {
+            Ok(()) => writer
+                .finish()
+                .await
+                .map(drop)
+                .map_err(|e| self.backend("write", key, e)),
+            Err(err) => {
+                let _ = writer.abort().await;
+                Err(err)
+            }
+        }
     }
 
     /// Removes the name `id` (the content stays: other ids may name it). Removing a name that
@@ -809,6 +888,38 @@ mod tests {
         let record = s.publish("big", &too_big).await.expect("publish");
         let err = s.fetch("big", &record, &pinned).await.expect_err("too big");
         assert!(matches!(err, StoreError::TooLarge { .. }), "{err}");
+    }
+
+    #[tokio::test]
+    async fn large_files_go_up_in_parts_and_a_corrupt_object_is_replaced() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let s = store(dir.path(), 1 << 30);
+        // Three parts, the last one short; bytes that differ from part to part.
+        let data: Vec<u8> = (0..2 * MULTIPART_BYTES + 12_345)
+            .map(|i| (i as u32).wrapping_mul(2_654_435_761).to_le_bytes()[3])
+            .collect();
+        let big = write(dir.path(), "big.lfa", &data);
+        let record = s.publish("big", &big).await.expect("publish");
+        assert_eq!(record.bytes, data.len() as u64);
+        assert_eq!(record.sha256, lumigraph_core::bake::sha256_hex(&data));
+        let object = dir
+            .path()
+            .join("store/sha256")
+            .join(format!("{}.lfa", record.sha256));
+        assert!(std::fs::read(&object).expect("object") == data);
+        // Truncated in the store: a fetch refuses it, publishing again replaces it.
+        std::fs::write(&object, &data[..1000]).expect("truncate");
+        let err = s
+            .fetch("big", &record, &HashSet::new())
+            .await
+            .expect_err("short");
+        assert!(matches!(err, StoreError::HashMismatch { .. }), "{err}");
+        assert_eq!(s.publish("big", &big).await.expect("again"), record);
+        let path = s
+            .fetch("big", &record, &HashSet::new())
+            .await
+            .expect("fetch");
+        assert!(std::fs::read(path).expect("cached") == data);
     }
 
     #[test]
