@@ -277,6 +277,8 @@ def test_a_corrupt_object_fails_readiness_until_repaired(s3: S3, tmp_path: Path,
     damaged = bytearray(data)
     damaged[len(damaged) // 2] ^= 0xFF
     client.put_object(Bucket=BUCKET, Key=blob, Body=bytes(damaged))
+    # A name record that is not a record costs its own asset only.
+    client.put_object(Bucket=BUCKET, Key=f"{prefix}/names/junk.json", Body=b"not a record")
     with replica(tmp_path, "r", s3.env(), url=f"s3://{BUCKET}/{prefix}", ready=False) as server:
         reason = unready_reason(server)
         assert "corrupt object" in reason and digest in reason, reason
@@ -286,3 +288,9 @@ def test_a_corrupt_object_fails_readiness_until_repaired(s3: S3, tmp_path: Path,
         server.wait_ready(timeout=60)
         assert "the asset store works again" in server.log_tail(200)
         assert render_png(server, "scene")
+        assert "skipping an asset the store names badly" in server.log_tail(200)
+        junk = httpx.get(f"{server.base_url}/v1/assets/junk", timeout=30)
+        assert junk.status_code == 503 and "bad record" in junk.json()["error"]["message"], junk.text
+        assert httpx.delete(f"{server.base_url}/v1/assets/junk", timeout=30).status_code == 204
+        names = client.list_objects_v2(Bucket=BUCKET, Prefix=f"{prefix}/names/")
+        assert [o["Key"] for o in names.get("Contents", [])] == [f"{prefix}/names/scene.json"]

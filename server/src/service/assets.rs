@@ -233,6 +233,8 @@ pub struct AssetStore {
     assets: RwLock<BTreeMap<String, Arc<LoadedAsset>>>,
     /// Ids taken out to be uploaded again to a new device ([`Self::take_all`]).
     reloading: Mutex<HashSet<String>>,
+    /// Their files, which stay in use until [`Self::end_reload`].
+    reloading_paths: Mutex<Vec<PathBuf>>,
     /// Ids an upload or bake is writing right now.
     reserved: Arc<Mutex<HashSet<String>>>,
 }
@@ -270,6 +272,7 @@ impl AssetStore {
             charged: Arc::default(),
             assets: RwLock::new(BTreeMap::new()),
             reloading: Mutex::default(),
+            reloading_paths: Mutex::default(),
             reserved: Arc::default(),
         }
     }
@@ -406,6 +409,10 @@ impl AssetStore {
     /// unknown (404).
     pub fn end_reload(&self) {
         self.reloading().clear();
+        self.reloading_paths
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clear();
     }
 
     /// The first asset in id order, if any.
@@ -436,14 +443,24 @@ impl AssetStore {
             .collect()
     }
 
-    /// The files of the loaded assets.
+    /// The files in use: those of the loaded assets and of those being uploaded again to a new
+    /// device.
     pub fn paths(&self) -> Vec<PathBuf> {
-        self.assets
+        let mut paths: Vec<PathBuf> = self
+            .assets
             .read()
             .unwrap_or_else(PoisonError::into_inner)
             .values()
             .map(|a| a.path.clone())
-            .collect()
+            .collect();
+        paths.extend(
+            self.reloading_paths
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .iter()
+                .cloned(),
+        );
+        paths
     }
 
     /// Number of loaded assets.
@@ -475,6 +492,10 @@ impl AssetStore {
         let mut assets = self.assets.write().unwrap_or_else(PoisonError::into_inner);
         let taken = std::mem::take(&mut *assets);
         self.reloading().extend(taken.keys().cloned());
+        self.reloading_paths
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .extend(taken.values().map(|a| a.path.clone()));
         drop(assets);
         taken
             .into_values()

@@ -535,8 +535,9 @@ impl ContentStore {
     /// read twice (hashed, then sent) and never held in memory whole: files above
     /// [`MULTIPART_BYTES`] go up in parts of that size, at most [`MULTIPART_PARALLEL`] at once.
     ///
-    /// The content key needs no create-only write: whatever a concurrent writer puts there is
-    /// the same bytes, and an object of the wrong length there (a corrupt one) is replaced.
+    /// The content is always sent, not skipped when its key exists: a concurrent writer of the
+    /// key can only put the same bytes, and an object there that was damaged (which its length
+    /// alone would not show) is replaced by a good one.
     ///
     /// # Errors
     /// [`StoreError::NameTaken`] when `id` names other content; the store or the file fails.
@@ -551,15 +552,8 @@ impl ContentStore {
             .await
             .map_err(|e| local("hashing", std::io::Error::other(e)))?
             .map_err(|e| local("hashing", e))?;
-        let blob = Self::blob_key(&record.sha256);
-        let present = match self.store.head(&blob).await {
-            Ok(meta) => meta.size == record.bytes,
-            Err(object_store::Error::NotFound { .. }) => false,
-            Err(e) => return Err(self.backend("read", &blob, e)),
-        };
-        if !present {
-            self.upload(path, &blob, record.bytes).await?;
-        }
+        self.upload(path, &Self::blob_key(&record.sha256), record.bytes)
+            .await?;
         let name = Self::name_key(id);
         let body = serde_json::to_vec(&record).unwrap_or_default();
         match self
@@ -616,40 +610,61 @@ impl ContentStore {
                 .map_err(|e| self.backend("write", key, e))?;
             return Ok(());
         }
-        let upload = self
+        let mut upload = self
             .store
             .put_multipart(key)
             .await
             .map_err(|e| self.backend("write", key, e))?;
-        let mut writer = object_store::WriteMultipart::new_with_chunk_size(upload, MULTIPART_BYTES);
         let sent = async {
             let mut file = tokio::fs::File::open(path)
                 .await
                 .map_err(|e| local("reading", e))?;
-            let mut buf = vec![0u8; MULTIPART_BYTES];
+            let mut in_flight: futures_util::stream::FuturesUnordered<object_store::UploadPart> =
+                futures_util::stream::FuturesUnordered::new();
             loop {
-                let n = tokio::io::AsyncReadExt::read(&mut file, &mut buf)
-                    .await
-                    .map_err(|e| local("reading", e))?;
-                if n == 0 {
-                    return Ok(());
+                // Every part but the last is exactly MULTIPART_BYTES (S3's rule).
+                let mut part = vec![0u8; MULTIPART_BYTES];
+                let mut filled = 0;
+                while filled < part.len() {
+                    let n = tokio::io::AsyncReadExt::read(&mut file, &mut part[filled..])
+                        .await
+                        .map_err(|e| local("reading", e))?;
+                    if n == 0 {
+                        break;
+                    }
+                    filled += n;
                 }
-                writer
-                    .wait_for_capacity(MULTIPART_PARALLEL)
-                    .await
-                    .map_err(|e| self.backend("write", key, e))?;
-                writer.write(&buf[..n]);
+                if filled == 0 {
+                    break;
+                }
+                part.truncate(filled);
+                while in_flight.len() >= MULTIPART_PARALLEL {
+                    if let Some(done) = in_flight.next().await {
+                        done.map_err(|e| self.backend("write", key, e))?;
+                    }
+                }
+                in_flight.push(upload.put_part(PutPayload::from(part)));
+                if filled < MULTIPART_BYTES {
+                    break;
+                }
             }
+            while let Some(done) = in_flight.next().await {
+                done.map_err(|e| self.backend("write", key, e))?;
+            }
+            upload
+                .complete()
+                .await
+                .map_err(|e| self.backend("write", key, e))
         }
         .await;
         match sent {
-            Ok(()) => writer
-                .finish()
-                .await
-                .map(drop)
-                .map_err(|e| self.backend("write", key, e)),
+            Ok(_) => Ok(()),
             Err(err) => {
-                let _ = writer.abort().await;
+                // The parts sent so far are removed (an upload cancelled outright leaves them
+                // to the bucket's lifecycle rule for incomplete multipart uploads).
+                if let Err(abort) = upload.abort().await {
+                    tracing::warn!(store = self.url, key = %key, error = %abort, "cannot abort a failed multipart upload");
+                }
                 Err(err)
             }
         }
@@ -724,7 +739,12 @@ fn evict(dir: &Path, limit: u64, keep: &HashSet<PathBuf>) -> std::io::Result<u64
         if path.extension().is_none_or(|e| e != "lfa") {
             continue;
         }
-        let meta = entry.metadata()?;
+        let meta = match entry.metadata() {
+            Ok(meta) => meta,
+            // Removed meanwhile (another eviction, a delete).
+            Err(err) if err.kind() == std::io::ErrorKind::NotFound => continue,
+            Err(err) => return Err(err),
+        };
         if !meta.is_file() {
             continue;
         }
@@ -832,6 +852,10 @@ mod tests {
                 .collect();
             assert!(left.is_empty(), "temporary files left: {left:?}");
         }
+        // Publishing the content again replaces the damaged object.
+        assert_eq!(s.publish("x", &a).await.expect("again"), record);
+        let path = s.fetch("x", &record, &HashSet::new()).await.expect("fetch");
+        assert_eq!(std::fs::read(path).expect("read"), b"original content");
     }
 
     #[tokio::test]

@@ -228,25 +228,43 @@ pub async fn delete_asset(
     Path(id): Path<String>,
 ) -> Result<StatusCode, AppError> {
     state.authorize(&headers)?;
+    validate_id(&id)?;
+    // No fetch of this id runs meanwhile, so none can bring it back after the 204.
+    let _store_lock = match state.store() {
+        Some(_) => Some(state.lock_store_id(&id).await),
+        None => None,
+    };
+    let mut named = false;
     if let Some(store) = state.store() {
         // The name goes first: once the 204 is sent no replica loads the asset anew (those
-        // that hold it keep serving it until they restart or evict it).
-        let named = store
-            .resolve(&id)
-            .await
-            .map_err(store_unavailable)?
-            .is_some();
+        // that hold it keep serving it until they restart or evict it). A record that is not
+        // a valid record is removed too.
+        named = match store.resolve(&id).await {
+            Ok(record) => record.is_some(),
+            Err(StoreError::BadRecord { .. }) => true,
+            Err(err) => return Err(store_unavailable(err)),
+        };
         store.remove_name(&id).await.map_err(store_unavailable)?;
-        if named && !state.assets().contains(&id) {
-            tracing::info!(id, "asset deleted from the store");
-            return Ok(StatusCode::NO_CONTENT);
+        if named {
+            tracing::info!(id, "asset name removed from the store");
         }
     }
-    state.assets().get(&id)?;
+    if !named {
+        state.assets().get(&id)?;
+    }
     let Some(asset) = state.assets().remove(&id) else {
-        return Err(AppError::NotFound(format!("no asset with id {id:?}")));
+        return if named {
+            Ok(StatusCode::NO_CONTENT)
+        } else {
+            Err(AppError::NotFound(format!("no asset with id {id:?}")))
+        };
     };
     state.metrics().set_assets(state.assets().len());
+    // A file of the store's cache may be shared with other ids: it is left to eviction.
+    if asset.path.parent() != Some(state.assets().dir()) {
+        tracing::info!(id, "asset deleted");
+        return Ok(StatusCode::NO_CONTENT);
+    }
     // The unlink is made durable (the folder synced) before the 204: a deleted asset stays
     // deleted across a crash.
     let path = asset.path.clone();
@@ -392,6 +410,20 @@ pub async fn upload_asset(
             .device_lost(&engine)
             .unwrap_or_else(|| AppError::BadUpload(format!("not a usable .lfa asset: {other}"))),
     })?;
+    // Published from the temporary file before it is renamed and listed: an acknowledged
+    // upload is in the store, and one the store refuses (or one cut off meanwhile) leaves
+    // nothing behind here. No fetch of the id interleaves.
+    let _store_lock = match state.store() {
+        Some(store) => {
+            let lock = state.lock_store_id(&id).await;
+            store
+                .publish(&id, &temp_path)
+                .await
+                .map_err(store_unavailable)?;
+            Some(lock)
+        }
+        None => None,
+    };
     let final_path = state.assets().path_for(&id);
     tokio::fs::rename(&temp_path, &final_path)
         .await
@@ -404,14 +436,6 @@ pub async fn upload_asset(
         .map_err(internal)?;
     let mut temp = temp;
     temp.0 = None;
-    if let Some(store) = state.store() {
-        // Published before it is listed: an acknowledged upload is in the store, and one the
-        // store refused leaves nothing behind.
-        if let Err(err) = store.publish(&id, &final_path).await {
-            let _ = tokio::fs::remove_file(&final_path).await;
-            return Err(store_unavailable(err));
-        }
-    }
     let mut asset = loaded;
     asset.path = final_path;
     let summary = asset.summary();

@@ -183,6 +183,32 @@ pub const STORE_CACHE_DIR: &str = ".store-cache";
 /// Seconds between two attempts to reach a store that failed at start-up.
 const STORE_RETRY: Duration = Duration::from_secs(5);
 
+/// A held store lock of one asset id; the map entry goes when no one else holds or waits for it.
+pub(crate) struct StoreIdGuard {
+    state: std::sync::Weak<Inner>,
+    id: String,
+    guard: Option<tokio::sync::OwnedMutexGuard<()>>,
+}
+
+impl Drop for StoreIdGuard {
+    fn drop(&mut self) {
+        drop(self.guard.take());
+        if let Some(inner) = self.state.upgrade() {
+            let mut locks = inner
+                .store_locks
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner);
+            // Two references (the map's and the guard's, now released) mean no one waits.
+            if locks
+                .get(&self.id)
+                .is_some_and(|l| Arc::strong_count(l) == 1)
+            {
+                locks.remove(&self.id);
+            }
+        }
+    }
+}
+
 /// Shared state of every handler and session.
 #[derive(Clone)]
 pub struct AppState {
@@ -213,9 +239,11 @@ pub(super) struct Inner {
     /// Why the store keeps the service from being ready (unreachable, credentials refused,
     /// a corrupt object): what `/readyz` says while [`AppState::load_assets`] retries.
     pub(super) store_failure: std::sync::Mutex<Option<String>>,
-    /// Serializes fetches from the store, so that concurrent first uses of one asset fetch
-    /// and upload it once.
-    pub(super) store_loads: tokio::sync::Mutex<()>,
+    /// One lock per asset id that is being fetched from, published to or deleted from the
+    /// store: concurrent first uses of one asset fetch and load it once, and a delete or an
+    /// upload never interleaves with a fetch of the same id. Other ids do not wait.
+    pub(super) store_locks:
+        std::sync::Mutex<std::collections::HashMap<String, Arc<tokio::sync::Mutex<()>>>>,
     pub(super) sessions: Arc<Semaphore>,
     pub(super) shutdown: watch::Sender<bool>,
 }
@@ -284,7 +312,7 @@ impl AppState {
             inner: Arc::new(Inner {
                 store,
                 store_failure: std::sync::Mutex::new(None),
-                store_loads: tokio::sync::Mutex::new(()),
+                store_locks: std::sync::Mutex::default(),
                 assets: AssetStore::new(
                     config.assets_dir.clone(),
                     AssetLimits {
@@ -410,7 +438,39 @@ impl AppState {
         }
     }
 
+    /// Holds the store lock of `id` until the guard drops (see [`Inner::store_locks`]).
+    pub(crate) async fn lock_store_id(&self, id: &str) -> StoreIdGuard {
+        let lock = Arc::clone(
+            self.inner
+                .store_locks
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .entry(id.to_owned())
+                .or_default(),
+        );
+        let guard = lock.lock_owned().await;
+        StoreIdGuard {
+            state: Arc::downgrade(&self.inner),
+            id: id.to_owned(),
+            guard: Some(guard),
+        }
+    }
+
+    /// Fetches, verifies and loads `id` from the store in a task of its own, so that a request
+    /// that gives up (timeout, disconnect) does not abandon a download others wait for.
     async fn load_from_store(
+        &self,
+        id: &str,
+        not_found: String,
+    ) -> Result<Arc<LoadedAsset>, AppError> {
+        let state = self.clone();
+        let owned = id.to_owned();
+        tokio::spawn(async move { state.load_from_store_now(&owned, not_found).await })
+            .await
+            .map_err(|e| AppError::Internal(e.into()))?
+    }
+
+    async fn load_from_store_now(
         &self,
         id: &str,
         not_found: String,
@@ -418,7 +478,7 @@ impl AppState {
         let Some(store) = &self.inner.store else {
             return Err(AppError::NotFound(not_found));
         };
-        let _one = self.inner.store_loads.lock().await;
+        let _one = self.lock_store_id(id).await;
         if let Ok(asset) = self.inner.assets.get(id) {
             return Ok(asset);
         }
@@ -455,6 +515,10 @@ impl AppState {
                 ))
             }),
         })?;
+        // An upload or bake of this id may have been inserted meanwhile: it wins.
+        if let Ok(asset) = self.inner.assets.get(id) {
+            return Ok(asset);
+        }
         tracing::info!(id, sha256 = record.sha256, "asset loaded from the store");
         self.inner.assets.insert(asset);
         self.inner.metrics.set_assets(self.inner.assets.len());
@@ -467,7 +531,8 @@ impl AppState {
     }
 
     /// Fetches and loads every asset the store names that is not loaded, while the cache has
-    /// room (the rest load on first use); the first store failure or corrupt object ends it.
+    /// room (the rest load on first use); the first store failure or corrupt object ends it (a
+    /// record that is not a record is logged and skipped).
     async fn load_store_names(&self, ids: &[String]) -> Result<(), StoreError> {
         let Some(store) = &self.inner.store else {
             return Ok(());
@@ -477,8 +542,15 @@ impl AppState {
             if self.inner.assets.contains(id) {
                 continue;
             }
-            let Some(record) = store.resolve(id).await? else {
-                continue;
+            let record = match store.resolve(id).await {
+                Ok(Some(record)) => record,
+                Ok(None) => continue,
+                // One bad record costs its own asset, not every replica's readiness.
+                Err(err @ StoreError::BadRecord { .. }) => {
+                    tracing::error!(id, error = %err, "skipping an asset the store names badly");
+                    continue;
+                }
+                Err(err) => return Err(err),
             };
             if record.bytes > room {
                 tracing::info!(
@@ -619,6 +691,20 @@ impl AppState {
                     let outcome = tokio::task::spawn_blocking(move || written_report(&path))
                         .await
                         .unwrap_or_else(|e| Err(format!("checking the baked asset panicked: {e}")));
+                    let outcome = match (outcome, &self.inner.store) {
+                        (Ok(report), Some(store)) => {
+                            let path = self.inner.assets.path_for(&job.asset);
+                            match store.publish(&job.asset, &path).await {
+                                Ok(_) => Ok(report),
+                                Err(err) => {
+                                    tracing::error!(job = job.id, error = %err, "cannot publish the baked asset to the store");
+                                    let _ = tokio::fs::remove_file(&path).await;
+                                    Err(format!("the asset was baked but not published: {err}"))
+                                }
+                            }
+                        }
+                        (outcome, _) => outcome,
+                    };
                     if outcome.is_ok() {
                         job.progress(spec.options.cameras, spec.options.cameras);
                     }
