@@ -3,6 +3,7 @@
 //! [`super::journal`] until it finishes, and its final status after, so it survives a restart.
 
 use std::collections::VecDeque;
+use std::path::Path;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
@@ -247,18 +248,11 @@ pub(crate) fn spawn(state: AppState, job: Arc<Job>, reservation: Reservation, wo
                 tracing::error!(job = job.id, %err, "bake task panicked");
                 Err("internal error while baking".to_owned())
             });
-        let outcome = match (outcome, state.store()) {
-            (Ok((report, asset)), Some(store)) => {
-                match store.publish(&job.asset, &asset.path).await {
-                    Ok(_) => Ok((report, asset)),
-                    Err(err) => {
-                        tracing::error!(job = job.id, error = %err, "cannot publish the baked asset to the store");
-                        let _ = tokio::fs::remove_file(&asset.path).await;
-                        Err(format!("the asset was baked but not published: {err}"))
-                    }
-                }
-            }
-            (outcome, _) => outcome,
+        let outcome = match outcome {
+            Ok((report, asset)) => publish_baked(&state, &job, &asset.path)
+                .await
+                .map(|()| (report, asset)),
+            Err(message) => Err(message),
         };
         let (outcome, asset) = match outcome {
             Ok((report, asset)) => (Ok(report), Some(asset)),
@@ -270,6 +264,23 @@ pub(crate) fn spawn(state: AppState, job: Arc<Job>, reservation: Reservation, wo
         };
         record_finished(&state, &job, outcome, asset).await;
     });
+}
+
+/// Publishes the asset a bake wrote at `path` to the shared store, if one is configured; when
+/// the store refuses it the file is removed and the job fails with the reason (a bake reported
+/// `done` is in the store).
+pub(crate) async fn publish_baked(state: &AppState, job: &Job, path: &Path) -> Result<(), String> {
+    let Some(store) = state.store() else {
+        return Ok(());
+    };
+    match store.publish(&job.asset, path).await {
+        Ok(_) => Ok(()),
+        Err(err) => {
+            tracing::error!(job = job.id, error = %err, "cannot publish the baked asset to the store");
+            let _ = tokio::fs::remove_file(path).await;
+            Err(format!("the asset was baked but not published: {err}"))
+        }
+    }
 }
 
 /// Records how `job` finished in the journal (logging a failure to write it), then adds its

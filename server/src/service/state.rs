@@ -691,19 +691,14 @@ impl AppState {
                     let outcome = tokio::task::spawn_blocking(move || written_report(&path))
                         .await
                         .unwrap_or_else(|e| Err(format!("checking the baked asset panicked: {e}")));
-                    let outcome = match (outcome, &self.inner.store) {
-                        (Ok(report), Some(store)) => {
+                    let outcome = match outcome {
+                        Ok(report) => {
                             let path = self.inner.assets.path_for(&job.asset);
-                            match store.publish(&job.asset, &path).await {
-                                Ok(_) => Ok(report),
-                                Err(err) => {
-                                    tracing::error!(job = job.id, error = %err, "cannot publish the baked asset to the store");
-                                    let _ = tokio::fs::remove_file(&path).await;
-                                    Err(format!("the asset was baked but not published: {err}"))
-                                }
-                            }
+                            jobs::publish_baked(self, &job, &path)
+                                .await
+                                .map(|()| report)
                         }
-                        (outcome, _) => outcome,
+                        Err(message) => Err(message),
                     };
                     if outcome.is_ok() {
                         job.progress(spec.options.cameras, spec.options.cameras);
