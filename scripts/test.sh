@@ -2,8 +2,8 @@
 # Runs every test on a fresh machine: installs the software Vulkan driver, fetches the real-mesh
 # fixtures (into $LUMIGRAPH_FIXTURES, default ./fixtures), checks formatting and lints, then runs
 # the Rust test suite (GPU tests on lavapipe where there is no GPU), the Python bindings' suite and
-# the service's end-to-end suite, and validates the Kubernetes manifests (LUMIGRAPH_DOCKER=1 also
-# builds the container image and smoke-tests it).
+# the service's end-to-end suite, and validates the Kubernetes manifests. LUMIGRAPH_FUZZ=1 adds
+# the fuzz smoke run, LUMIGRAPH_DOCKER=1 the container image build and its smoke test.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
@@ -17,8 +17,13 @@ echo "== cargo test"
 cargo test --workspace --locked -- --test-threads=2
 # The Python and service suites reuse this debug build instead of a second, release one.
 export LUMIGRAPH_PROFILE=dev
-echo "== fuzz smoke (scripts/fuzz.sh --smoke: every target for a few seconds)"
-LUMIGRAPH_BIN=${CARGO_TARGET_DIR:-$PWD/target}/debug/lumigraph bash scripts/fuzz.sh --smoke
+# The fuzz smoke builds every target a second time with libFuzzer's instrumentation (minutes):
+# asked for with LUMIGRAPH_FUZZ=1 (alone: `bash scripts/fuzz.sh --smoke`). The parsers' own tests
+# and property tests run in `cargo test` above either way.
+if [ "${LUMIGRAPH_FUZZ:-0}" = 1 ]; then
+  echo "== fuzz smoke (scripts/fuzz.sh --smoke: every target for a few seconds)"
+  LUMIGRAPH_BIN=${CARGO_TARGET_DIR:-$PWD/target}/debug/lumigraph bash scripts/fuzz.sh --smoke
+fi
 echo "== Python bindings (maturin build, stubtest, pytest, examples)"
 bash scripts/test_python.sh
 echo "== service end to end (HTTP, WebSocket, headless Chromium)"

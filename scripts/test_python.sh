@@ -28,7 +28,7 @@ echo "== mypy.stubtest + mypy"
 "$PY" -m mypy --config-file pylib/pyproject.toml pylib/python/lumigraph pylib/examples
 
 echo "== pytest python_tests"
-"$PY" -m pytest python_tests -q ${LUMIGRAPH_PYTEST_ARGS:-}
+"$PY" -m pytest python_tests -q --durations=10 ${LUMIGRAPH_PYTEST_ARGS:-}
 
 echo "== examples"
 EXAMPLES_OUT=$(mktemp -d)

@@ -43,7 +43,7 @@ export LUMIGRAPH_CHROMIUM=$CHROMIUM
 
 echo "== pytest python_tests/service"
 "$VENV/bin/python" -m pytest -c python_tests/service/pytest.ini python_tests/service \
-  -p no:cacheprovider -q ${LUMIGRAPH_PYTEST_ARGS:-}
+  -p no:cacheprovider -q --durations=10 ${LUMIGRAPH_PYTEST_ARGS:-}
 SOAK_SECONDS=${LUMIGRAPH_SOAK_SECONDS:-60}
 if [ "$SOAK_SECONDS" != 0 ]; then
   echo "== soak ${SOAK_SECONDS} s (scripts/soak.py)"
