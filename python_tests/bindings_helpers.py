@@ -14,7 +14,7 @@ import pytest
 import lumigraph as lg
 
 ROOT = Path(__file__).resolve().parent.parent
-FIXTURE_FILES = ("mesh/bunny00.off", "mesh/cow.off", "mesh/spot.ply")
+FIXTURE_FILES = ("mesh/bunny00.off", "mesh/cow.off", "mesh/spot.ply", "volume/mni_t1.nii.gz")
 
 
 def fixtures_dir() -> Path:

@@ -4,20 +4,24 @@
 #   mesh/bunny00.off  Stanford bunny, closed, 75k triangles  (Debian libcgal-demo 5.5.1-2, CGAL data)
 #   mesh/cow.off      cow, 5.8k triangles                     (same package)
 #   mesh/spot.ply     Spot the cow, 5.9k triangles, closed    (PyPI robust-laplacian 1.1.0 sdist, MIT)
+#   volume/mni_t1.nii.gz  MNI152 T1 MRI template, 197×233×189 uint8 NIfTI-1 (PyPI nilearn 0.14.1
+#                     wheel, BSD-3)
 # Every file's SHA-256 is checked before it is moved into DIR (one rename per file), and
 # DIR/.fetch-complete is written last: a run that finds the files there and intact only writes the
 # marker. Needs apt-get download (the package lists are refreshed when the pinned version is not in
 # them), pip (a temporary virtual environment when $PIP does not work), tar, dpkg-deb, sha256sum.
-# About 10 s and 4 MB.
+# About 15 s and 16 MB downloaded (6 MB kept).
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 source "$ROOT/scripts/common.sh"
 DIR=${1:-$ROOT/fixtures}
 SUMS='ab651cb04955c161efaeb079035a1e5e1f0e0d1f816a2df67beaea68f393ff2b  mesh/bunny00.off
 1c5a25c3047fc6b14dd0c962d3562b1796671422ab4634f9d46f9f23814cd54a  mesh/cow.off
-2d24cc184dec9a03c32281312f7d2e44f70b51180d982dc0a81899e77efc275a  mesh/spot.ply'
+2d24cc184dec9a03c32281312f7d2e44f70b51180d982dc0a81899e77efc275a  mesh/spot.ply
+421a10e872fd6cadae7f61d358dffbcc1795a497d61ee76c5dda2503e1a1e9e6  volume/mni_t1.nii.gz'
 CGAL_DEB=libcgal-demo=5.5.1-2
 SPOT_SDIST='robust-laplacian==1.1.0 --hash=sha256:1db9eeb1a7aa340c3da902b125d2f58c7138feda206a72c2402dd25e702290d2'
+NILEARN_WHEEL='nilearn==0.14.1 --hash=sha256:725206484e9fb3f6691f9c2d20204a068759d5072f12055324702ee0cb2bbe8a'
 
 mkdir -p "$DIR"
 DIR=$(cd "$DIR" && pwd)  # the steps below change directory
@@ -30,7 +34,7 @@ rm -f "$DIR/.fetch-complete"
 # Staged inside DIR, so that moving a checked file in is a rename on the same file system.
 STAGE=$(mktemp -d "$DIR/.stage.XXXXXX")
 trap 'rm -rf "$STAGE"' EXIT
-mkdir -p "$STAGE/mesh"
+mkdir -p "$STAGE/mesh" "$STAGE/volume"
 
 # bunny and cow: CGAL's demo data, a tarball inside the Debian package.
 chmod 755 "$STAGE"  # apt-get download runs as the _apt user where it can
@@ -56,8 +60,19 @@ tar -xzf "$STAGE"/robust_laplacian-1.1.0.tar.gz -C "$STAGE" \
   robust_laplacian-1.1.0/deps/geometry-central/test/assets/spot.ply
 mv "$STAGE"/robust_laplacian-1.1.0/deps/geometry-central/test/assets/spot.ply "$STAGE/mesh/"
 
+# the MRI volume: a data file of nilearn's wheel (a zip, read with Python's zipfile).
+echo "$NILEARN_WHEEL" >"$STAGE/requirements.txt"
+$PIP download -q --disable-pip-version-check --no-deps --only-binary :all: --require-hashes \
+  -r "$STAGE/requirements.txt" -d "$STAGE"
+python3 - "$STAGE"/nilearn-0.14.1-py3-none-any.whl "$STAGE/volume/mni_t1.nii.gz" <<'PY'
+import sys, zipfile
+member = "nilearn/datasets/data/mni_icbm152_t1_tal_nlin_sym_09a_converted.nii.gz"
+with zipfile.ZipFile(sys.argv[1]) as wheel, open(sys.argv[2], "wb") as out:
+    out.write(wheel.read(member))
+PY
+
 (cd "$STAGE" && sha256sum -c --quiet <<<"$SUMS")
-mkdir -p "$DIR/mesh"
+mkdir -p "$DIR/mesh" "$DIR/volume"
 while read -r _ file; do
   mv -f "$STAGE/$file" "$DIR/$file"
 done <<<"$SUMS"

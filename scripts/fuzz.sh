@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Coverage-guided fuzzing of every parser input reaches (fuzz/fuzz_targets/): the .lfa reader,
-# the OBJ/PLY/STL/OFF/glTF mesh loaders, view (and view-list) JSON, scene JSON, render request
+# the OBJ/PLY/STL/OFF/glTF mesh loaders, the volume readers, view (and view-list) JSON, scene JSON, render request
 # bodies and stream messages. Installs cargo-fuzz when missing, writes seed corpora from the
 # fixtures and small generated inputs (scripts/fuzz_seeds.py), then runs each target and prints a
 # table of executions. A crash, an out-of-memory (one allocation or RSS over 2 GiB), a leak or a
@@ -35,7 +35,7 @@ while [ $# -gt 0 ]; do
     *) TARGETS+=("$1"); shift ;;
   esac
 done
-ALL=(lfa_reader mesh_obj mesh_ply mesh_stl mesh_off mesh_gltf view_json scene_json render_request stream_message)
+ALL=(lfa_reader mesh_obj mesh_ply mesh_stl mesh_off mesh_gltf volume view_json scene_json render_request stream_message)
 if [ ${#TARGETS[@]} -eq 0 ]; then TARGETS=("${ALL[@]}"); fi
 for t in "${TARGETS[@]}"; do
   [[ " ${ALL[*]} " == *" $t "* ]] || { echo "unknown target $t (targets: ${ALL[*]})" >&2; exit 2; }

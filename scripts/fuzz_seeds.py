@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import base64
+import gzip
 import json
 import struct
 import subprocess
@@ -166,6 +167,36 @@ def glb() -> bytes:
 VIEW = {"eye": [0.0, 0.0, 3.0], "target": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0], "yfov_deg": 40.0, "width": 64, "height": 48}
 
 
+def volumes() -> dict[str, bytes]:
+    """One small volume per reader, prefixed with the target's format byte (fuzz_targets/volume.rs)."""
+    ramp = bytes(range(12))
+    nii = bytearray(352)
+    struct.pack_into("<i", nii, 0, 348)
+    struct.pack_into("<8h", nii, 40, 3, 3, 2, 2, 1, 1, 1, 1)
+    struct.pack_into("<hh", nii, 70, 2, 8)
+    struct.pack_into("<8f", nii, 76, 1, 1, 1, 1, 1, 0, 0, 0)
+    struct.pack_into("<f", nii, 108, 352.0)
+    nii[344:348] = b"n+1\0"
+    nii_file = bytes(nii) + ramp
+    npy_header = b"{'descr': '|u1', 'fortran_order': False, 'shape': (2, 2, 3), }"
+    npy_header += b" " * (63 - (10 + len(npy_header)) % 64) + b"\n"
+    npy_file = b"\x93NUMPY\x01\x00" + struct.pack("<H", len(npy_header)) + npy_header + ramp
+    mha = b"NDims = 3\nDimSize = 3 2 2\nElementType = MET_UCHAR\nElementSpacing = 1 1 1\nElementDataFile = LOCAL\n"
+    nrrd = b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 3 2 2\nencoding: raw\nspacings: 1 1 1\n\n"
+    inr = b"#INRIMAGE-4#{\nXDIM=3\nYDIM=2\nZDIM=2\nVDIM=1\nTYPE=unsigned fixed\nPIXSIZE=8 bits\nCPU=decm\n"
+    inr += b"\n" * (252 - len(inr)) + b"##}\n"
+    return {
+        "nifti.nii": b"\x00" + nii_file,
+        "nifti.nii.gz": b"\x01" + gzip.compress(nii_file),
+        "plain.npy": b"\x02" + npy_file,
+        "local.mha": b"\x03" + mha + ramp,
+        "raw.nrrd": b"\x04" + nrrd + ramp,
+        "plain.inr": b"\x05" + inr + ramp,
+        "plain.inr.gz": b"\x06" + gzip.compress(inr + ramp),
+        "labels.npy": b"\x80" + npy_file,  # 128 % 7 = 2: .npy, as labels
+    }
+
+
 def json_seeds() -> dict[str, list[object]]:
     grazing = dict(VIEW, eye=[1.0, 0.0, 0.0], up=[0.0, 0.0, 1.0])
     return {
@@ -231,6 +262,7 @@ def main() -> None:
         "mesh_stl": {"ascii.stl": stl_ascii(), "binary.stl": stl_binary()},
         "mesh_off": {"plain.off": off(False), "colour.off": off(True)},
         "mesh_gltf": {"embedded.gltf": gltf(), "binary.glb": glb()},
+        "volume": volumes(),
     }
     for target, docs in json_seeds().items():
         seeds[target] = {f"{i}.json": json.dumps(doc).encode() for i, doc in enumerate(docs)}
@@ -239,6 +271,8 @@ def main() -> None:
             target = {".off": "mesh_off", ".ply": "mesh_ply", ".obj": "mesh_obj", ".stl": "mesh_stl"}.get(path.suffix)
             if target is not None:
                 seeds[target][f"fixture-{path.name}"] = path.read_bytes()
+    if args.fixtures is not None and (args.fixtures / "volume/mni_t1.nii.gz").is_file():
+        seeds["volume"]["fixture-mni_t1.nii.gz"] = b"\x01" + (args.fixtures / "volume/mni_t1.nii.gz").read_bytes()
     for target, files in seeds.items():
         folder = args.out / target
         folder.mkdir(parents=True, exist_ok=True)

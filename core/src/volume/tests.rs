@@ -1,0 +1,526 @@
+//! Every reader on files written here byte by byte (each format's own layout), both byte
+//! orders, compressed and plain, and the refusals: truncated data, dimensions that do not match
+//! the data, hostile sizes, NaN voxels, bad labels, detached data given as bytes.
+
+use std::io::Write;
+
+use super::*;
+
+/// A 3×2×2 ramp, i fastest: value = i + 10·j + 100·k.
+const DIMS: [usize; 3] = [3, 2, 2];
+
+fn ramp() -> Vec<f64> {
+    let mut v = Vec::new();
+    for k in 0..DIMS[2] {
+        for j in 0..DIMS[1] {
+            for i in 0..DIMS[0] {
+                v.push((i + 10 * j + 100 * k) as f64);
+            }
+        }
+    }
+    v
+}
+
+fn le_u16(values: &[f64]) -> Vec<u8> {
+    values
+        .iter()
+        .flat_map(|&v| (v as u16).to_le_bytes())
+        .collect()
+}
+
+fn be_f32(values: &[f64]) -> Vec<u8> {
+    values
+        .iter()
+        .flat_map(|&v| (v as f32).to_be_bytes())
+        .collect()
+}
+
+fn gzip(bytes: &[u8]) -> Vec<u8> {
+    let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+    e.write_all(bytes).expect("gzip");
+    e.finish().expect("gzip")
+}
+
+fn zlib(bytes: &[u8]) -> Vec<u8> {
+    let mut e = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::fast());
+    e.write_all(bytes).expect("zlib");
+    e.finish().expect("zlib")
+}
+
+fn scalars(v: &Volume) -> Vec<f64> {
+    match &v.voxels {
+        Voxels::Scalar(s) => s.iter().map(|&x| f64::from(x)).collect(),
+        Voxels::Labels(l) => panic!("labels {l:?}"),
+    }
+}
+
+fn opts() -> LoadOptions {
+    LoadOptions::default()
+}
+
+/// A NIfTI-1 single-file header (little endian) for `dims`, `datatype`/`bitpix`, with the
+/// given sform rows (sform_code 1) or none.
+fn nifti_header(
+    dims: [u16; 3],
+    datatype: i16,
+    bitpix: i16,
+    slope: f32,
+    inter: f32,
+    sform: Option<[[f32; 4]; 3]>,
+) -> Vec<u8> {
+    let mut h = vec![0u8; 352];
+    h[0..4].copy_from_slice(&348i32.to_le_bytes());
+    let dim: [u16; 8] = [3, dims[0], dims[1], dims[2], 1, 1, 1, 1];
+    for (n, d) in dim.iter().enumerate() {
+        h[40 + 2 * n..42 + 2 * n].copy_from_slice(&d.to_le_bytes());
+    }
+    h[70..72].copy_from_slice(&datatype.to_le_bytes());
+    h[72..74].copy_from_slice(&bitpix.to_le_bytes());
+    let pixdim: [f32; 8] = [1.0, 0.5, 0.25, 2.0, 1.0, 0.0, 0.0, 0.0];
+    for (n, p) in pixdim.iter().enumerate() {
+        h[76 + 4 * n..80 + 4 * n].copy_from_slice(&p.to_le_bytes());
+    }
+    h[108..112].copy_from_slice(&352f32.to_le_bytes());
+    h[112..116].copy_from_slice(&slope.to_le_bytes());
+    h[116..120].copy_from_slice(&inter.to_le_bytes());
+    if let Some(rows) = sform {
+        h[254..256].copy_from_slice(&1i16.to_le_bytes());
+        for (r, row) in rows.iter().enumerate() {
+            for (c, x) in row.iter().enumerate() {
+                let at = 280 + 16 * r + 4 * c;
+                h[at..at + 4].copy_from_slice(&x.to_le_bytes());
+            }
+        }
+    }
+    h[344..348].copy_from_slice(b"n+1\0");
+    h
+}
+
+#[test]
+fn nifti_plain_and_gzip_with_scaling_and_sform() {
+    let sform = [
+        [0.0, 0.0, 2.0, 5.0],
+        [0.5, 0.0, 0.0, -1.0],
+        [0.0, -0.25, 0.0, 3.0],
+    ];
+    let mut file = nifti_header([3, 2, 2], 512, 16, 2.0, 1.0, Some(sform));
+    file.extend(le_u16(&ramp()));
+    for (name, bytes) in [("a.nii", file.clone()), ("a.nii.gz", gzip(&file))] {
+        let v = Volume::from_bytes(name, &bytes, &opts()).expect(name);
+        assert_eq!(v.dims, [3, 2, 2]);
+        assert_eq!(v.voxel_type, VoxelType::U16);
+        assert_eq!(v.format, VolumeFormat::Nifti);
+        let want: Vec<f64> = ramp().iter().map(|x| 2.0 * x + 1.0).collect();
+        assert_eq!(scalars(&v), want, "{name}");
+        // Columns are the sform's columns: i steps along world y, j along −z, k along x.
+        assert_eq!(
+            v.affine,
+            [[0.0, 0.5, 0.0], [0.0, 0.0, -0.25], [2.0, 0.0, 0.0]]
+        );
+        assert_eq!(v.origin, [5.0, -1.0, 3.0]);
+        assert_eq!(v.world([1.0, 1.0, 1.0]), [7.0, -0.5, 2.75]);
+        assert_eq!(v.spacing(), [0.5, 0.25, 2.0]);
+    }
+}
+
+#[test]
+fn nifti_without_transform_uses_pixdim_and_refuses_bad_headers() {
+    let mut file = nifti_header([3, 2, 2], 2, 8, 0.0, 0.0, None);
+    file.extend(ramp().iter().map(|&x| x as u8));
+    let v = Volume::from_bytes("a.nii", &file, &opts()).expect("pixdim");
+    assert_eq!(v.affine, diagonal([0.5, 0.25, 2.0]));
+    assert_eq!(v.origin, [0.0; 3]);
+    // A slope of 0 means unscaled.
+    assert_eq!(scalars(&v), ramp());
+
+    // Truncated: one voxel short.
+    let short = &file[..file.len() - 1];
+    assert!(matches!(
+        Volume::from_bytes("a.nii", short, &opts()),
+        Err(VolumeError::DataSize {
+            expected: 12,
+            found: 11,
+            ..
+        })
+    ));
+    // Hostile dimensions: refused before any allocation.
+    let mut huge = nifti_header([16000, 16000, 16000], 16, 32, 0.0, 0.0, None);
+    huge.extend([0u8; 64]);
+    assert!(matches!(
+        Volume::from_bytes("a.nii", &huge, &opts()),
+        Err(VolumeError::Dimensions(_))
+    ));
+    assert!(matches!(
+        Volume::from_bytes("a.nii.gz", &gzip(&huge), &opts()),
+        Err(VolumeError::Dimensions(_))
+    ));
+    // A 4-D series.
+    let mut series = file.clone();
+    series[40..42].copy_from_slice(&4u16.to_le_bytes());
+    series[48..50].copy_from_slice(&2u16.to_le_bytes());
+    let e = Volume::from_bytes("a.nii", &series, &opts()).expect_err("4-D");
+    assert!(e.to_string().contains("beyond the third"), "{e}");
+    // Complex voxels.
+    let mut complex = nifti_header([3, 2, 2], 32, 64, 0.0, 0.0, None);
+    complex.extend(vec![0u8; 12 * 8]);
+    let e = Volume::from_bytes("a.nii", &complex, &opts()).expect_err("complex");
+    assert!(e.to_string().contains("not a scalar"), "{e}");
+    // Not NIfTI at all, and too short for a header.
+    assert!(Volume::from_bytes("a.nii", b"hello", &opts()).is_err());
+    assert!(Volume::from_bytes("a.nii.gz", b"hello", &opts()).is_err());
+}
+
+fn npy(descr: &str, fortran: bool, shape: &str, data: &[u8]) -> Vec<u8> {
+    let dict = format!(
+        "{{'descr': '{descr}', 'fortran_order': {}, 'shape': {shape}, }}",
+        if fortran { "True" } else { "False" }
+    );
+    let mut header = dict.into_bytes();
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(b' ');
+    }
+    header.push(b'\n');
+    let mut out = b"\x93NUMPY\x01\x00".to_vec();
+    out.extend((header.len() as u16).to_le_bytes());
+    out.extend(header);
+    out.extend(data);
+    out
+}
+
+#[test]
+fn npy_c_and_fortran_order_both_byte_orders_with_spacing() {
+    let c = npy("<u2", false, "(2, 2, 3)", &le_u16(&ramp()));
+    let spacing = LoadOptions {
+        spacing: Some([0.5, 1.0, 2.0]),
+        ..opts()
+    };
+    let v = Volume::from_bytes("v.npy", &c, &spacing).expect("C order");
+    assert_eq!(v.dims, [3, 2, 2]);
+    assert_eq!(scalars(&v), ramp());
+    assert_eq!(v.affine, diagonal([0.5, 1.0, 2.0]));
+    // Fortran order: element [k, j, i] at k + 2·(j + 2·i).
+    let mut f = vec![0.0; 12];
+    for (n, &x) in ramp().iter().enumerate() {
+        let (i, j, k) = (n % 3, (n / 3) % 2, n / 6);
+        f[k + 2 * (j + 2 * i)] = x;
+    }
+    let fortran = npy(">f4", true, "(2, 2, 3)", &be_f32(&f));
+    let v = Volume::from_bytes("v.npy", &fortran, &opts()).expect("Fortran order");
+    assert_eq!(scalars(&v), ramp());
+    assert_eq!(v.voxel_type, VoxelType::F32);
+    assert_eq!(v.affine, diagonal([1.0; 3]));
+    // 2-D, wrong data size, hostile shape, complex dtype.
+    assert!(
+        Volume::from_bytes(
+            "v.npy",
+            &npy("<u2", false, "(4, 3)", &le_u16(&ramp())),
+            &opts()
+        )
+        .is_err()
+    );
+    assert!(matches!(
+        Volume::from_bytes(
+            "v.npy",
+            &npy("<u2", false, "(2, 2, 4)", &le_u16(&ramp())),
+            &opts()
+        ),
+        Err(VolumeError::DataSize { .. })
+    ));
+    assert!(matches!(
+        Volume::from_bytes(
+            "v.npy",
+            &npy("<u2", false, "(4096, 4096, 4096)", &[0; 8]),
+            &opts()
+        ),
+        Err(VolumeError::Dimensions(_))
+    ));
+    assert!(
+        Volume::from_bytes("v.npy", &npy("<c8", false, "(1, 1, 1)", &[0; 8]), &opts()).is_err()
+    );
+}
+
+#[test]
+fn nan_voxels_and_labels() {
+    let mut values = ramp();
+    values[7] = f64::NAN;
+    let file = npy(">f4", false, "(2, 2, 3)", &be_f32(&values));
+    let e = Volume::from_bytes("v.npy", &file, &opts()).expect_err("NaN");
+    // Voxel 7 = (i 1, j 0, k 1).
+    assert!(
+        matches!(
+            e,
+            VolumeError::NonFinite {
+                i: 1,
+                j: 0,
+                k: 1,
+                ..
+            }
+        ),
+        "{e}"
+    );
+    values[7] = f64::INFINITY;
+    let file = npy(">f4", false, "(2, 2, 3)", &be_f32(&values));
+    assert!(matches!(
+        Volume::from_bytes("v.npy", &file, &opts()),
+        Err(VolumeError::NonFinite { .. })
+    ));
+    let labels = LoadOptions {
+        labels: true,
+        ..opts()
+    };
+    let ints = npy("<u2", false, "(2, 2, 3)", &le_u16(&ramp()));
+    let v = Volume::from_bytes("v.npy", &ints, &labels).expect("labels");
+    assert_eq!(
+        v.voxels,
+        Voxels::Labels(ramp().iter().map(|&x| x as u32).collect())
+    );
+    let mut fractional = ramp();
+    fractional[2] = 1.5;
+    let file = npy(
+        "<f8",
+        false,
+        "(2, 2, 3)",
+        &fractional
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect::<Vec<_>>(),
+    );
+    assert!(matches!(
+        Volume::from_bytes("v.npy", &file, &labels),
+        Err(VolumeError::NotALabel {
+            i: 2,
+            j: 0,
+            k: 0,
+            ..
+        })
+    ));
+    let negative = npy("|i1", false, "(1, 1, 1)", &[0xff]);
+    assert!(matches!(
+        Volume::from_bytes("v.npy", &negative, &labels),
+        Err(VolumeError::NotALabel { .. })
+    ));
+}
+
+#[test]
+fn metaimage_attached_compressed_and_detached() {
+    let header = |extra: &str, data_file: &str| {
+        format!(
+            "ObjectType = Image\nNDims = 3\nDimSize = 3 2 2\nElementType = MET_USHORT\n\
+             ElementSpacing = 0.5 1 2\nOffset = 1 2 3\n\
+             TransformMatrix = 0 1 0 -1 0 0 0 0 1\n{extra}ElementDataFile = {data_file}\n"
+        )
+        .into_bytes()
+    };
+    let mut mha = header("BinaryDataByteOrderMSB = False\n", "LOCAL");
+    mha.extend(le_u16(&ramp()));
+    let v = Volume::from_bytes("v.mha", &mha, &opts()).expect("mha");
+    assert_eq!(scalars(&v), ramp());
+    // The first three numbers are the i axis's direction, scaled by its spacing.
+    assert_eq!(
+        v.affine,
+        [[0.0, 0.5, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 2.0]]
+    );
+    assert_eq!(v.origin, [1.0, 2.0, 3.0]);
+
+    let big: Vec<u8> = ramp()
+        .iter()
+        .flat_map(|&x| (x as u16).to_be_bytes())
+        .collect();
+    let mut compressed = header(
+        &format!(
+            "ElementByteOrderMSB = True\nCompressedData = True\nCompressedDataSize = {}\n",
+            zlib(&big).len()
+        ),
+        "LOCAL",
+    );
+    compressed.extend(zlib(&big));
+    let v = Volume::from_bytes("v.mha", &compressed, &opts()).expect("compressed");
+    assert_eq!(scalars(&v), ramp());
+
+    let dir = tempfile::tempdir().expect("temp dir");
+    std::fs::write(dir.path().join("v.raw"), le_u16(&ramp())).expect("write raw");
+    let mhd = header("", "v.raw");
+    std::fs::write(dir.path().join("v.mhd"), &mhd).expect("write mhd");
+    let v = Volume::load(&dir.path().join("v.mhd"), &opts()).expect("mhd");
+    assert_eq!(scalars(&v), ramp());
+    assert!(matches!(
+        Volume::from_bytes("v.mhd", &mhd, &opts()),
+        Err(VolumeError::Detached(..))
+    ));
+    // Missing data file, truncated data, no ElementDataFile, vector voxels.
+    let e = Volume::load(&dir.path().join("none.mhd"), &opts()).expect_err("no header");
+    assert!(matches!(e, VolumeError::Io { .. }), "{e}");
+    assert!(matches!(
+        Volume::from_bytes("v.mha", &mha[..mha.len() - 2], &opts()),
+        Err(VolumeError::DataSize { .. })
+    ));
+    assert!(Volume::from_bytes("v.mha", b"NDims = 3\nDimSize = 1 1 1\n", &opts()).is_err());
+    let mut rgb = header("ElementNumberOfChannels = 3\n", "LOCAL");
+    rgb.extend(vec![0; 72]);
+    assert!(Volume::from_bytes("v.mha", &rgb, &opts()).is_err());
+}
+
+#[test]
+fn nrrd_raw_gzip_ascii_and_detached() {
+    let header = |encoding: &str, extra: &str| {
+        format!(
+            "NRRD0004\n# a comment\ntype: float\ndimension: 3\nsizes: 3 2 2\nendian: big\n\
+             encoding: {encoding}\nspace: right-anterior-superior\n\
+             space directions: (0,0.5,0) (1,0,0) (0,0,2)\nspace origin: (1,2,3)\nfoo:=bar\n{extra}"
+        )
+        .into_bytes()
+    };
+    let mut raw = header("raw", "\n");
+    raw.extend(be_f32(&ramp()));
+    let v = Volume::from_bytes("v.nrrd", &raw, &opts()).expect("raw");
+    assert_eq!(scalars(&v), ramp());
+    assert_eq!(
+        v.affine,
+        [[0.0, 0.5, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 2.0]]
+    );
+    assert_eq!(v.origin, [1.0, 2.0, 3.0]);
+
+    let mut gz = header("gzip", "\n");
+    gz.extend(gzip(&be_f32(&ramp())));
+    assert_eq!(
+        scalars(&Volume::from_bytes("v.nrrd", &gz, &opts()).expect("gzip")),
+        ramp()
+    );
+
+    let mut text = header("ascii", "\n");
+    let words: Vec<String> = ramp().iter().map(f64::to_string).collect();
+    text.extend(words.join("\n").into_bytes());
+    assert_eq!(
+        scalars(&Volume::from_bytes("v.nrrd", &text, &opts()).expect("ascii")),
+        ramp()
+    );
+    let short_text = &text[..text.len() - 4];
+    assert!(matches!(
+        Volume::from_bytes("v.nrrd", short_text, &opts()),
+        Err(VolumeError::DataSize { .. })
+    ));
+
+    let dir = tempfile::tempdir().expect("temp dir");
+    std::fs::write(dir.path().join("v.raw.gz"), gzip(&be_f32(&ramp()))).expect("write data");
+    let nhdr = header("gzip", "data file: v.raw.gz\n");
+    std::fs::write(dir.path().join("v.nhdr"), &nhdr).expect("write nhdr");
+    assert_eq!(
+        scalars(&Volume::load(&dir.path().join("v.nhdr"), &opts()).expect("nhdr")),
+        ramp()
+    );
+    assert!(matches!(
+        Volume::from_bytes("v.nhdr", &nhdr, &opts()),
+        Err(VolumeError::Detached(..))
+    ));
+    // Singular directions, a missing endian, a gzip bomb that claims few voxels.
+    let edited = |from: &str, to: &str| {
+        let mut file = String::from_utf8_lossy(&header("raw", "\n"))
+            .replace(from, to)
+            .into_bytes();
+        file.extend(be_f32(&ramp()));
+        Volume::from_bytes("v.nrrd", &file, &opts())
+    };
+    assert!(matches!(
+        edited("(1,0,0)", "(0,1,0)"),
+        Err(VolumeError::Transform(_))
+    ));
+    let e = edited("endian: big\n", "").expect_err("no endian");
+    assert!(e.to_string().contains("endian is missing"), "{e}");
+    let e = edited("(0,0,2)", "none").expect_err("none");
+    assert!(e.to_string().contains("no `none`"), "{e}");
+    let mut bomb = header("gzip", "\n");
+    bomb.extend(gzip(&vec![0u8; 1 << 20]));
+    assert!(matches!(
+        Volume::from_bytes("v.nrrd", &bomb, &opts()),
+        Err(VolumeError::DataSize {
+            expected: 48,
+            found: 49,
+            ..
+        })
+    ));
+}
+
+fn inr(fields: &str, data: &[u8]) -> Vec<u8> {
+    let mut header = format!("#INRIMAGE-4#{{\n{fields}").into_bytes();
+    while (header.len() + 4) % 256 != 0 {
+        header.push(b'\n');
+    }
+    header.extend(b"##}\n");
+    header.extend(data);
+    header
+}
+
+#[test]
+fn inria_plain_gzip_scale_and_byte_order() {
+    let fields = "XDIM=3\nYDIM=2\nZDIM=2\nVDIM=1\nTYPE=unsigned fixed\nPIXSIZE=16 bits\nSCALE=2**1\nCPU=decm\nVX=0.5\nVY=1\nVZ=2\n";
+    let file = inr(fields, &le_u16(&ramp()));
+    assert_eq!(file.len(), 256 + 24);
+    for (name, bytes) in [("v.inr", file.clone()), ("v.inr.gz", gzip(&file))] {
+        let v = Volume::from_bytes(name, &bytes, &opts()).expect(name);
+        let half: Vec<f64> = ramp().iter().map(|x| x / 2.0).collect();
+        assert_eq!(scalars(&v), half, "{name}");
+        assert_eq!(v.affine, diagonal([0.5, 1.0, 2.0]));
+    }
+    let big = inr(
+        "XDIM=3\nYDIM=2\nZDIM=2\nTYPE=float\nPIXSIZE=32 bits\nCPU=sun\n",
+        &be_f32(&ramp()),
+    );
+    assert_eq!(
+        scalars(&Volume::from_bytes("v.inr", &big, &opts()).expect("sun")),
+        ramp()
+    );
+    assert!(matches!(
+        Volume::from_bytes("v.inr", &file[..file.len() - 1], &opts()),
+        Err(VolumeError::DataSize { .. })
+    ));
+    assert!(
+        Volume::from_bytes(
+            "v.inr",
+            &inr("XDIM=3\nYDIM=2\nVDIM=3\nTYPE=float\nPIXSIZE=32 bits\n", &[]),
+            &opts()
+        )
+        .is_err()
+    );
+    assert!(Volume::from_bytes("v.inr", b"#INRIMAGE-4#{\nXDIM=1\n", &opts()).is_err());
+}
+
+#[test]
+fn names_spacing_and_missing_files() {
+    assert_eq!(
+        VolumeFormat::from_name("A.NII.GZ"),
+        Some((VolumeFormat::Nifti, true))
+    );
+    assert_eq!(
+        VolumeFormat::from_name("x.nhdr"),
+        Some((VolumeFormat::Nrrd, false))
+    );
+    assert_eq!(VolumeFormat::from_name("x.npy.gz"), None);
+    assert!(matches!(
+        Volume::from_bytes("x.vol", b"", &opts()),
+        Err(VolumeError::UnknownFormat(_))
+    ));
+    let spacing = LoadOptions {
+        spacing: Some([1.0; 3]),
+        ..opts()
+    };
+    assert!(matches!(
+        Volume::from_bytes("x.nii", b"", &spacing),
+        Err(VolumeError::SpacingNotAllowed(VolumeFormat::Nifti))
+    ));
+    assert!(matches!(
+        Volume::load(Path::new("/nonexistent/x.nii"), &opts()),
+        Err(VolumeError::Io { .. })
+    ));
+    // Zero or non-finite spacing makes a singular or non-finite transform.
+    let file = npy("|u1", false, "(1, 1, 1)", &[7]);
+    for bad in [[0.0, 1.0, 1.0], [f64::NAN, 1.0, 1.0]] {
+        let options = LoadOptions {
+            spacing: Some(bad),
+            ..opts()
+        };
+        assert!(matches!(
+            Volume::from_bytes("x.npy", &file, &options),
+            Err(VolumeError::Transform(_))
+        ));
+    }
+}
