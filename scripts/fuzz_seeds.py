@@ -185,6 +185,12 @@ def volumes() -> dict[str, bytes]:
     nrrd = b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 3 2 2\nencoding: raw\nspacings: 1 1 1\n\n"
     inr = b"#INRIMAGE-4#{\nXDIM=3\nYDIM=2\nZDIM=2\nVDIM=1\nTYPE=unsigned fixed\nPIXSIZE=8 bits\nCPU=decm\n"
     inr += b"\n" * (252 - len(inr)) + b"##}\n"
+    vti = (
+        b'<VTKFile type="ImageData" byte_order="LittleEndian"><ImageData WholeExtent="0 2 0 1 0 1" '
+        b'Spacing="1 1 1"><Piece Extent="0 2 0 1 0 1"><PointData Scalars="v"><DataArray type="UInt8" '
+        b'Name="v" format="appended" offset="0"/></PointData></Piece></ImageData>'
+        b'<AppendedData encoding="raw">_' + struct.pack("<I", 12) + ramp + b"</AppendedData></VTKFile>"
+    )
     return {
         "nifti.nii": b"\x00" + nii_file,
         "nifti.nii.gz": b"\x01" + gzip.compress(nii_file),
@@ -193,7 +199,8 @@ def volumes() -> dict[str, bytes]:
         "raw.nrrd": b"\x04" + nrrd + ramp,
         "plain.inr": b"\x05" + inr + ramp,
         "plain.inr.gz": b"\x06" + gzip.compress(inr + ramp),
-        "labels.npy": b"\x80" + npy_file,  # 128 % 7 = 2: .npy, as labels
+        "labels.npy": b"\x82" + npy_file,  # 130 % 8 = 2: .npy, as labels
+        "appended.vti": b"\x07" + vti,
     }
 
 

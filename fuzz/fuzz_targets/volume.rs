@@ -5,8 +5,8 @@
 use libfuzzer_sys::fuzz_target;
 use lumigraph_core::volume::{LoadOptions, Volume};
 
-const NAMES: [&str; 7] = [
-    "v.nii", "v.nii.gz", "v.npy", "v.mha", "v.nrrd", "v.inr", "v.inr.gz",
+const NAMES: [&str; 8] = [
+    "v.nii", "v.nii.gz", "v.npy", "v.mha", "v.nrrd", "v.inr", "v.inr.gz", "v.vti",
 ];
 
 fuzz_target!(|data: &[u8]| {

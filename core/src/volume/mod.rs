@@ -1,6 +1,6 @@
 //! Scalar and label volumes in (issue #21 item 1): NIfTI `.nii`/`.nii.gz`, NumPy `.npy`,
-//! MetaImage `.mha`/`.mhd`, NRRD `.nrrd`/`.nhdr` and INRIA `.inr`/`.inr.gz`, read into one
-//! validated [`Volume`] with DESIGN §9's conventions.
+//! MetaImage `.mha`/`.mhd`, NRRD `.nrrd`/`.nhdr`, INRIA `.inr`/`.inr.gz` and VTK image data
+//! `.vti`, read into one validated [`Volume`] with DESIGN §9's conventions.
 //!
 //! A volume holds `S[k][j][i]` with `i` fastest; index `(i, j, k)` sits at world
 //! `M·(i, j, k) + o`, with `M` the file's 3×3 affine ([`Volume::affine`], default
@@ -20,6 +20,7 @@ mod metaimage;
 mod nifti;
 mod npy;
 mod nrrd;
+mod vti;
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -45,8 +46,8 @@ pub enum VolumeError {
     },
     /// The file name's extension is none of the supported formats.
     #[error(
-        "{0}: unknown volume format (expected .nii, .nii.gz, .npy, .mha, .mhd, .nrrd, .nhdr, .inr \
-         or .inr.gz)"
+        "{0}: unknown volume format (expected .nii, .nii.gz, .npy, .mha, .mhd, .nrrd, .nhdr, .inr, \
+         .inr.gz or .vti)"
     )]
     UnknownFormat(String),
     /// The header is malformed or says something unsupported.
@@ -128,6 +129,8 @@ pub enum VolumeFormat {
     Nrrd,
     /// INRIA `.inr` / `.inr.gz`.
     Inria,
+    /// VTK XML image data `.vti`.
+    Vti,
 }
 
 impl std::fmt::Display for VolumeFormat {
@@ -138,6 +141,7 @@ impl std::fmt::Display for VolumeFormat {
             VolumeFormat::MetaImage => "MetaImage",
             VolumeFormat::Nrrd => "NRRD",
             VolumeFormat::Inria => "INRIA",
+            VolumeFormat::Vti => "VTK image data",
         })
     }
 }
@@ -157,6 +161,7 @@ impl VolumeFormat {
             "npy" if !gz => VolumeFormat::Npy,
             "mha" | "mhd" if !gz => VolumeFormat::MetaImage,
             "nrrd" | "nhdr" if !gz => VolumeFormat::Nrrd,
+            "vti" if !gz => VolumeFormat::Vti,
             _ => return None,
         };
         Some((format, gz))
@@ -354,6 +359,7 @@ fn decode(
         VolumeFormat::MetaImage => metaimage::read(bytes, folder)?,
         VolumeFormat::Nrrd => nrrd::read(bytes, folder)?,
         VolumeFormat::Inria => inr::read(bytes, gz)?,
+        VolumeFormat::Vti => vti::read(bytes)?,
     };
     raw.into_volume(format, options.labels)
 }

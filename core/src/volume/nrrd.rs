@@ -291,6 +291,19 @@ pub(super) fn read(bytes: &[u8], folder: Option<&Path>) -> Result<RawVolume> {
 fn ascii(source: &[u8], ty: VoxelType, big_endian: bool, expected: u64) -> Result<Vec<u8>> {
     let text =
         std::str::from_utf8(source).map_err(|_| header_error(FORMAT, "ascii data is not text"))?;
+    encode_text(FORMAT, text, ty, big_endian, expected)
+}
+
+/// Whitespace- or comma-separated numbers re-encoded as `ty`: exactly `expected` bytes' worth,
+/// else a [`super::VolumeError::DataSize`] (NRRD `ascii`, VTK `ascii`).
+pub(super) fn encode_text(
+    format: VolumeFormat,
+    text: &str,
+    ty: VoxelType,
+    big_endian: bool,
+    expected: u64,
+) -> Result<Vec<u8>> {
+    let source = text.as_bytes();
     let count = expected / ty.bytes() as u64;
     let mut out = Vec::with_capacity(expected.min(source.len() as u64 * 8) as usize);
     let mut found = 0u64;
@@ -304,7 +317,7 @@ fn ascii(source: &[u8], ty: VoxelType, big_endian: bool, expected: u64) -> Resul
         }
         let v: f64 = word
             .parse()
-            .map_err(|_| header_error(FORMAT, format!("ascii value {word:?} is not a number")))?;
+            .map_err(|_| header_error(format, format!("ascii value {word:?} is not a number")))?;
         let be = big_endian;
         macro_rules! put {
             ($t:ty) => {{
@@ -327,7 +340,7 @@ fn ascii(source: &[u8], ty: VoxelType, big_endian: bool, expected: u64) -> Resul
     }
     if found != count {
         return Err(super::VolumeError::DataSize {
-            format: FORMAT,
+            format,
             expected,
             found: found.saturating_mul(ty.bytes() as u64),
         });

@@ -524,3 +524,166 @@ fn names_spacing_and_missing_files() {
         ));
     }
 }
+
+/// A `.vti` around one point-data array element (`data_array`) and optional appended data.
+fn vti(file_attrs: &str, data_array: &str, appended: Option<(&str, &[u8])>) -> Vec<u8> {
+    let mut out = format!(
+        "<?xml version=\"1.0\"?>\n<VTKFile type=\"ImageData\" version=\"1.0\" {file_attrs}>\n\
+         <ImageData WholeExtent=\"1 3 0 1 2 3\" Origin=\"10 20 30\" Spacing=\"0.5 1 2\" \
+         Direction=\"0 -1 0 1 0 0 0 0 1\">\n<Piece Extent=\"1 3 0 1 2 3\">\n\
+         <PointData Scalars=\"density\">\n<DataArray type=\"Float32\" Name=\"other\" format=\"ascii\">1</DataArray>\n\
+         {data_array}\n</PointData>\n<CellData/>\n</Piece>\n</ImageData>\n"
+    )
+    .into_bytes();
+    if let Some((encoding, bytes)) = appended {
+        out.extend(format!("<AppendedData encoding=\"{encoding}\">\n_").into_bytes());
+        out.extend(bytes);
+        out.extend(b"\n</AppendedData>\n");
+    }
+    out.extend(b"</VTKFile>\n");
+    out
+}
+
+fn b64(bytes: &[u8]) -> String {
+    use base64::Engine;
+    base64::engine::general_purpose::STANDARD.encode(bytes)
+}
+
+/// The VTK zlib framing: `[blocks, block, last, sizes…]` as u64 little endian, then the blocks.
+fn vtk_zlib(data: &[u8], block: usize) -> (Vec<u8>, Vec<u8>) {
+    let chunks: Vec<Vec<u8>> = data.chunks(block).map(zlib).collect();
+    let last = data.len() - block * (chunks.len() - 1);
+    let mut header: Vec<u64> = vec![chunks.len() as u64, block as u64, last as u64];
+    header.extend(chunks.iter().map(|c| c.len() as u64));
+    (
+        header.iter().flat_map(|w| w.to_le_bytes()).collect(),
+        chunks.concat(),
+    )
+}
+
+#[test]
+fn vti_every_data_format_and_its_transform() {
+    let data: Vec<u8> = ramp()
+        .iter()
+        .flat_map(|&x| (x as f32).to_le_bytes())
+        .collect();
+    let array = |format: &str, extra: &str, body: &str| {
+        format!(
+            "<DataArray type=\"Float32\" Name=\"density\" format=\"{format}\" {extra}>{body}</DataArray>"
+        )
+    };
+    let words: Vec<String> = ramp().iter().map(f64::to_string).collect();
+    let mut one_stream = 48u32.to_le_bytes().to_vec();
+    one_stream.extend(&data);
+    let (zheader, zblocks) = vtk_zlib(&data, 20);
+    let mut appended_raw = 48u32.to_le_bytes().to_vec();
+    appended_raw.extend(&data);
+    let mut appended_z = zheader.clone();
+    appended_z.extend(&zblocks);
+    let cases: Vec<(&str, Vec<u8>)> = vec![
+        (
+            "ascii",
+            vti("", &array("ascii", "", &words.join(" ")), None),
+        ),
+        (
+            "binary",
+            vti("", &array("binary", "", &b64(&one_stream)), None),
+        ),
+        (
+            "binary, header encoded apart",
+            vti(
+                "",
+                &array(
+                    "binary",
+                    "",
+                    &format!("{}{}", b64(&48u32.to_le_bytes()), b64(&data)),
+                ),
+                None,
+            ),
+        ),
+        (
+            "binary, zlib",
+            vti(
+                "header_type=\"UInt64\" compressor=\"vtkZLibDataCompressor\"",
+                &array("binary", "", &format!("{}{}", b64(&zheader), b64(&zblocks))),
+                None,
+            ),
+        ),
+        (
+            "appended raw",
+            vti(
+                "",
+                &array("appended", "offset=\"0\"", ""),
+                Some(("raw", &appended_raw)),
+            ),
+        ),
+        (
+            "appended raw, zlib",
+            vti(
+                "header_type=\"UInt64\" compressor=\"vtkZLibDataCompressor\"",
+                &array("appended", "offset=\"0\"", ""),
+                Some(("raw", &appended_z)),
+            ),
+        ),
+        (
+            "appended base64 at an offset",
+            vti(
+                "",
+                &array("appended", "offset=\"4\"", ""),
+                Some(("base64", format!("AAAA{}", b64(&one_stream)).as_bytes())),
+            ),
+        ),
+    ];
+    for (name, file) in &cases {
+        let v =
+            Volume::from_bytes("v.vti", file, &opts()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(v.format, VolumeFormat::Vti);
+        assert_eq!(v.dims, [3, 2, 2], "{name}");
+        assert_eq!(scalars(&v), ramp(), "{name}");
+        // Direction rows (0 −1 0; 1 0 0; 0 0 1): i steps along +y, j along −x; spacing scales.
+        assert_eq!(
+            v.affine,
+            [[0.0, 0.5, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 2.0]],
+            "{name}"
+        );
+        // The extent starts at (1, 0, 2): voxel (0, 0, 0) sits at Origin + D·(S ⊙ (1, 0, 2)).
+        assert_eq!(v.origin, [10.0, 20.5, 34.0], "{name}");
+    }
+    // Refusals: truncated appended data, a wrong byte count, several pieces, cell data only,
+    // a missing Scalars array, vector data.
+    let cut = vti(
+        "",
+        &array("appended", "offset=\"0\"", ""),
+        Some(("raw", &appended_raw[..30])),
+    );
+    assert!(Volume::from_bytes("v.vti", &cut, &opts()).is_err());
+    let mut wrong = 44u32.to_le_bytes().to_vec();
+    wrong.extend(&data[..44]);
+    let wrong = vti("", &array("binary", "", &b64(&wrong)), None);
+    assert!(matches!(
+        Volume::from_bytes("v.vti", &wrong, &opts()),
+        Err(VolumeError::DataSize { .. })
+    ));
+    let pieces = String::from_utf8_lossy(&cases[0].1).replace(
+        "<Piece Extent=\"1 3 0 1 2 3\"",
+        "<Piece Extent=\"1 2 0 1 2 3\"",
+    );
+    assert!(Volume::from_bytes("v.vti", pieces.as_bytes(), &opts()).is_err());
+    let cells = "<?xml version=\"1.0\"?><VTKFile type=\"ImageData\"><ImageData WholeExtent=\"0 1 0 1 0 1\">\
+                 <Piece Extent=\"0 1 0 1 0 1\"><CellData><DataArray type=\"UInt8\" format=\"ascii\">1</DataArray>\
+                 </CellData></Piece></ImageData></VTKFile>";
+    let e = Volume::from_bytes("v.vti", cells.as_bytes(), &opts()).expect_err("cells");
+    assert!(e.to_string().contains("cell data"), "{e}");
+    let renamed =
+        String::from_utf8_lossy(&cases[0].1).replace("Scalars=\"density\"", "Scalars=\"absent\"");
+    assert!(Volume::from_bytes("v.vti", renamed.as_bytes(), &opts()).is_err());
+    let vector = String::from_utf8_lossy(&cases[0].1).replace(
+        "Name=\"density\"",
+        "Name=\"density\" NumberOfComponents=\"3\"",
+    );
+    assert!(Volume::from_bytes("v.vti", vector.as_bytes(), &opts()).is_err());
+    assert!(
+        Volume::from_bytes("v.vti", b"<VTKFile type=\"PolyData\"></VTKFile>", &opts()).is_err()
+    );
+    assert!(Volume::from_bytes("v.vti", b"\xff\xfe<", &opts()).is_err());
+}
