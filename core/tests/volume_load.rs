@@ -60,3 +60,51 @@ fn mni_t1_template_reads_with_its_sform_and_exact_values() {
         );
     }
 }
+
+/// The reference ray caster on the real MRI with the `mri-brain` preset: a head-shaped
+/// footprint, opaque white matter giving depths inside the head's box, nothing non-finite.
+#[test]
+fn mni_t1_ray_casts_with_the_mri_brain_preset() {
+    use lumigraph_core::view::View;
+    use lumigraph_core::volume::raycast::{RaycastOptions, raycast};
+    use lumigraph_core::volume::tf::TransferFunction;
+
+    let path = common::fixtures_dir().join("volume/mni_t1.nii.gz");
+    let volume = Volume::load(&path, &LoadOptions::default()).expect("MNI T1");
+    let tf = TransferFunction::preset("mri-brain").expect("preset");
+    // From the front (+y in MNI space is anterior), 300 mm away, the head fills the frame's middle.
+    let view = View::look_at([0.0, 300.0, 0.0], [0.0, -18.0, 22.0], 45.0, 96, 96);
+    let options = RaycastOptions {
+        shade: true,
+        ..RaycastOptions::default()
+    };
+    let image = raycast(&volume, &tf, &view, &options).expect("ray cast");
+    let covered = image.coverage().iter().filter(|&&c| c).count();
+    let total = 96 * 96;
+    // The head's box (197 × 189 mm seen from the front) spans about 60 % of the frame; the
+    // head within it covers about half of the box.
+    assert!(
+        (total / 10..total * 7 / 10).contains(&covered),
+        "{covered} of {total} pixels covered"
+    );
+    assert!(
+        image
+            .rgba
+            .iter()
+            .flatten()
+            .all(|x| x.is_finite() && (0.0..=1.0 + 1e-12).contains(x))
+    );
+    let deep: Vec<f64> = image
+        .depth
+        .iter()
+        .copied()
+        .filter(|d| d.is_finite())
+        .collect();
+    assert!(!deep.is_empty(), "white matter reaches τ_d somewhere");
+    // Depths lie within the head's box: the eye is 300 mm from the origin, the box ±117 mm deep.
+    assert!(
+        deep.iter()
+            .all(|&d| (300.0 - 18.0 - 120.0..300.0 + 120.0).contains(&d)),
+        "{deep:?}"
+    );
+}

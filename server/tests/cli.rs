@@ -1028,3 +1028,162 @@ fn auto_bake_below_every_setting_bakes_the_smallest_and_says_so() {
         "{info}"
     );
 }
+
+/// A `.npy` of `n³` f32 voxels: a ball of value 100 (radius n/3 voxels) in zeros.
+fn ball_npy(n: usize) -> Vec<u8> {
+    let dict = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({n}, {n}, {n}), }}");
+    let mut header = dict.into_bytes();
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(b' ');
+    }
+    header.push(b'\n');
+    let mut out = b"\x93NUMPY\x01\x00".to_vec();
+    out.extend((header.len() as u16).to_le_bytes());
+    out.extend(header);
+    let c = (n as f32 - 1.0) / 2.0;
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                let d = ((i as f32 - c).powi(2) + (j as f32 - c).powi(2) + (k as f32 - c).powi(2))
+                    .sqrt();
+                let v: f32 = if d <= n as f32 / 3.0 { 100.0 } else { 0.0 };
+                out.extend(v.to_le_bytes());
+            }
+        }
+    }
+    out
+}
+
+/// `reference VOLUME --tf`: the direct ray cast writes straight-alpha PNG and depth; the ball
+/// is centred, opaque in the middle and empty at the corners; bad volume flags fail cleanly.
+#[test]
+fn reference_ray_casts_a_volume() {
+    let volume = write("ball.npy", &ball_npy(24));
+    // The ball's centre is at index 11.5 → world 5.75 with spacing 0.5.
+    let view = write(
+        "ball-view.json",
+        br#"{"eye": [5.75, 5.75, -20], "target": [5.75, 5.75, 5.75], "up": [0, 1, 0], "yfov_deg": 40, "width": 32, "height": 32}"#,
+    );
+    let tf = write(
+        "ball-tf.json",
+        br#"{"points": [[0, 0, 0, 0, 0], [50, 1, 0.5, 0, 0.9]]}"#,
+    );
+    let png = path("ball.png");
+    let npy = path("ball-depth.npy");
+    let o = lumigraph(&[
+        "reference",
+        s(&volume),
+        "--spacing",
+        "0.5,0.5,0.5",
+        "--tf",
+        s(&tf),
+        "--shade",
+        "--view",
+        s(&view),
+        "-o",
+        s(&png),
+        "--depth",
+        s(&npy),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        stdout.contains("px covered") && stdout.contains("samples"),
+        "{stdout}"
+    );
+    let (w, h, rgba) = lumigraph_core::image_io::read_png_rgba8(&png).expect("png");
+    assert_eq!((w, h), (32, 32));
+    let alpha = |x: usize, y: usize| rgba[4 * (y * 32 + x) + 3];
+    // Opaque up to the early stop: A ≥ 0.995 stores 254 or 255.
+    assert!(
+        alpha(16, 16) >= 254,
+        "the ball's centre is opaque: {}",
+        alpha(16, 16)
+    );
+    assert_eq!(alpha(0, 0), 0, "the corner is empty");
+    let (_, _, depth) = lumigraph_core::image_io::read_depth_npy(&npy).expect("depth");
+    // The ball's front (radius 8 voxels = 4 world units, centre 25.75 from the eye) is about
+    // 21.75 away along the axis; the depth lies within a sample of where A passes 0.5.
+    let centre = depth[16 * 32 + 16];
+    assert!((21.0..22.5).contains(&centre), "centre depth {centre}");
+    assert!(depth[0].is_infinite());
+
+    let v = s(&volume);
+    let vw = s(&view);
+    let out = s(&png);
+    assert_fails(&["reference", v, "--view", vw, "-o", out], "needs --tf");
+    assert_fails(
+        &["reference", v, "--tf", "ct-lung", "--view", vw, "-o", out],
+        "not a preset",
+    );
+    assert_fails(
+        &[
+            "reference",
+            v,
+            "--tf",
+            "ct-bone",
+            "--unlit",
+            "--view",
+            vw,
+            "-o",
+            out,
+        ],
+        "apply to meshes",
+    );
+    assert_fails(
+        &[
+            "reference",
+            v,
+            "--tf",
+            "ct-bone",
+            "--spacing",
+            "0,1,1",
+            "--view",
+            vw,
+            "-o",
+            out,
+        ],
+        "singular",
+    );
+    assert_fails(
+        &[
+            "reference",
+            "--demo",
+            "--tf",
+            "ct-bone",
+            "--view",
+            vw,
+            "-o",
+            out,
+        ],
+        "apply to volumes only",
+    );
+    let broken = write("broken.nii.gz", b"not gzip");
+    assert_fails(
+        &[
+            "reference",
+            s(&broken),
+            "--tf",
+            "ct-bone",
+            "--view",
+            vw,
+            "-o",
+            out,
+        ],
+        "broken.nii.gz",
+    );
+    let labels_tf = write("labels-tf.json", br#"{"labels": {"1": [1, 0, 0, 1]}}"#);
+    assert_fails(
+        &[
+            "reference",
+            v,
+            "--tf",
+            s(&labels_tf),
+            "--view",
+            vw,
+            "-o",
+            out,
+        ],
+        "scalar volume needs a scalar transfer function",
+    );
+}

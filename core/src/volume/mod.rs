@@ -20,6 +20,8 @@ mod metaimage;
 mod nifti;
 mod npy;
 mod nrrd;
+pub mod raycast;
+pub mod tf;
 mod vti;
 
 use std::io::Read;

@@ -687,3 +687,350 @@ fn vti_every_data_format_and_its_transform() {
     );
     assert!(Volume::from_bytes("v.vti", b"\xff\xfe<", &opts()).is_err());
 }
+
+mod transfer_and_raycast {
+    //! DESIGN §9's transfer function and integration checked against closed forms: a constant
+    //! volume composites to `1 − (1 − a)^(L/ref_step)`, a ramp samples to its own value, labels
+    //! take the nearest voxel, shading follows the gradient's angle to the light. Tolerance
+    //! 1e-12: the ray caster works in f64 and these are a handful of operations per sample.
+
+    use super::super::raycast::{EARLY_STOP_ALPHA, RaycastError, RaycastOptions, raycast};
+    use super::super::tf::{PRESETS, TfError, TransferFunction, opacity_for_step};
+    use super::super::{Volume, VolumeFormat, VoxelType, Voxels, diagonal};
+    use crate::view::View;
+
+    const EPS: f64 = 1e-12;
+
+    fn volume(dims: [u32; 3], f: impl Fn(u32, u32, u32) -> f32) -> Volume {
+        let mut v = Vec::new();
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                for i in 0..dims[0] {
+                    v.push(f(i, j, k));
+                }
+            }
+        }
+        Volume {
+            dims,
+            voxels: Voxels::Scalar(v),
+            affine: diagonal([1.0; 3]),
+            origin: [0.0; 3],
+            voxel_type: VoxelType::F32,
+            format: VolumeFormat::Npy,
+        }
+    }
+
+    /// One pixel looking along +z through index column (x, y).
+    fn ray_view(x: f64, y: f64) -> View {
+        View::look_at([x, y, -10.0], [x, y, 0.0], 40.0, 1, 1)
+    }
+
+    fn constant_tf(rgb: [f64; 3], a: f64) -> TransferFunction {
+        TransferFunction::Scalar {
+            points: vec![
+                [0.0, rgb[0], rgb[1], rgb[2], a],
+                [10.0, rgb[0], rgb[1], rgb[2], a],
+            ],
+            ref_step: None,
+        }
+    }
+
+    #[test]
+    fn transfer_function_json_presets_and_eval() {
+        let tf = TransferFunction::from_json(
+            r#"{"points": [[0, 0, 0, 0, 0], [10, 1, 0.5, 0, 0.8], [10, 0, 0, 1, 1], [20, 0, 0, 1, 0]], "ref_step": 2}"#,
+        )
+        .expect("tf");
+        assert_eq!(tf.eval(-5.0), [0.0; 4]);
+        let mid = tf.eval(5.0);
+        assert!(
+            (mid[0] - 0.5).abs() < EPS && (mid[1] - 0.25).abs() < EPS && (mid[3] - 0.4).abs() < EPS
+        );
+        // At a step the later point wins; beyond the end the last point holds.
+        assert_eq!(tf.eval(10.0), [0.0, 0.0, 1.0, 1.0]);
+        assert_eq!(tf.eval(15.0), [0.0, 0.0, 1.0, 0.5]);
+        assert_eq!(tf.eval(99.0), [0.0, 0.0, 1.0, 0.0]);
+        let labels =
+            TransferFunction::from_json(r#"{"labels": {"3": [1, 0, 0, 0.5]}}"#).expect("labels");
+        assert_eq!(labels.eval(3.0), [1.0, 0.0, 0.0, 0.5]);
+        assert_eq!(labels.eval(2.0), [0.0; 4]);
+        for bad in [
+            r#"{"points": [[1, 0, 0, 0, 0], [0, 0, 0, 0, 0]]}"#,
+            r#"{"points": [[0, 0, 0, 0, 1.5]]}"#,
+            r#"{"points": []}"#,
+            r#"{"points": [[0, 0, 0, 0, 0]], "ref_step": 0}"#,
+            r#"{"points": [[0, 0, 0, 0, 0]], "labels": {}}"#,
+            r#"{"labels": {"-1": [0, 0, 0, 0]}}"#,
+            r#"{"labels": {"a": [0, 0, 0, 0]}}"#,
+            r#"{"points": [[0, 0, 0, 0, 0]], "extra": 1}"#,
+            "[1, 2]",
+        ] {
+            assert!(TransferFunction::from_json(bad).is_err(), "{bad}");
+        }
+        for name in PRESETS {
+            let tf = TransferFunction::preset(name).expect(name);
+            assert_eq!(tf.validate(), Ok(()), "{name}");
+        }
+        assert_eq!(
+            TransferFunction::preset("ct-lung"),
+            Err(TfError::UnknownPreset("ct-lung".into()))
+        );
+        assert!((opacity_for_step(0.5, 1.0, 1.0) - 0.5).abs() < EPS);
+        assert!((opacity_for_step(0.5, 0.5, 1.0) - (1.0 - 0.5f64.sqrt())).abs() < EPS);
+        assert_eq!(opacity_for_step(1.0, 0.1, 1.0), 1.0);
+        assert_eq!(opacity_for_step(0.0, 0.1, 1.0), 0.0);
+    }
+
+    #[test]
+    fn a_constant_slab_composites_to_the_closed_form() {
+        // Box [−½, 3½]³; the ray along +z enters at t = 9.5 and leaves at 13.5 (L = 4).
+        let v = volume([4, 4, 4], |_, _, _| 1.0);
+        let rgb = [1.0, 0.6, 0.2];
+        // Δ = ref_step/2 = 0.5: samples at 9.75, 10.25, …, 13.25 (8 samples).
+        let img = raycast(
+            &v,
+            &constant_tf(rgb, 0.1),
+            &ray_view(1.5, 1.5),
+            &RaycastOptions::default(),
+        )
+        .expect("cast");
+        let want_a = 1.0 - 0.9f64.powf(4.0);
+        let [r, g, b, a] = img.rgba[0];
+        assert!((a - want_a).abs() < EPS, "{a} vs {want_a}");
+        for (got, c) in [r, g, b].into_iter().zip(rgb) {
+            assert!((got - c * want_a).abs() < EPS);
+        }
+        assert_eq!(img.samples, 8);
+        assert!(
+            img.depth[0].is_infinite(),
+            "A = {a} never reaches τ_d = 0.5"
+        );
+        assert_eq!(img.coverage(), vec![true]);
+        // a = 0.5: A = 1 − 0.5^(n/2) reaches 0.45 at the second sample, t = 10.25.
+        // (τ_d = 0.45, not 0.5: 1 − (1 − α)² rounds to just below 0.5 in f64.)
+        let options = RaycastOptions {
+            depth_threshold: 0.45,
+            ..RaycastOptions::default()
+        };
+        let img = raycast(&v, &constant_tf(rgb, 0.5), &ray_view(1.5, 1.5), &options).expect("cast");
+        assert!((img.depth[0] - 10.25).abs() < EPS, "{}", img.depth[0]);
+        // a = 0.99: α = 0.9 per sample, A = 0.9, 0.99, 0.999 ≥ 0.995: three samples, then stop.
+        let img = raycast(
+            &v,
+            &constant_tf(rgb, 0.99),
+            &ray_view(1.5, 1.5),
+            &RaycastOptions::default(),
+        )
+        .expect("cast");
+        assert_eq!(img.samples, 3);
+        assert!(img.rgba[0][3] >= EARLY_STOP_ALPHA && (img.rgba[0][3] - 0.999).abs() < EPS);
+        // A given step and τ_d: Δ = 4/3 gives samples at 10.1667, 11.5, 12.8333 (3).
+        let options = RaycastOptions {
+            step: Some(4.0 / 3.0),
+            depth_threshold: 0.2,
+            ..RaycastOptions::default()
+        };
+        let img = raycast(&v, &constant_tf(rgb, 0.1), &ray_view(1.5, 1.5), &options).expect("cast");
+        assert_eq!(img.samples, 3);
+        let want_a = 1.0 - 0.9f64.powf(4.0);
+        assert!((img.rgba[0][3] - want_a).abs() < EPS);
+        // α per sample 1 − 0.9^(4/3) = 0.1313 < 0.2; two samples give 0.2455: depth 11.5.
+        assert!((img.depth[0] - 11.5).abs() < 1e-9, "{}", img.depth[0]);
+        // Outside the box: nothing; the eye inside: the ray starts at t = 0 (L = 3.5 − 2 = 1.5).
+        let img = raycast(
+            &v,
+            &constant_tf(rgb, 0.1),
+            &ray_view(5.0, 1.5),
+            &RaycastOptions::default(),
+        )
+        .expect("cast");
+        assert_eq!(
+            (img.rgba[0], img.samples, img.coverage()),
+            ([0.0; 4], 0, vec![false])
+        );
+        let inside = View::look_at([1.5, 1.5, 2.0], [1.5, 1.5, 5.0], 40.0, 1, 1);
+        let img = raycast(
+            &v,
+            &constant_tf(rgb, 0.1),
+            &inside,
+            &RaycastOptions::default(),
+        )
+        .expect("cast");
+        assert!((img.rgba[0][3] - (1.0 - 0.9f64.powf(1.5))).abs() < EPS);
+        let frame = img.to_frame();
+        assert_eq!(frame.color[3], (255.0 * img.rgba[0][3]).round() as u8);
+        // Straight colour: C/A = rgb, 255·rgb rounded (153 and 51 lie far from a rounding edge).
+        let want: Vec<u8> = rgb.iter().map(|c| (255.0 * c).round() as u8).collect();
+        assert_eq!(&frame.color[..3], &want[..]);
+    }
+
+    #[test]
+    fn trilinear_samples_clamp_at_the_edges_and_labels_take_the_nearest_voxel() {
+        // Value = i: the straight colour is value / 4 wherever the opacity is constant.
+        let ramp = volume([4, 2, 2], |i, _, _| i as f32);
+        let tf = TransferFunction::Scalar {
+            points: vec![[0.0, 0.0, 0.0, 0.0, 0.05], [4.0, 1.0, 1.0, 1.0, 0.05]],
+            ref_step: None,
+        };
+        for (x, value) in [(1.25, 1.25), (2.5, 2.5), (-0.4, 0.0), (3.4, 3.0)] {
+            let img =
+                raycast(&ramp, &tf, &ray_view(x, 0.5), &RaycastOptions::default()).expect("cast");
+            let [r, _, _, a] = img.rgba[0];
+            assert!(
+                (r / a - value / 4.0).abs() < EPS,
+                "x {x}: {} vs {}",
+                r / a,
+                value / 4.0
+            );
+        }
+        let labels = Volume {
+            voxels: Voxels::Labels((0..16).map(|n| if n % 4 >= 2 { 3 } else { 0 }).collect()),
+            ..ramp.clone()
+        };
+        let tf = TransferFunction::from_json(r#"{"labels": {"3": [0, 1, 0, 0.5]}}"#).expect("tf");
+        let at = |x: f64| {
+            raycast(&labels, &tf, &ray_view(x, 0.5), &RaycastOptions::default())
+                .expect("cast")
+                .rgba[0]
+        };
+        assert_eq!(at(1.4), [0.0; 4]);
+        let [r, g, _, a] = at(1.6);
+        assert!(r == 0.0 && (g - a).abs() < EPS && a > 0.0);
+        // Mismatched TFs and shading on labels are refused.
+        assert!(matches!(
+            raycast(
+                &labels,
+                &constant_tf([1.0; 3], 0.5),
+                &ray_view(1.0, 0.5),
+                &RaycastOptions::default()
+            ),
+            Err(RaycastError::Mismatch(_))
+        ));
+        assert!(matches!(
+            raycast(&ramp, &tf, &ray_view(1.0, 0.5), &RaycastOptions::default()),
+            Err(RaycastError::Mismatch(_))
+        ));
+        let shade = RaycastOptions {
+            shade: true,
+            ..RaycastOptions::default()
+        };
+        assert!(matches!(
+            raycast(&labels, &tf, &ray_view(1.0, 0.5), &shade),
+            Err(RaycastError::Options(_))
+        ));
+        for bad in [
+            RaycastOptions {
+                step: Some(0.0),
+                ..RaycastOptions::default()
+            },
+            RaycastOptions {
+                step: Some(f64::NAN),
+                ..RaycastOptions::default()
+            },
+            RaycastOptions {
+                step: Some(1e-9),
+                ..RaycastOptions::default()
+            },
+            RaycastOptions {
+                depth_threshold: 0.0,
+                ..RaycastOptions::default()
+            },
+            RaycastOptions {
+                light: [0.0; 3],
+                ..RaycastOptions::default()
+            },
+            RaycastOptions {
+                ambient: 2.0,
+                ..RaycastOptions::default()
+            },
+        ] {
+            assert!(
+                raycast(
+                    &ramp,
+                    &constant_tf([1.0; 3], 0.5),
+                    &ray_view(1.0, 0.5),
+                    &bad
+                )
+                .is_err(),
+                "{bad:?}"
+            );
+        }
+        let bad_view = View::look_at([0.0; 3], [0.0; 3], 40.0, 1, 1);
+        assert!(matches!(
+            raycast(
+                &ramp,
+                &constant_tf([1.0; 3], 0.5),
+                &bad_view,
+                &RaycastOptions::default()
+            ),
+            Err(RaycastError::View(_))
+        ));
+    }
+
+    #[test]
+    fn shading_follows_the_gradient_and_leaves_flat_regions_unshaded() {
+        // S = i: ∇S = (1, 0, 0) in the interior, so the factor is ambient + (1 − ambient)·|ℓx|.
+        let ramp = volume([6, 3, 3], |i, _, _| i as f32);
+        let options = RaycastOptions {
+            shade: true,
+            light: [0.6, 0.8, 0.0],
+            ambient: 0.25,
+            ..RaycastOptions::default()
+        };
+        let img = raycast(
+            &ramp,
+            &constant_tf([0.8, 0.8, 0.8], 0.2),
+            &ray_view(2.0, 1.0),
+            &options,
+        )
+        .expect("cast");
+        let [r, _, _, a] = img.rgba[0];
+        assert!((r / a - 0.8 * (0.25 + 0.75 * 0.6)).abs() < EPS, "{}", r / a);
+        // A flat volume has no gradient: the TF colour unchanged.
+        let flat = volume([6, 3, 3], |_, _, _| 2.0);
+        let img = raycast(
+            &flat,
+            &constant_tf([0.8, 0.8, 0.8], 0.2),
+            &ray_view(2.0, 1.0),
+            &options,
+        )
+        .expect("cast");
+        assert!((img.rgba[0][0] / img.rgba[0][3] - 0.8).abs() < EPS);
+    }
+
+    #[test]
+    fn a_permuted_affine_renders_the_same_as_its_axis_aligned_twin() {
+        // The same world object stored with i and k swapped: index (i, j, k) of `swapped` is
+        // index (k, j, i) of `plain`, and its affine's columns swap too.
+        let f = |i: u32, j: u32, k: u32| (i * 3 + j * 7 + k * 11) as f32 % 5.0;
+        let plain = Volume {
+            affine: diagonal([0.5, 1.0, 2.0]),
+            origin: [1.0, -2.0, 3.0],
+            ..volume([4, 3, 5], f)
+        };
+        let swapped = Volume {
+            affine: [[0.0, 0.0, 2.0], [0.0, 1.0, 0.0], [0.5, 0.0, 0.0]],
+            origin: [1.0, -2.0, 3.0],
+            ..volume([5, 3, 4], |i, j, k| f(k, j, i))
+        };
+        let tf = TransferFunction::Scalar {
+            points: vec![[0.0, 1.0, 0.0, 0.0, 0.0], [5.0, 0.0, 0.0, 1.0, 0.6]],
+            ref_step: Some(0.5),
+        };
+        let view = View::look_at([9.0, 2.0, 4.0], [1.75, -1.0, 7.0], 50.0, 24, 16);
+        let options = RaycastOptions {
+            shade: true,
+            ..RaycastOptions::default()
+        };
+        let a = raycast(&plain, &tf, &view, &options).expect("plain");
+        let b = raycast(&swapped, &tf, &view, &options).expect("swapped");
+        let covered = a.coverage().iter().filter(|&&c| c).count();
+        assert!(covered > 60, "{covered} of 384 pixels covered");
+        for (p, q) in a.rgba.iter().zip(&b.rgba) {
+            for c in 0..4 {
+                assert!((p[c] - q[c]).abs() < 1e-9, "{p:?} vs {q:?}");
+            }
+        }
+        assert_eq!(a.samples, b.samples);
+    }
+}

@@ -111,6 +111,19 @@ fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
     Ok([v[0], v[1], v[2]])
 }
 
+/// `X,Y,Z` as f64, each finite.
+pub(super) fn parse_vec3_f64(s: &str) -> Result<[f64; 3], String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    let [x, y, z] = parts[..] else {
+        return Err(format!("expected 3 comma-separated numbers, got `{s}`"));
+    };
+    let num = |p: &str| match p.parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        _ => Err(format!("`{p}` is not a finite number")),
+    };
+    Ok([num(x)?, num(y)?, num(z)?])
+}
+
 fn parse_pair(s: &str) -> Result<(f32, f32), String> {
     let v = parse_floats(s, 2)?;
     Ok((v[0], v[1]))

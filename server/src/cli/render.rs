@@ -1,5 +1,5 @@
-//! `lumigraph render` (an asset or a scene) and `lumigraph reference` (the rasterized ground
-//! truth), with their shared view and output handling.
+//! `lumigraph render` (an asset or a scene) and `lumigraph reference` (the ground truth: the
+//! rasterized mesh, or the ray-cast volume), with their shared view and output handling.
 
 use std::path::{Path, PathBuf};
 
@@ -12,6 +12,9 @@ use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::Renderer;
 use lumigraph_core::scene::Scene;
 use lumigraph_core::view::View;
+use lumigraph_core::volume::raycast::{RaycastOptions, raycast};
+use lumigraph_core::volume::tf::{PRESETS, TransferFunction};
+use lumigraph_core::volume::{LoadOptions, Volume, VolumeFormat};
 
 use super::args::{DepthArgs, ShadingArgs, ViewArgs, describe_decision};
 use super::common::{gpu, load_source, read_view_file};
@@ -39,7 +42,8 @@ pub struct RenderArgs {
 /// `lumigraph reference`.
 #[derive(Debug, Args)]
 pub struct ReferenceArgs {
-    /// Mesh file (omit with --demo).
+    /// Mesh file (omit with --demo), or a volume (.nii, .nii.gz, .npy, .mha, .mhd, .nrrd,
+    /// .nhdr, .inr, .inr.gz, .vti), ray-cast directly with --tf (docs/volumes.md).
     #[arg(required_unless_present = "demo", conflicts_with = "demo")]
     pub mesh: Option<PathBuf>,
     /// Use the built-in demo scene.
@@ -57,6 +61,43 @@ pub struct ReferenceArgs {
     /// Shading.
     #[command(flatten)]
     pub shading: ShadingArgs,
+    /// Volume ray casting.
+    #[command(flatten)]
+    pub volume: VolumeArgs,
+}
+
+/// The flags of a volume (DESIGN §9).
+#[derive(Debug, Args)]
+pub struct VolumeArgs {
+    /// Transfer function of a volume: a JSON file, or a preset (ct-bone, ct-skin, mri-brain).
+    #[arg(long)]
+    pub tf: Option<String>,
+    /// Read the volume as integer labels (nearest-voxel sampling, a label TF).
+    #[arg(long)]
+    pub labels: bool,
+    /// Gradient shading of a scalar volume (--light, --ambient).
+    #[arg(long)]
+    pub shade: bool,
+    /// Sample spacing along the ray, world units (default: half the TF's reference step).
+    #[arg(long)]
+    pub step: Option<f64>,
+    /// Accumulated opacity that places the depth, in (0, 1] (default 0.5).
+    #[arg(long)]
+    pub depth_threshold: Option<f64>,
+    /// Voxel spacing SX,SY,SZ of a .npy volume (default 1,1,1).
+    #[arg(long, value_parser = super::args::parse_vec3_f64, allow_hyphen_values = true)]
+    pub spacing: Option<[f64; 3]>,
+}
+
+impl VolumeArgs {
+    fn given(&self) -> bool {
+        self.tf.is_some()
+            || self.labels
+            || self.shade
+            || self.step.is_some()
+            || self.depth_threshold.is_some()
+            || self.spacing.is_some()
+    }
 }
 
 /// Reads `--view` / `--views`; returns the views and whether OUT is a folder.
@@ -185,6 +226,16 @@ fn render_scene(args: &RenderArgs, views: &[View], many: bool) -> Result<()> {
 }
 
 pub(super) fn reference(args: &ReferenceArgs) -> Result<()> {
+    if let Some(path) = &args.mesh
+        && VolumeFormat::from_name(&path.to_string_lossy()).is_some()
+    {
+        return reference_volume(path, args);
+    }
+    if args.volume.given() {
+        bail!(
+            "--tf, --labels, --shade, --step, --depth-threshold and --spacing apply to volumes only"
+        );
+    }
     let shading = args.shading.to_shading()?;
     let (views, many) = read_views(&args.views)?;
     check_depth_path(&args.depth, many)?;
@@ -198,6 +249,64 @@ pub(super) fn reference(args: &ReferenceArgs) -> Result<()> {
             "view {i:03}: {:.2} ms ({} px covered)",
             frame.stats.render_ms,
             frame.covered_count()
+        );
+    }
+    Ok(())
+}
+
+/// `lumigraph reference VOLUME --tf ...`: the direct ray cast (lumigraph_core::volume::raycast).
+fn reference_volume(path: &Path, args: &ReferenceArgs) -> Result<()> {
+    let v = &args.volume;
+    if args.shading.unlit || args.shading.specular.is_some() {
+        bail!("--unlit and --specular apply to meshes; a volume's colour comes from its --tf");
+    }
+    let Some(tf_arg) = &v.tf else {
+        bail!(
+            "a volume needs --tf TF.json or a preset ({})",
+            PRESETS.join(", ")
+        );
+    };
+    let tf = if PRESETS.contains(&tf_arg.as_str()) {
+        TransferFunction::preset(tf_arg)?
+    } else {
+        let text = std::fs::read_to_string(tf_arg).with_context(|| {
+            format!(
+                "--tf {tf_arg}: not a preset ({}) and not a readable file",
+                PRESETS.join(", ")
+            )
+        })?;
+        TransferFunction::from_json(&text).with_context(|| format!("--tf {tf_arg}"))?
+    };
+    let (views, many) = read_views(&args.views)?;
+    check_depth_path(&args.depth, many)?;
+    let volume = Volume::load(
+        path,
+        &LoadOptions {
+            labels: v.labels,
+            spacing: v.spacing,
+        },
+    )
+    .with_context(|| format!("cannot load {}", path.display()))?;
+    let defaults = RaycastOptions::default();
+    let options = RaycastOptions {
+        step: v.step,
+        shade: v.shade,
+        light: args
+            .shading
+            .light
+            .map_or(defaults.light, |l| l.map(f64::from)),
+        ambient: args.shading.ambient.map_or(defaults.ambient, f64::from),
+        depth_threshold: v.depth_threshold.unwrap_or(defaults.depth_threshold),
+    };
+    for (i, view) in views.iter().enumerate() {
+        let start = std::time::Instant::now();
+        let image = raycast(&volume, &tf, view, &options)?;
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        write_outputs(&image.to_frame(), i, many, &args.output, &args.depth)?;
+        let covered = image.coverage().iter().filter(|&&c| c).count();
+        println!(
+            "view {i:03}: {ms:.2} ms ({covered} px covered, {} samples)",
+            image.samples
         );
     }
     Ok(())
