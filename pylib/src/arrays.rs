@@ -260,3 +260,57 @@ fn check_hw(shape: &[usize], name: &str, width: u32, height: u32) -> PyResult<()
     }
     Ok(())
 }
+
+/// A 3-D volume array, shape `(nz, ny, nx)` (indexed `[k, j, i]`): `((nx, ny, nz), values)`
+/// with i fastest, as f32 (real dtypes) or, with `labels`, as u32 (integer or bool dtypes,
+/// every value ≥ 0).
+pub fn volume(
+    obj: &Bound<'_, PyAny>,
+    name: &str,
+    labels: bool,
+) -> PyResult<([u32; 3], lumigraph_core::volume::Voxels)> {
+    use lumigraph_core::volume::Voxels;
+    let l = loose(obj, name)?;
+    let [nz, ny, nx] = l.shape[..] else {
+        return Err(PyValueError::new_err(format!(
+            "{name} must be a 3-D array of shape (nz, ny, nx), got shape {}",
+            shape_text(&l.shape)
+        )));
+    };
+    let limit = lumigraph_core::volume::MAX_SIDE as usize;
+    if [nx, ny, nz].iter().any(|&d| d == 0 || d > limit) {
+        return Err(PyValueError::new_err(format!(
+            "{name} has shape {}: every side must be 1..={limit}",
+            shape_text(&l.shape)
+        )));
+    }
+    let dims = [nx as u32, ny as u32, nz as u32];
+    if labels {
+        if !matches!(l.kind, 'i' | 'u' | 'b') {
+            return Err(PyTypeError::new_err(format!(
+                "{name} with labels=True must hold integers, got dtype {}",
+                l.dtype
+            )));
+        }
+        let values: Vec<i64> = contiguous(&l.array, "int64")?;
+        if let Some(n) = values
+            .iter()
+            .position(|&v| v < 0 || v > i64::from(u32::MAX))
+        {
+            return Err(PyValueError::new_err(format!(
+                "{name}[{}, {}, {}] is {}: labels must be in 0..={}",
+                n / (nx * ny),
+                (n / nx) % ny,
+                n % nx,
+                values[n],
+                u32::MAX
+            )));
+        }
+        return Ok((
+            dims,
+            Voxels::Labels(values.into_iter().map(|v| v as u32).collect()),
+        ));
+    }
+    require_real(&l, name)?;
+    Ok((dims, Voxels::Scalar(contiguous(&l.array, "float32")?)))
+}

@@ -34,6 +34,7 @@ mod lightfield;
 mod mesh;
 mod metrics;
 mod view;
+mod volume;
 
 use pyo3::prelude::*;
 
@@ -56,6 +57,7 @@ fn _lumigraph(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(view::orbit_views, m)?)?;
     m.add_function(wrap_pyfunction!(lightfield::bake, m)?)?;
     m.add_function(wrap_pyfunction!(mesh::reference_render, m)?)?;
+    m.add_function(wrap_pyfunction!(volume::reference_volume, m)?)?;
     m.add_function(wrap_pyfunction!(engines::device_info, m)?)?;
     metrics::register(m)?;
     Ok(())

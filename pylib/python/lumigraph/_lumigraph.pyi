@@ -10,7 +10,7 @@ __version__: str
 __all__ = [
     "AssetError", "BakeError", "Frame", "LightField", "LumigraphError", "Mesh", "MeshError",
     "RenderError", "View", "bake", "compare", "depth_error", "device_info", "mae", "masked_psnr",
-    "orbit_views", "psnr", "reference_render", "ssim", "__version__",
+    "orbit_views", "psnr", "reference_render", "reference_volume", "ssim", "__version__",
 ]
 
 _ViewLike = View | Mapping[str, Any]
@@ -212,6 +212,20 @@ def reference_render(
     specular: tuple[float, float] | None,
     unlit: bool,
     background: Sequence[int] | None,
+) -> Frame: ...
+def reference_volume(
+    volume: npt.ArrayLike | str | PathLike[str],
+    view: _ViewLike,
+    *,
+    tf: str | Mapping[str, Any],
+    spacing: tuple[float, float, float] | None,
+    origin: tuple[float, float, float] | None,
+    labels: bool,
+    shade: bool,
+    step: float | None,
+    depth_threshold: float,
+    light: Sequence[float],
+    ambient: float,
 ) -> Frame: ...
 def device_info() -> str: ...
 def psnr(a: _Image, b: _Image, *, mask: npt.ArrayLike | None = None) -> float: ...
