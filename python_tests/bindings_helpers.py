@@ -72,3 +72,21 @@ def icosphere_arrays(subdivisions: int = 2) -> tuple[np.ndarray, np.ndarray]:
             new_faces += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
         faces = new_faces
     return np.array(verts), np.array(faces, dtype=np.int64)
+
+
+def design_rays(view: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit ray directions (H*W, 3) and the forward axis, from DESIGN §3's formulas."""
+    eye = np.asarray(view["eye"], float)
+    forward = np.asarray(view["target"], float) - eye
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, np.asarray(view["up"], float))
+    right /= np.linalg.norm(right)
+    true_up = np.cross(right, forward)
+    h, w = view["height"], view["width"]
+    f = (h / 2) / np.tan(np.radians(view["yfov_deg"]) / 2)
+    j, i = np.meshgrid(np.arange(w), np.arange(h))
+    x = (j + 0.5 - w / 2) / f
+    y = -(i + 0.5 - h / 2) / f
+    d = x[..., None] * right + y[..., None] * true_up + forward
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    return eye, d.reshape(-1, 3), forward

@@ -16,27 +16,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from bindings_helpers import design_rays
 from scipy import ndimage
 
 import lumigraph as lg
 
 TF = {"points": [[0.0, 0.1, 0.2, 0.9, 0.0], [0.4, 0.9, 0.6, 0.2, 0.35], [1.0, 1.0, 1.0, 1.0, 0.9]]}
 VIEW = {"eye": [9.0, 6.0, -8.0], "target": [3.0, 3.0, 4.0], "up": [0, 1, 0], "yfov_deg": 45, "width": 28, "height": 22}
-
-
-def design_rays(view: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unit ray directions (H, W, 3), the eye and the forward axis, from DESIGN §3."""
-    eye = np.asarray(view["eye"], float)
-    forward = np.asarray(view["target"], float) - eye
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, np.asarray(view["up"], float))
-    right /= np.linalg.norm(right)
-    true_up = np.cross(right, forward)
-    w, h = view["width"], view["height"]
-    f = (h / 2) / np.tan(np.radians(view["yfov_deg"]) / 2)
-    j, i = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
-    d = ((j - w / 2) / f)[..., None] * right + (-(i - h / 2) / f)[..., None] * true_up + forward
-    return d / np.linalg.norm(d, axis=-1, keepdims=True), eye, forward
 
 
 def tf_eval(points: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -60,8 +46,9 @@ def numpy_raycast(
         u = (world - origin) / spacing  # index (i, j, k)
         return ndimage.map_coordinates(data, [u[:, 2], u[:, 1], u[:, 0]], order=1, mode="nearest")
 
-    dirs, eye, forward = design_rays(view)
-    h, w = dirs.shape[:2]
+    eye, flat_dirs, forward = design_rays(view)
+    h, w = view["height"], view["width"]
+    dirs = flat_dirs.reshape(h, w, 3)
     rgba = np.zeros((h, w, 4))
     depth = np.full((h, w), np.inf)
     lo = origin - 0.5 * spacing

@@ -13,8 +13,8 @@
 use std::path::Path;
 
 use super::{
-    RawVolume, Result, VolumeFormat, VoxelType, data_bytes, exact, header_error, inflate_exact,
-    numbers, read_detached,
+    RawVolume, Result, VolumeFormat, VoxelType, data_bytes, exact, header_error, header_line,
+    inflate_exact, numbers, read_detached,
 };
 
 const FORMAT: VolumeFormat = VolumeFormat::MetaImage;
@@ -24,23 +24,9 @@ pub(super) fn read(bytes: &[u8], folder: Option<&Path>) -> Result<RawVolume> {
     let mut at = 0usize;
     let mut data_file = None;
     while data_file.is_none() {
-        if at >= bytes.len() {
-            return Err(header_error(
-                FORMAT,
-                "the header has no ElementDataFile line",
-            ));
-        }
-        if at > super::MAX_HEADER_BYTES {
-            return Err(header_error(FORMAT, "the header is longer than 1 MiB"));
-        }
-        let end = bytes[at..]
-            .iter()
-            .position(|&b| b == b'\n')
-            .map_or(bytes.len(), |p| at + p);
-        let line = std::str::from_utf8(&bytes[at..end])
-            .map_err(|_| header_error(FORMAT, "the header is not text"))?
+        let line = header_line(FORMAT, bytes, &mut at)?
+            .ok_or_else(|| header_error(FORMAT, "the header has no ElementDataFile line"))?
             .trim();
-        at = end + 1;
         if line.is_empty() {
             continue;
         }

@@ -574,6 +574,30 @@ fn header_error(format: VolumeFormat, message: impl Into<String>) -> VolumeError
     }
 }
 
+/// The next line of a text header starting at `*at` (without its `\n` or `\r`), moving `*at`
+/// past it; `None` at the end of the bytes. Headers over [`MAX_HEADER_BYTES`] or not UTF-8 are
+/// refused.
+fn header_line<'a>(
+    format: VolumeFormat,
+    bytes: &'a [u8],
+    at: &mut usize,
+) -> Result<Option<&'a str>> {
+    if *at >= bytes.len() {
+        return Ok(None);
+    }
+    if *at > MAX_HEADER_BYTES {
+        return Err(header_error(format, "the header is longer than 1 MiB"));
+    }
+    let end = bytes[*at..]
+        .iter()
+        .position(|&b| b == b'\n')
+        .map_or(bytes.len(), |p| *at + p);
+    let line = std::str::from_utf8(&bytes[*at..end])
+        .map_err(|_| header_error(format, "the header is not text"))?;
+    *at = end + 1;
+    Ok(Some(line.trim_end_matches('\r')))
+}
+
 /// Reads a detached data file named in a header, relative to the header's folder.
 fn read_detached(format: VolumeFormat, folder: Option<&Path>, name: &str) -> Result<Vec<u8>> {
     let Some(folder) = folder else {

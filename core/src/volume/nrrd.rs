@@ -12,7 +12,7 @@ use std::path::Path;
 
 use super::{
     RawVolume, Result, VolumeFormat, VoxelType, data_bytes, diagonal, exact, header_error,
-    inflate_exact, read_detached,
+    header_line, inflate_exact, read_detached,
 };
 
 const FORMAT: VolumeFormat = VolumeFormat::Nrrd;
@@ -29,21 +29,7 @@ pub(super) fn read(bytes: &[u8], folder: Option<&Path>) -> Result<RawVolume> {
         .iter()
         .position(|&b| b == b'\n')
         .map_or(bytes.len(), |p| p + 1);
-    loop {
-        if at >= bytes.len() {
-            break;
-        }
-        if at > super::MAX_HEADER_BYTES {
-            return Err(header_error(FORMAT, "the header is longer than 1 MiB"));
-        }
-        let end = bytes[at..]
-            .iter()
-            .position(|&b| b == b'\n')
-            .map_or(bytes.len(), |p| at + p);
-        let line = std::str::from_utf8(&bytes[at..end])
-            .map_err(|_| header_error(FORMAT, "the header is not text"))?
-            .trim_end_matches('\r');
-        at = end + 1;
+    while let Some(line) = header_line(FORMAT, bytes, &mut at)? {
         if line.is_empty() {
             break;
         }
