@@ -816,15 +816,21 @@ fn hostile_preamble_values_are_typed_errors_without_big_allocations() {
         ("flags", Box::new(|p| p.flags = 1), |e| {
             matches!(e, AssetError::Preamble(_))
         }),
-        ("version 2", Box::new(|p| p.version = 2), |e| {
+        ("version 3", Box::new(|p| p.version = 3), |e| {
             matches!(
                 e,
                 AssetError::UnsupportedVersion {
-                    found: 2,
-                    supported: 1
+                    found: 3,
+                    supported: 2
                 }
             )
         }),
+        // A version this reader knows, but not the one the header was written as.
+        (
+            "version 2 preamble, version 1 header",
+            Box::new(|p| p.version = 2),
+            |e| matches!(e, AssetError::Header(m) if m.contains("header says format version 1")),
+        ),
         ("version 0", Box::new(|p| p.version = 0), |e| {
             matches!(e, AssetError::UnsupportedVersion { found: 0, .. })
         }),
@@ -1230,10 +1236,10 @@ fn hostile_page_data_is_a_typed_error_on_read() {
 #[test]
 fn error_messages_say_what_is_wrong() {
     let bytes = tiny_asset();
-    let v2 = patch_preamble(&bytes, |p| p.version = 2);
-    let msg = AssetFile::from_bytes(v2).unwrap_err().to_string();
+    let v3 = patch_preamble(&bytes, |p| p.version = 3);
+    let msg = AssetFile::from_bytes(v3).unwrap_err().to_string();
     assert!(
-        msg.contains("version 2") && msg.contains("reads version 1"),
+        msg.contains("version 3") && msg.contains("reads versions 1 to 2"),
         "{msg}"
     );
     let msg = AssetFile::from_bytes(b"GIF89a".to_vec())

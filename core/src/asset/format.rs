@@ -2,7 +2,7 @@
 //! that turn untrusted bytes into validated structures.
 
 use super::header::{AssetHeader, Channel, PageGrid};
-use super::{AssetError, FORMAT_VERSION, ImageKey, Result};
+use super::{AssetError, FORMAT_VERSION, ImageKey, MIN_FORMAT_VERSION, Result};
 
 /// First 8 bytes of every `.lfa` file. The `\r\n`, `\x1a` and `\n` catch text-mode transfers
 /// that rewrite line endings or stop at Ctrl-Z, like PNG's signature.
@@ -75,7 +75,7 @@ impl Codec {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[non_exhaustive]
 pub struct Preamble {
-    /// Format version (1).
+    /// Format version (1 or 2).
     pub format_version: u32,
     /// Reserved flags, 0 in version 1.
     pub flags: u32,
@@ -95,6 +95,7 @@ pub struct Preamble {
 
 impl Preamble {
     pub(crate) fn new(
+        format_version: u32,
         header_offset: u64,
         header_len: u64,
         header_crc32: u32,
@@ -103,7 +104,7 @@ impl Preamble {
         index_crc32: u32,
     ) -> Self {
         Self {
-            format_version: FORMAT_VERSION,
+            format_version,
             flags: 0,
             header_offset,
             header_len,
@@ -150,7 +151,7 @@ impl Preamble {
         // The version is read before the checksum: a future version may lay out the rest of
         // the preamble differently, and its readers must still get a clear "unsupported".
         let format_version = read_u32(bytes, 8);
-        if format_version != FORMAT_VERSION {
+        if !(MIN_FORMAT_VERSION..=FORMAT_VERSION).contains(&format_version) {
             return Err(AssetError::UnsupportedVersion {
                 found: format_version,
                 supported: FORMAT_VERSION,
@@ -550,7 +551,7 @@ mod tests {
 
     #[test]
     fn preamble_round_trips_and_is_64_bytes() {
-        let p = Preamble::new(1000, 200, 7, 1200, 40, 9);
+        let p = Preamble::new(1, 1000, 200, 7, 1200, 40, 9);
         let bytes = p.to_bytes();
         assert_eq!(&bytes[..8], &MAGIC);
         assert_eq!(Preamble::parse(&bytes, 1240).unwrap(), p);

@@ -6,7 +6,7 @@ use std::fmt;
 
 use serde::{Deserialize, Serialize};
 
-use super::{AssetError, FORMAT_VERSION, Result};
+use super::{AssetError, FORMAT_VERSION, MIN_FORMAT_VERSION, Result};
 
 /// Highest icosahedron subdivision level of a spherical camera set (642 cameras).
 pub const MAX_CAMERA_LEVEL: u8 = 3;
@@ -152,8 +152,14 @@ impl fmt::Display for Channel {
 #[serde(rename_all = "lowercase")]
 #[non_exhaustive]
 pub enum Encoding {
-    /// 4 bytes R, G, B, A (colour).
+    /// 4 bytes R, G, B, A (colour): opaque where depth says hit (A = 255), edge texels
+    /// beside silhouettes (docs/format.md §8.5).
     Rgba8,
+    /// 4 bytes of premultiplied colour and opacity (`round(255·C)`, `round(255·A)`) of a
+    /// semi-transparent light field such as a ray-cast volume; no edge texels (format version
+    /// 2, docs/format.md §8.5).
+    #[serde(rename = "rgba8_premultiplied")]
+    Rgba8Premultiplied,
     /// u16 little endian: `round(d·65535)`, hits clamped to ≤ 65534, 65535 = no hit (depth).
     R16,
     /// u8: `round(d·255)`, hits clamped to ≤ 254, 255 = no hit (depth).
@@ -166,17 +172,26 @@ impl Encoding {
     /// Bytes per texel: 4, 2, 1, 4.
     pub fn bytes_per_texel(self) -> u32 {
         match self {
-            Encoding::Rgba8 | Encoding::R32F => 4,
+            Encoding::Rgba8 | Encoding::Rgba8Premultiplied | Encoding::R32F => 4,
             Encoding::R16 => 2,
             Encoding::R8 => 1,
         }
     }
 
-    /// Whether a channel may use this encoding in format version 1.
+    /// Whether a channel may use this encoding (in some format version: see
+    /// [`Encoding::since_version`]).
     pub fn allowed_for(self, channel: Channel) -> bool {
         match channel {
-            Channel::Color => self == Encoding::Rgba8,
+            Channel::Color => matches!(self, Encoding::Rgba8 | Encoding::Rgba8Premultiplied),
             Channel::Depth => matches!(self, Encoding::R16 | Encoding::R8 | Encoding::R32F),
+        }
+    }
+
+    /// The first format version that has this encoding.
+    pub fn since_version(self) -> u32 {
+        match self {
+            Encoding::Rgba8Premultiplied => 2,
+            Encoding::Rgba8 | Encoding::R16 | Encoding::R8 | Encoding::R32F => 1,
         }
     }
 }
@@ -275,7 +290,7 @@ impl AssetHeader {
             ))
         })?;
         let header = Self {
-            format_version: FORMAT_VERSION,
+            format_version: MIN_FORMAT_VERSION,
             kind: AssetKind::Spherical,
             geometry: SphericalGeometry {
                 camera_level,
@@ -364,12 +379,45 @@ impl AssetHeader {
         .fold(1, u64::saturating_mul)
     }
 
-    /// Checks every rule of format version 1 (see `docs/format.md`, "Validation").
+    /// The lowest format version that can express this header: 2 with a version-2 encoding,
+    /// else 1.
+    pub fn required_version(&self) -> u32 {
+        self.channels
+            .iter()
+            .map(|c| c.encoding.since_version())
+            .fold(MIN_FORMAT_VERSION, u32::max)
+    }
+
+    /// Sets the colour channel's encoding and the format version to the lowest that has it.
+    pub fn set_color_encoding(&mut self, encoding: Encoding) {
+        for c in &mut self.channels {
+            if c.name == Channel::Color {
+                c.encoding = encoding;
+            }
+        }
+        self.format_version = self.required_version();
+    }
+
+    /// Checks every rule of the header's format version (see `docs/format.md`, "Validation").
     pub fn validate(&self) -> Result<()> {
         let bad = |msg: String| Err(AssetError::Header(msg));
-        if self.format_version != FORMAT_VERSION {
+        if !(MIN_FORMAT_VERSION..=FORMAT_VERSION).contains(&self.format_version) {
             return bad(format!(
-                "header says format version {} but this is a version {FORMAT_VERSION} file",
+                "header says format version {}; this build reads versions \
+                 {MIN_FORMAT_VERSION}..={FORMAT_VERSION}",
+                self.format_version
+            ));
+        }
+        if let Some(c) = self
+            .channels
+            .iter()
+            .find(|c| c.encoding.since_version() > self.format_version)
+        {
+            return bad(format!(
+                "{} encoding {:?} needs format version {} (the header says {})",
+                c.name,
+                c.encoding,
+                c.encoding.since_version(),
                 self.format_version
             ));
         }

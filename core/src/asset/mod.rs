@@ -40,8 +40,13 @@ pub use header::{
 pub use reader::AssetFile;
 pub use writer::{AssetWriter, encode_asset, write_asset};
 
-/// The `.lfa` format version this build writes and the only one it reads.
-pub const FORMAT_VERSION: u32 = 1;
+/// The newest `.lfa` format version this build reads and writes. Version 2 adds the colour
+/// encoding `rgba8_premultiplied` (semi-transparent light fields, e.g. volumes); a writer
+/// writes the lowest version that can express its asset ([`AssetHeader::required_version`]),
+/// so assets without it stay version 1.
+pub const FORMAT_VERSION: u32 = 2;
+/// The oldest version this build reads.
+pub const MIN_FORMAT_VERSION: u32 = 1;
 
 /// zstd level used for pages: fast to write, and decoding speed barely depends on the level.
 pub const ZSTD_LEVEL: i32 = 3;
@@ -101,13 +106,13 @@ pub enum AssetError {
     BadMagic,
     /// The preamble names a format version this build cannot read.
     #[error(
-        "asset format version {found} is not supported: this build of lumigraph reads version \
-         {supported} only (a file from a newer lumigraph needs a newer reader)"
+        "asset format version {found} is not supported: this build of lumigraph reads versions \
+         1 to {supported} (a file from a newer lumigraph needs a newer reader)"
     )]
     UnsupportedVersion {
         /// The version in the file.
         found: u32,
-        /// The version this build reads.
+        /// The newest version this build reads.
         supported: u32,
     },
     /// The data ends before a section the file declares.

@@ -144,10 +144,20 @@ impl AssetFile {
                         what: "header".to_owned(),
                     });
                 }
-                serde_json::from_slice::<AssetHeader>(bytes)
-                    .map_err(|e| AssetError::Header(format!("not a valid version 1 header: {e}")))
+                serde_json::from_slice::<AssetHeader>(bytes).map_err(|e| {
+                    AssetError::Header(format!(
+                        "not a valid version {} header: {e}",
+                        preamble.format_version
+                    ))
+                })
             },
         )?;
+        if header.format_version != preamble.format_version {
+            return Err(AssetError::Header(format!(
+                "header says format version {} but this is a version {} file",
+                header.format_version, preamble.format_version
+            )));
+        }
         let layout = Layout::new(&header)?;
         let index = source.with_range(
             preamble.index_offset,

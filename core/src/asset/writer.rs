@@ -247,6 +247,7 @@ impl<W: Write + Seek> Encoder<W> {
         self.sink.write_all(&header)?;
         self.sink.write_all(&index)?;
         let preamble = Preamble::new(
+            self.header.format_version,
             header_offset,
             header.len() as u64,
             crc32(&header),
