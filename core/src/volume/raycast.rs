@@ -115,6 +115,7 @@ impl VolumeImage {
             height: self.height,
             color,
             depth: self.depth.iter().map(|&d| d as f32).collect(),
+            translucent: true,
             stats: crate::frame::FrameStats {
                 steps: self.samples,
                 ..Default::default()
@@ -131,67 +132,165 @@ impl VolumeImage {
     }
 }
 
+/// The validated settings of a ray cast through one volume: casts single rays
+/// ([`VolumeRays::cast`]), so that a bake can check each of its texels against the
+/// convention, and whole views ([`raycast`]).
+pub struct VolumeRays<'a> {
+    sampler: Sampler<'a>,
+    tf: &'a TransferFunction,
+    step: f64,
+    ref_step: f64,
+    tau: f64,
+    shading: Option<Shading>,
+}
+
+/// What one ray gathered.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RaySample {
+    /// Premultiplied `[C, A]`.
+    pub rgba: [f64; 4],
+    /// Ray parameter of the depth sample (the first after which `A ≥ τ_d`), `+inf` if none.
+    pub t_depth: f64,
+    /// Ray parameter averaged over the samples weighted by what each added to `A`
+    /// (`(1 − A)·α_k`), `+inf` where nothing was added: where the opacity sits along the ray
+    /// (the bake's depth where `A` stays below `τ_d`).
+    pub t_mean: f64,
+    /// Samples taken.
+    pub samples: u64,
+}
+
+impl<'a> VolumeRays<'a> {
+    /// Checks the volume, transfer function and options against each other (DESIGN §9
+    /// defaults for what `options` leaves open).
+    ///
+    /// # Errors
+    /// [`RaycastError`] naming the mismatch or the bad option.
+    pub fn new(
+        volume: &'a Volume,
+        tf: &'a TransferFunction,
+        options: &RaycastOptions,
+    ) -> Result<Self, RaycastError> {
+        let labels = matches!(volume.voxels, Voxels::Labels(_));
+        if labels != tf.is_labels() {
+            return Err(RaycastError::Mismatch(if labels {
+                "a label volume needs a label transfer function ({\"labels\": {...}})"
+            } else {
+                "a scalar volume needs a scalar transfer function ({\"points\": [...]})"
+            }));
+        }
+        if options.shade && labels {
+            return Err(RaycastError::Options(
+                "shading needs a scalar volume (label volumes have no gradient)".into(),
+            ));
+        }
+        let ref_step = tf.ref_step_for(volume);
+        let step = options.step.unwrap_or(ref_step / 2.0);
+        if !(step.is_finite() && step > 0.0) {
+            return Err(RaycastError::Options(format!(
+                "step {step} is not a finite length > 0"
+            )));
+        }
+        let tau = options.depth_threshold;
+        if !(tau > 0.0 && tau <= 1.0) {
+            return Err(RaycastError::Options(format!(
+                "depth threshold {tau} is not in (0, 1]"
+            )));
+        }
+        let light = DVec3::from(options.light);
+        if !(light.is_finite() && light.length() > 0.0) {
+            return Err(RaycastError::Options(
+                "light must be a finite, non-zero direction".into(),
+            ));
+        }
+        let ambient = options.ambient;
+        if !(0.0..=1.0).contains(&ambient) {
+            return Err(RaycastError::Options(format!(
+                "ambient {ambient} is not in [0, 1]"
+            )));
+        }
+        let sampler = Sampler::new(volume);
+        let diagonal = sampler.world_diagonal();
+        if diagonal / step > MAX_SAMPLES_PER_RAY {
+            return Err(RaycastError::Options(format!(
+                "step {step} gives {:.0} samples across the volume (at most {MAX_SAMPLES_PER_RAY})",
+                diagonal / step
+            )));
+        }
+        let shading = options.shade.then(|| Shading {
+            light: light.normalize(),
+            ambient,
+            flat_below: 1e-6 * (sampler.range.1 - sampler.range.0),
+        });
+        Ok(Self {
+            sampler,
+            tf,
+            step,
+            ref_step,
+            tau,
+            shading,
+        })
+    }
+
+    /// The sample spacing Δ in world units.
+    pub fn step(&self) -> f64 {
+        self.step
+    }
+
+    /// The transfer function's reference length in world units.
+    pub fn ref_step(&self) -> f64 {
+        self.ref_step
+    }
+
+    /// `1e−6·(max S − min S)`: the gradient norm (times the smallest spacing) below which
+    /// shading keeps the TF colour.
+    pub fn flat_below(&self) -> f64 {
+        1e-6 * (self.sampler.range.1 - self.sampler.range.0)
+    }
+
+    /// Spacing of the gradient's offsets along world x, y, z: the row norms of `M`.
+    pub fn gradient_spacing(&self) -> [f64; 3] {
+        self.sampler.spacing
+    }
+
+    /// `M⁻¹`, row-major: index space from world offsets.
+    pub fn index_from_world(&self) -> [[f64; 3]; 3] {
+        self.sampler.inverse
+    }
+
+    /// Casts the ray `eye + t·dir` (`dir` a unit vector, so `t` is in world units).
+    pub fn cast(&self, eye: [f64; 3], dir: [f64; 3]) -> RaySample {
+        let ray = self.sampler.march(
+            self.tf,
+            DVec3::from(eye),
+            DVec3::from(dir),
+            self.step,
+            self.ref_step,
+            self.tau,
+            self.shading.as_ref(),
+        );
+        RaySample {
+            rgba: ray.rgba,
+            t_depth: ray.t_depth,
+            t_mean: ray.t_mean,
+            samples: ray.samples,
+        }
+    }
+}
+
 /// Ray-casts `volume` through `tf` for `view` (see the module documentation).
+///
+/// # Errors
+/// [`RaycastError`] for a bad view, a mismatched transfer function or a bad option.
 pub fn raycast(
     volume: &Volume,
     tf: &TransferFunction,
     view: &View,
     options: &RaycastOptions,
 ) -> Result<VolumeImage, RaycastError> {
-    let labels = matches!(volume.voxels, Voxels::Labels(_));
-    if labels != tf.is_labels() {
-        return Err(RaycastError::Mismatch(if labels {
-            "a label volume needs a label transfer function ({\"labels\": {...}})"
-        } else {
-            "a scalar volume needs a scalar transfer function ({\"points\": [...]})"
-        }));
-    }
-    if options.shade && labels {
-        return Err(RaycastError::Options(
-            "shading needs a scalar volume (label volumes have no gradient)".into(),
-        ));
-    }
-    let ref_step = tf.ref_step_for(volume);
-    let step = options.step.unwrap_or(ref_step / 2.0);
-    if !(step.is_finite() && step > 0.0) {
-        return Err(RaycastError::Options(format!(
-            "step {step} is not a finite length > 0"
-        )));
-    }
-    let tau = options.depth_threshold;
-    if !(tau > 0.0 && tau <= 1.0) {
-        return Err(RaycastError::Options(format!(
-            "depth threshold {tau} is not in (0, 1]"
-        )));
-    }
-    let light = DVec3::from(options.light);
-    if !(light.is_finite() && light.length() > 0.0) {
-        return Err(RaycastError::Options(
-            "light must be a finite, non-zero direction".into(),
-        ));
-    }
-    let ambient = options.ambient;
-    if !(0.0..=1.0).contains(&ambient) {
-        return Err(RaycastError::Options(format!(
-            "ambient {ambient} is not in [0, 1]"
-        )));
-    }
+    let rays = VolumeRays::new(volume, tf, options)?;
     let basis = view
         .basis(crate::view::DEFAULT_MAX_VIEW_PX)
         .map_err(|e| RaycastError::View(e.to_string()))?;
-    let sampler = Sampler::new(volume);
-    let diagonal = sampler.world_diagonal();
-    if diagonal / step > MAX_SAMPLES_PER_RAY {
-        return Err(RaycastError::Options(format!(
-            "step {step} gives {:.0} samples across the volume (at most {MAX_SAMPLES_PER_RAY})",
-            diagonal / step
-        )));
-    }
-    let shading = options.shade.then(|| Shading {
-        light: light.normalize(),
-        ambient,
-        flat_below: 1e-6 * (sampler.range.1 - sampler.range.0),
-    });
     let (width, height) = (basis.width as usize, basis.height as usize);
     let mut rgba = vec![[0.0; 4]; width * height];
     let mut depth = vec![f64::INFINITY; width * height];
@@ -206,15 +305,14 @@ pub fn raycast(
             .zip(depth.chunks_mut(rows_per * width))
             .enumerate()
         {
-            let (sampler, shading, basis) = (&sampler, &shading, &basis);
+            let (rays, basis) = (&rays, &basis);
             handles.push(scope.spawn(move || {
                 let mut samples = 0u64;
                 for (n, (out, z)) in rgba.iter_mut().zip(depth.iter_mut()).enumerate() {
                     let i = (band * rows_per + n / width) as u32;
                     let j = (n % width) as u32;
                     let dir = basis.pixel_dir(i, j);
-                    let ray =
-                        sampler.march(tf, basis.eye, dir, step, ref_step, tau, shading.as_ref());
+                    let ray = rays.cast(basis.eye.to_array(), dir.to_array());
                     *out = ray.rgba;
                     *z = ray.t_depth * dir.dot(basis.forward);
                     samples += ray.samples;
@@ -243,6 +341,8 @@ struct Ray {
     rgba: [f64; 4],
     /// Ray parameter of the depth sample, `+inf` if none.
     t_depth: f64,
+    /// Opacity-weighted mean ray parameter ([`RaySample::t_mean`]).
+    t_mean: f64,
     samples: u64,
 }
 
@@ -359,6 +459,7 @@ impl<'a> Sampler<'a> {
         let mut ray = Ray {
             rgba: [0.0; 4],
             t_depth: f64::INFINITY,
+            t_mean: f64::INFINITY,
             samples: 0,
         };
         let origin = DVec3::from(self.volume.origin);
@@ -384,6 +485,8 @@ impl<'a> Sampler<'a> {
         }
         let labels = matches!(self.volume.voxels, Voxels::Labels(_));
         let (mut c, mut a) = (DVec3::ZERO, 0.0);
+        // Σ (1 − A)·α_k·t_k: with A itself, the opacity-weighted mean t.
+        let mut weighted_t = 0.0;
         let mut k = 0u64;
         loop {
             let t = t0 + (k as f64 + 0.5) * step;
@@ -405,6 +508,7 @@ impl<'a> Sampler<'a> {
                     rgb *= self.shade_factor(eye + dir * t, s);
                 }
                 c += (1.0 - a) * alpha * rgb;
+                weighted_t += (1.0 - a) * alpha * t;
                 a += (1.0 - a) * alpha;
                 if a >= tau && ray.t_depth.is_infinite() {
                     ray.t_depth = t;
@@ -416,6 +520,9 @@ impl<'a> Sampler<'a> {
         }
         ray.samples = k;
         ray.rgba = [c.x, c.y, c.z, a];
+        if a > 0.0 {
+            ray.t_mean = weighted_t / a;
+        }
         ray
     }
 

@@ -224,6 +224,30 @@ impl TransferFunction {
         own.unwrap_or_else(|| volume.spacing().into_iter().fold(f64::INFINITY, f64::min))
     }
 
+    /// DESIGN §9's JSON of this TF (what [`TransferFunction::from_json`] reads back).
+    pub fn to_json(&self) -> serde_json::Value {
+        match self {
+            TransferFunction::Scalar { points, ref_step } => {
+                let mut json = serde_json::json!({ "points": points });
+                if let Some(step) = ref_step {
+                    json["ref_step"] = serde_json::json!(step);
+                }
+                json
+            }
+            TransferFunction::Labels { labels, ref_step } => {
+                let map: serde_json::Map<String, serde_json::Value> = labels
+                    .iter()
+                    .map(|(label, rgba)| (label.to_string(), serde_json::json!(rgba)))
+                    .collect();
+                let mut json = serde_json::json!({ "labels": map });
+                if let Some(step) = ref_step {
+                    json["ref_step"] = serde_json::json!(step);
+                }
+                json
+            }
+        }
+    }
+
     /// Whether this TF is for label volumes.
     pub fn is_labels(&self) -> bool {
         matches!(self, TransferFunction::Labels { .. })
