@@ -575,7 +575,7 @@ fn store_edges(colors: &mut [u8], pairs: &[u32], crossings: &[[f32; 2]]) {
 }
 
 /// Encodes a depth map (1 = no hit) at 8 or 16 bits, little-endian.
-fn encode_depth(depth: &[f32], bits: u8) -> Vec<u8> {
+pub(crate) fn encode_depth(depth: &[f32], bits: u8) -> Vec<u8> {
     if bits == 8 {
         depth
             .iter()

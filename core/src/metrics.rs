@@ -569,7 +569,10 @@ fn percentile_sorted(sorted: &[f64], q: f64) -> f64 {
 
 /// Measures `test` against `reference` (same view, same background): PSNR over the full frame,
 /// the union and the intersection of the coverage masks, SSIM, MAE, mask statistics and depth
-/// error. Colour outside coverage is compared as it is.
+/// error. Colour outside coverage is compared as it is. Where either frame is
+/// [translucent](Frame::translucent) (a volume), both are compared as displayed over black
+/// (`C + (1 − A)·0`, the seeds' "full frame over black"), and coverage is each frame's own
+/// ([`Frame::coverage`]: alpha ≥ 1 for a translucent frame).
 pub fn compare(test: &Frame, reference: &Frame) -> Result<Comparison, MetricsError> {
     if (test.width, test.height) != (reference.width, reference.height) {
         return Err(MetricsError::SizeMismatch {
@@ -584,20 +587,32 @@ pub fn compare(test: &Frame, reference: &Frame) -> Result<Comparison, MetricsErr
     check_len("reference colour", reference.color.len(), width, height, 4)?;
     check_len("test depth", test.depth.len(), width, height, 1)?;
     check_len("reference depth", reference.depth.len(), width, height, 1)?;
-    let ssim = ssim(&test.color, &reference.color, width, height)?;
-    let mae = mae(&test.color, &reference.color, width, height)?;
+    let over_black = test.translucent || reference.translucent;
+    let (test_color, reference_color) = if over_black {
+        let black = [0, 0, 0, 255];
+        (
+            std::borrow::Cow::Owned(test.with_background(black)),
+            std::borrow::Cow::Owned(reference.with_background(black)),
+        )
+    } else {
+        (
+            std::borrow::Cow::Borrowed(test.color.as_slice()),
+            std::borrow::Cow::Borrowed(reference.color.as_slice()),
+        )
+    };
+    let ssim = ssim(&test_color, &reference_color, width, height)?;
+    let mae = mae(&test_color, &reference_color, width, height)?;
+    let (test_mask, reference_mask) = (test.coverage(), reference.coverage());
 
     let (mut sse_full, mut sse_union, mut sse_inter) = (0_u64, 0_u64, 0_u64);
     let (mut union_px, mut intersection_px) = (0_u64, 0_u64);
-    let pixels = test
-        .color
+    let pixels = test_color
         .chunks_exact(4)
-        .zip(reference.color.chunks_exact(4));
-    let depths = test.depth.iter().zip(&reference.depth);
-    for ((pt, pr), (dt, dr)) in pixels.zip(depths) {
+        .zip(reference_color.chunks_exact(4));
+    let masks = test_mask.iter().zip(&reference_mask);
+    for ((pt, pr), (&ct, &cr)) in pixels.zip(masks) {
         let sse = pixel_sse(pt, pr);
         sse_full += sse;
-        let (ct, cr) = (dt.is_finite(), dr.is_finite());
         if ct || cr {
             union_px += 1;
             sse_union += sse;
@@ -937,6 +952,7 @@ mod tests {
             height: size as u32,
             color: vec![0; size * size * 4],
             depth,
+            translucent: false,
             stats: FrameStats::default(),
         }
     }
@@ -988,6 +1004,7 @@ mod tests {
             height: h as u32,
             color,
             depth,
+            translucent: false,
             stats: FrameStats::default(),
         }
     }

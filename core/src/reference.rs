@@ -441,6 +441,7 @@ impl ReferenceRenderer {
             height,
             color: color_out,
             depth: depth_out,
+            translucent: false,
             stats: FrameStats {
                 render_ms: start.elapsed().as_secs_f64() * 1e3,
                 rays: covered,
@@ -541,6 +542,7 @@ impl ReferenceRenderer {
             height: view.height,
             color,
             depth,
+            translucent: false,
             stats: large.stats,
         };
         Ok((frame, footprint))

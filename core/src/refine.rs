@@ -221,6 +221,7 @@ impl Refiner {
             height: self.height,
             color,
             depth,
+            translucent: false,
             stats: self.stats.clone(),
         })
     }
@@ -373,6 +374,7 @@ mod tests {
             height,
             color: rgba.repeat(pixels),
             depth: vec![z; pixels],
+            translucent: false,
             stats: FrameStats {
                 render_ms: 1.5,
                 rays: 10,

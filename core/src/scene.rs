@@ -384,6 +384,16 @@ impl Scene {
                             path: path.display().to_string(),
                             source,
                         })?;
+                        if file.header().encoding(crate::asset::Channel::Color)
+                            == Some(crate::asset::Encoding::Rgba8Premultiplied)
+                        {
+                            // A z-buffer alone cannot composite a semi-transparent layer.
+                            return Err(invalid(format!(
+                                "object {index} ({}): semi-transparent (volume) light fields \
+                                 cannot be placed in scenes yet: scenes composite by depth alone",
+                                path.display()
+                            )));
+                        }
                         let uploaded = renderer
                             .upload(&file)
                             .map_err(|source| SceneError::Render { index, source })?;
@@ -479,6 +489,7 @@ impl Scene {
             height: view.height,
             color: vec![0; 4 * pixels],
             depth: vec![f32::INFINITY; pixels],
+            translucent: false,
             stats: FrameStats::default(),
         };
         for (index, layer) in self.layers.iter().enumerate() {
@@ -649,6 +660,7 @@ mod tests {
             height: 1,
             color: vec![c; 12],
             depth,
+            translucent: false,
             stats: FrameStats::default(),
         };
         let mut acc = frame(vec![1.0, f32::INFINITY, 2.0], 10);

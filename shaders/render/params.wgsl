@@ -65,6 +65,12 @@ struct RenderParams {
     // Sub-pixel offset of every sample, in this pass's pixels: pixel (i, j) samples the image at
     // (j + 0.5 + jitter.x, i + 0.5 + jitter.y) (`pixel_centre`).
     jitter: vec2<f32>,
+    // 1 for a translucent light field (premultiplied RGBA maps, e.g. a volume): the output
+    // keeps the blended (premultiplied) colour and alpha; 0: every hit is opaque.
+    premultiplied: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: RenderParams;

@@ -70,7 +70,10 @@ fn shade(o: vec3<f32>, d: vec3<f32>, z_rate: f32, t: f32, loc: Located, c0: Came
         color = fallback;
     }
     let z = t_out * z_rate;
-    return Shaded(pack4x8unorm(vec4<f32>(color.rgb, 1.0)), z, fetches, total > 1e-6);
+    // A translucent field's maps hold premultiplied colour and opacity: both are blended alike
+    // and kept; an opaque field's hits are opaque.
+    let alpha = select(1.0, color.a, params.premultiplied != 0u);
+    return Shaded(pack4x8unorm(vec4<f32>(color.rgb, alpha)), z, fetches, total > 1e-6);
 }
 
 // The interior pass (ROLE_INTERIOR): a pixel of a flat quad (see `cs_tiles`) takes the z-depth

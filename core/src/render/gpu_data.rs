@@ -56,8 +56,14 @@ pub(super) struct RenderParams {
     pub(super) guide_step_ratio: f32,
     /// Sub-pixel offset of every sample, in this pass's pixels (x right, y down).
     pub(super) jitter: [f32; 2],
+    /// 1 for a translucent light field (premultiplied RGBA maps): the output keeps the blended
+    /// alpha; 0: every hit is opaque.
+    pub(super) premultiplied: u32,
+    pub(super) pad0: u32,
+    pub(super) pad1: u32,
+    pub(super) pad2: u32,
 }
-const _: () = assert!(std::mem::size_of::<RenderParams>() == 192);
+const _: () = assert!(std::mem::size_of::<RenderParams>() == 208);
 
 /// One setting as the shader takes it: level, step and tolerance in light-field units,
 /// step bound, method.
@@ -302,6 +308,10 @@ pub fn render_params_layout() -> Vec<(&'static str, usize)> {
         interior_group_quads,
         guide_step_ratio,
         jitter,
+        premultiplied,
+        pad0,
+        pad1,
+        pad2,
     ]
 }
 

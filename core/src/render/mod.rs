@@ -69,6 +69,10 @@ pub struct GpuLightField {
     /// by the maps' texel footprint: the default marcher clips rays to it (empty when nothing
     /// was seen).
     pub visible_box: [[f32; 3]; 2],
+    /// `Some(τ_d)` for a translucent light field (premultiplied RGBA maps, a volume): frames are
+    /// [translucent](Frame::translucent) and report depth where their alpha reaches `τ_d`;
+    /// `None`: opaque.
+    pub translucent: Option<f32>,
     group: wgpu::BindGroup,
     /// The colour and depth texture arrays, destroyed on drop.
     textures: [wgpu::Texture; 2],
@@ -489,6 +493,10 @@ impl Renderer {
             interior_group_quads: 4,
             guide_step_ratio: 1.0,
             jitter,
+            premultiplied: u32::from(field.translucent.is_some()),
+            pad0: 0,
+            pad1: 0,
+            pad2: 0,
         };
         // Coarse-to-fine (`guide`, the first setting's): a coarse pass renders every
         // guide-th pixel per axis, and its depths bound each pixel's march (docs/marcher.md).
@@ -762,6 +770,10 @@ impl Renderer {
             )?,
         };
         drop(guard);
+        let (mut color, mut depth) = (color, depth);
+        if let Some(tau) = field.translucent {
+            straighten(&mut color, &mut depth, tau);
+        }
         let render_ms = start.elapsed().as_secs_f64() * 1e3;
         timer.finish(view.width, view.height);
         Ok(Frame {
@@ -769,6 +781,7 @@ impl Renderer {
             height: view.height,
             color,
             depth,
+            translucent: field.translucent.is_some(),
             stats: FrameStats {
                 render_ms,
                 rays: u64::from(counters[2]),
@@ -776,5 +789,28 @@ impl Renderer {
                 fetches: u64::from(counters[0]),
             },
         })
+    }
+}
+
+/// A translucent frame from the marcher's premultiplied output: straight colour
+/// `round(255·C/A)` with alpha as it is (an empty pixel is (0, 0, 0, 0)), and depth kept only
+/// where `A ≥ τ_d` (DESIGN §9's depth output; the marcher's depth there is where the ray met the
+/// maps' depth surface, which a volume bake places where each camera's `A` reached `τ_d`).
+fn straighten(color: &mut [u8], depth: &mut [f32], tau: f32) {
+    // The 8-bit alpha at or above which A ≥ τ_d.
+    let tau_code = (255.0 * tau).round().clamp(1.0, 255.0) as u8;
+    for (px, z) in color.chunks_exact_mut(4).zip(depth.iter_mut()) {
+        let a = px[3];
+        if a == 0 {
+            px.copy_from_slice(&[0; 4]);
+            *z = f32::INFINITY;
+            continue;
+        }
+        for c in &mut px[..3] {
+            *c = ((f32::from(*c) * 255.0 / f32::from(a)).round()).min(255.0) as u8;
+        }
+        if a < tau_code {
+            *z = f32::INFINITY;
+        }
     }
 }

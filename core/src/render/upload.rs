@@ -83,6 +83,8 @@ impl Renderer {
             .into());
         }
         self.gpu.check_layers(Gpu::padded_layers(cameras))?;
+        let translucent = (header.encoding(Channel::Color) == Some(Encoding::Rgba8Premultiplied))
+            .then(|| translucent_depth_threshold(header));
         let mut colors = Vec::with_capacity(cameras as usize);
         let mut depths = Vec::with_capacity(cameras as usize);
         let mut visible = VisibleBox::default();
@@ -120,7 +122,12 @@ impl Renderer {
                 codes
             };
             visible.add_map(&codes, n as usize, positions[k as usize]);
-            let codes = edge_codes(&codes, &mut colors[k as usize], n as usize);
+            // Premultiplied maps have no edge texels (docs/format.md §8.5).
+            let codes = if translucent.is_some() {
+                codes
+            } else {
+                edge_codes(&codes, &mut colors[k as usize], n as usize)
+            };
             depths.push(footprint_texels(&codes, n as usize));
         }
         let color_refs: Vec<&[u8]> = colors.iter().map(Vec::as_slice).collect();
@@ -195,6 +202,7 @@ impl Renderer {
             resolution: n,
             gpu_bytes,
             visible_box: visible.finish(n, requantize_8 || depth_encoding == Encoding::R8),
+            translucent,
             group,
             textures: [color_tex, depth_tex],
             gpu: Arc::clone(&self.gpu),
@@ -705,4 +713,16 @@ pub(super) mod tests {
             assert!(x[axis].abs() <= 1e-6, "{p}: axis {axis}, x {x}");
         }
     }
+}
+
+/// The depth threshold `τ_d` a translucent asset was baked with (its provenance), else DESIGN
+/// §9's default 0.5.
+pub(crate) fn translucent_depth_threshold(header: &crate::asset::AssetHeader) -> f32 {
+    header
+        .provenance
+        .bake_options
+        .get("depth_threshold")
+        .and_then(serde_json::Value::as_f64)
+        .filter(|t| *t > 0.0 && *t <= 1.0)
+        .map_or(0.5, |t| t as f32)
 }
