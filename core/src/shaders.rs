@@ -6,6 +6,8 @@ pub const BAKE: &str = concat!(
     include_str!("../../shaders/shared/mesh.wgsl"),
     include_str!("../../shaders/bake.wgsl")
 );
+/// The volume ray caster of volume bakes (compute).
+pub const VOLUME_BAKE: &str = include_str!("../../shaders/volume_bake.wgsl");
 /// The reference rasterizer (vertex + fragment).
 pub const REFERENCE: &str = concat!(
     include_str!("../../shaders/shared/mesh.wgsl"),
@@ -32,5 +34,6 @@ pub fn all() -> Vec<(&'static str, String)> {
     vec![
         ("bake", BAKE.to_owned()),
         ("reference", REFERENCE.to_owned()),
+        ("volume_bake", VOLUME_BAKE.to_owned()),
     ]
 }

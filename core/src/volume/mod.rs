@@ -15,6 +15,7 @@
 //! allocation. NaN and infinite voxels are refused ([`VolumeError::NonFinite`]) with the first
 //! voxel's index.
 
+pub mod bake;
 mod inr;
 mod metaimage;
 mod nifti;
