@@ -169,13 +169,15 @@ fn shade_factor(u: vec3<f32>) -> f32 {
 
 struct Cast {
     rgba: vec4<f32>,
+    // The depth sample's t, and where A crossed τ_d within its slab (raycast.rs RaySample).
     t_depth: f32,
+    t_cross: f32,
     t_mean: f32,
 }
 
 // The ray eye + t·dir (dir unit, world units): DESIGN §9's integration.
 fn march_ray(eye: vec3<f32>, dir: vec3<f32>) -> Cast {
-    var out = Cast(vec4<f32>(0.0), -1.0, -1.0);
+    var out = Cast(vec4<f32>(0.0), -1.0, -1.0, -1.0);
     let u0 = to_index(eye - params.origin);
     let ud = to_index(dir);
     // Slab test against [−½, dims − ½] per index axis.
@@ -223,9 +225,12 @@ fn march_ray(eye: vec3<f32>, dir: vec3<f32>) -> Cast {
             }
             c += (1.0 - acc) * alpha * rgb;
             weighted_t += (1.0 - acc) * alpha * t;
+            let before = acc;
             acc += (1.0 - acc) * alpha;
             if acc >= params.depth_threshold && out.t_depth < 0.0 {
                 out.t_depth = t;
+                let f = clamp((params.depth_threshold - before) / (acc - before), 0.0, 1.0);
+                out.t_cross = t - 0.5 * params.step + params.step * f;
             }
             if acc >= EARLY_STOP_ALPHA {
                 break;
@@ -265,9 +270,10 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if ray.rgba.a * 255.0 < 0.5 {
         return;
     }
-    // Depth: where A reaches τ_d (DESIGN §9); a ray that stays fainter keeps the
-    // opacity-weighted mean of its samples, so that its haze is reprojected from where it lies.
-    let t = select(ray.t_mean, ray.t_depth, ray.t_depth >= 0.0);
+    // Depth: where A crossed τ_d (interpolated within the sample's slab, so the stored surface
+    // is smooth); a ray that stays fainter keeps the opacity-weighted mean of its samples, so
+    // that its haze is reprojected from where it lies.
+    let t = select(ray.t_mean, ray.t_cross, ray.t_depth >= 0.0);
     out_color[out_index] = pack4x8unorm(ray.rgba);
     out_depth[out_index] = clamp(t / chord, 0.0, 1.0);
 }

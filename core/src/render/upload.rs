@@ -405,6 +405,18 @@ pub(super) fn direction_lookup_texture(gpu: &Gpu) -> wgpu::TextureView {
         .create_view(&wgpu::TextureViewDescriptor::default())
 }
 
+/// The depth threshold `τ_d` a translucent asset was baked with (its provenance), else DESIGN
+/// §9's default 0.5.
+pub(crate) fn translucent_depth_threshold(header: &crate::asset::AssetHeader) -> f32 {
+    header
+        .provenance
+        .bake_options
+        .get("depth_threshold")
+        .and_then(serde_json::Value::as_f64)
+        .filter(|t| *t > 0.0 && *t <= 1.0)
+        .map_or(0.5, |t| t as f32)
+}
+
 #[cfg(test)]
 pub(super) mod tests {
     use super::*;
@@ -713,16 +725,4 @@ pub(super) mod tests {
             assert!(x[axis].abs() <= 1e-6, "{p}: axis {axis}, x {x}");
         }
     }
-}
-
-/// The depth threshold `τ_d` a translucent asset was baked with (its provenance), else DESIGN
-/// §9's default 0.5.
-pub(crate) fn translucent_depth_threshold(header: &crate::asset::AssetHeader) -> f32 {
-    header
-        .provenance
-        .bake_options
-        .get("depth_threshold")
-        .and_then(serde_json::Value::as_f64)
-        .filter(|t| *t > 0.0 && *t <= 1.0)
-        .map_or(0.5, |t| t as f32)
 }

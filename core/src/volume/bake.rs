@@ -1,7 +1,8 @@
 //! Baking a volume into a spherical light field on the GPU (seed 002 §3–§5, DESIGN §9).
 //!
-//! The frame is the bounding sphere of the volume's box `M·[−½, dims − ½] + o` (its corners), so
-//! every camera ray that meets the box records it whole. For each camera `p_k` and each texel of
+//! The frame is the bounding sphere of the part of the volume's box that the transfer function
+//! leaves visible ([`visible_box`]), so every camera ray through what shows records it whole
+//! and no map texels are spent on empty air. For each camera `p_k` and each texel of
 //! its parabolic map, `shaders/volume_bake.wgsl` ray-casts the texel's exact ray through the
 //! volume with DESIGN §9's integration — the same box clipping, sample positions, transfer
 //! function, opacity correction, early stop and gradient shading as the direct ray caster
@@ -52,6 +53,9 @@ pub enum VolumeBakeError {
     /// A label beyond [`MAX_LABEL`].
     #[error("label {0} is above {MAX_LABEL}, the largest label the GPU bake represents exactly")]
     LabelTooLarge(u32),
+    /// The transfer function leaves every voxel transparent.
+    #[error("the transfer function leaves every voxel transparent: there is nothing to bake")]
+    Empty,
     /// The device failed or a limit was exceeded.
     #[error(transparent)]
     Gpu(#[from] GpuError),
@@ -138,25 +142,112 @@ struct TfEntry {
 }
 const _: () = assert!(std::mem::size_of::<TfEntry>() == 32);
 
-/// The light-field frame of a volume: the bounding sphere of its box's corners.
-pub fn volume_frame(volume: &Volume) -> LfFrame {
-    let dims = volume.dims.map(f64::from);
-    let center = DVec3::from(volume.world([0, 1, 2].map(|a| (dims[a] - 1.0) / 2.0)));
+/// The index-space box `[lo, hi]` outside which `tf` leaves `volume` fully transparent, or
+/// `None` where it is transparent everywhere.
+///
+/// Scalar volumes: a trilinear sample lies within the range of its cell's eight corner voxels,
+/// so a cell (between voxel centres) is kept where the TF's opacity is above zero anywhere on
+/// that range ([`TransferFunction::opaque_somewhere`]); the clamped half voxel beyond each edge
+/// belongs to the edge cells. Label volumes: the voxels whose label is listed with `a > 0`, each
+/// with its nearest-voxel cell `±½`. The box is clamped to the volume's `[−½, dims − ½]`.
+pub fn visible_box(volume: &Volume, tf: &TransferFunction) -> Option<([f64; 3], [f64; 3])> {
+    let [nx, ny, nz] = volume.dims.map(|d| d as usize);
+    let mut lo = [usize::MAX; 3];
+    let mut hi = [0usize; 3];
+    let mut keep = |i: usize, j: usize, k: usize, i1: usize, j1: usize, k1: usize| {
+        lo = [lo[0].min(i), lo[1].min(j), lo[2].min(k)];
+        hi = [hi[0].max(i1), hi[1].max(j1), hi[2].max(k1)];
+    };
+    match &volume.voxels {
+        Voxels::Labels(v) => {
+            for k in 0..nz {
+                for j in 0..ny {
+                    for i in 0..nx {
+                        let l = f64::from(v[(k * ny + j) * nx + i]);
+                        if tf.opaque_somewhere(l, l) {
+                            keep(i, j, k, i, j, k);
+                        }
+                    }
+                }
+            }
+            if lo[0] == usize::MAX {
+                return None;
+            }
+            let f = |a: usize| a as f64;
+            Some((
+                [f(lo[0]) - 0.5, f(lo[1]) - 0.5, f(lo[2]) - 0.5],
+                [f(hi[0]) + 0.5, f(hi[1]) + 0.5, f(hi[2]) + 0.5],
+            ))
+        }
+        Voxels::Scalar(v) => {
+            // Cells c..c+1 per axis (a single voxel on an axis of size 1).
+            let cells = |n: usize| n.saturating_sub(1).max(1);
+            let at = |i: usize, j: usize, k: usize| v[(k * ny + j) * nx + i];
+            for k in 0..cells(nz) {
+                let k1 = (k + 1).min(nz - 1);
+                for j in 0..cells(ny) {
+                    let j1 = (j + 1).min(ny - 1);
+                    for i in 0..cells(nx) {
+                        let i1 = (i + 1).min(nx - 1);
+                        let corners = [
+                            at(i, j, k),
+                            at(i1, j, k),
+                            at(i, j1, k),
+                            at(i1, j1, k),
+                            at(i, j, k1),
+                            at(i1, j, k1),
+                            at(i, j1, k1),
+                            at(i1, j1, k1),
+                        ];
+                        let (mut min, mut max) = (f32::INFINITY, f32::NEG_INFINITY);
+                        for c in corners {
+                            min = min.min(c);
+                            max = max.max(c);
+                        }
+                        if tf.opaque_somewhere(f64::from(min), f64::from(max)) {
+                            keep(i, j, k, i1, j1, k1);
+                        }
+                    }
+                }
+            }
+            if lo[0] == usize::MAX {
+                return None;
+            }
+            let dims = [nx, ny, nz];
+            let (mut l, mut h) = ([0.0; 3], [0.0; 3]);
+            for a in 0..3 {
+                // A box touching an edge voxel extends over the clamped half voxel beyond it.
+                l[a] = if lo[a] == 0 { -0.5 } else { lo[a] as f64 };
+                h[a] = if hi[a] + 1 >= dims[a] {
+                    dims[a] as f64 - 0.5
+                } else {
+                    hi[a] as f64
+                };
+            }
+            Some((l, h))
+        }
+    }
+}
+
+/// The light-field frame of a volume seen through `tf`: the bounding sphere of the corners of
+/// its [`visible_box`], so that the cameras sit as close to what shows as they can while every
+/// ray through it is recorded whole (the bake still samples the whole box, as the direct ray
+/// cast does, so the two take the same samples along a ray).
+///
+/// # Errors
+/// [`VolumeBakeError::Empty`] where `tf` leaves every voxel transparent.
+pub fn volume_frame(volume: &Volume, tf: &TransferFunction) -> Result<LfFrame, VolumeBakeError> {
+    let (lo, hi) = visible_box(volume, tf).ok_or(VolumeBakeError::Empty)?;
+    let center = DVec3::from(volume.world([0, 1, 2].map(|a| f64::midpoint(lo[a], hi[a]))));
     let mut radius: f64 = 0.0;
     for corner in 0..8 {
-        let index = [0, 1, 2].map(|a| {
-            if corner & (1 << a) == 0 {
-                -0.5
-            } else {
-                dims[a] - 0.5
-            }
-        });
+        let index = [0, 1, 2].map(|a| if corner & (1 << a) == 0 { lo[a] } else { hi[a] });
         radius = radius.max((DVec3::from(volume.world(index)) - center).length());
     }
-    LfFrame {
+    Ok(LfFrame {
         center: center.to_array(),
-        radius,
-    }
+        radius: radius.max(f64::MIN_POSITIVE),
+    })
 }
 
 /// The volume bake pipeline, built once and reused.
@@ -490,7 +581,7 @@ impl VolumeBaker {
     ) -> Result<(), VolumeBakeError> {
         let gpu = &self.gpu;
         let rays = VolumeRays::new(volume, tf, &options.raycast)?;
-        let frame = volume_frame(volume);
+        let frame = volume_frame(volume, tf)?;
         let texture = self.upload_volume(volume)?;
         let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
         let entries = tf_entries(tf);
@@ -795,7 +886,7 @@ fn prepare(
     let mut header = AssetHeader::new_spherical(
         u8::try_from(level).unwrap_or(u8::MAX),
         options.resolution,
-        volume_frame(volume),
+        volume_frame(volume, tf)?,
         depth,
         provenance,
     )?;

@@ -151,6 +151,12 @@ pub struct RaySample {
     pub rgba: [f64; 4],
     /// Ray parameter of the depth sample (the first after which `A ≥ τ_d`), `+inf` if none.
     pub t_depth: f64,
+    /// Where within that sample's slab `[t − Δ/2, t + Δ/2]` the opacity crossed `τ_d`, found
+    /// by linear interpolation of `A` across the slab; `+inf` if none. It lies within half a
+    /// step of `t_depth`, but moves continuously with the surface rather than in steps of `Δ`:
+    /// the depth a bake stores, so that reprojection sees a smooth surface instead of a
+    /// staircase.
+    pub t_cross: f64,
     /// Ray parameter averaged over the samples weighted by what each added to `A`
     /// (`(1 − A)·α_k`), `+inf` where nothing was added: where the opacity sits along the ray
     /// (the bake's depth where `A` stays below `τ_d`).
@@ -271,6 +277,7 @@ impl<'a> VolumeRays<'a> {
         RaySample {
             rgba: ray.rgba,
             t_depth: ray.t_depth,
+            t_cross: ray.t_cross,
             t_mean: ray.t_mean,
             samples: ray.samples,
         }
@@ -341,6 +348,8 @@ struct Ray {
     rgba: [f64; 4],
     /// Ray parameter of the depth sample, `+inf` if none.
     t_depth: f64,
+    /// Interpolated τ_d crossing ([`RaySample::t_cross`]).
+    t_cross: f64,
     /// Opacity-weighted mean ray parameter ([`RaySample::t_mean`]).
     t_mean: f64,
     samples: u64,
@@ -459,6 +468,7 @@ impl<'a> Sampler<'a> {
         let mut ray = Ray {
             rgba: [0.0; 4],
             t_depth: f64::INFINITY,
+            t_cross: f64::INFINITY,
             t_mean: f64::INFINITY,
             samples: 0,
         };
@@ -509,9 +519,12 @@ impl<'a> Sampler<'a> {
                 }
                 c += (1.0 - a) * alpha * rgb;
                 weighted_t += (1.0 - a) * alpha * t;
+                let before = a;
                 a += (1.0 - a) * alpha;
                 if a >= tau && ray.t_depth.is_infinite() {
                     ray.t_depth = t;
+                    ray.t_cross =
+                        t - 0.5 * step + step * ((tau - before) / (a - before)).clamp(0.0, 1.0);
                 }
                 if a >= EARLY_STOP_ALPHA {
                     break;

@@ -214,6 +214,24 @@ impl TransferFunction {
         }
     }
 
+    /// Whether the opacity is above zero anywhere on the scalar range `[lo, hi]` (a piecewise
+    /// linear function peaks at an end or a breakpoint, so those are the only places to look).
+    /// For a label TF: whether some label in `[lo, hi]` is listed with `a > 0`.
+    pub fn opaque_somewhere(&self, lo: f64, hi: f64) -> bool {
+        match self {
+            TransferFunction::Scalar { points, .. } => {
+                self.eval(lo)[3] > 0.0
+                    || self.eval(hi)[3] > 0.0
+                    || points
+                        .iter()
+                        .any(|p| p[0] >= lo && p[0] <= hi && p[4] > 0.0)
+            }
+            TransferFunction::Labels { labels, .. } => labels
+                .iter()
+                .any(|(&l, c)| f64::from(l) >= lo && f64::from(l) <= hi && c[3] > 0.0),
+        }
+    }
+
     /// The reference length for `volume`: the TF's own, else the smallest column norm of the
     /// volume's affine (its smallest spacing).
     pub fn ref_step_for(&self, volume: &Volume) -> f64 {
