@@ -11,7 +11,7 @@ use lumigraph_core::quality::Decision;
 use lumigraph_core::shading::Shading;
 
 /// Shading flags shared by `bake` and `reference` (DESIGN §3).
-#[derive(Debug, Args, Clone)]
+#[derive(Debug, Args, Clone, Default)]
 pub struct ShadingArgs {
     /// Light direction X,Y,Z (world space; normalized).
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]

@@ -1,4 +1,5 @@
-//! `lumigraph bake`: a mesh or the demo into a light-field asset, calibrated unless told not to.
+//! `lumigraph bake`: a mesh or the demo into a light-field asset, calibrated unless told not to;
+//! or a volume through a transfer function (`--tf`).
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -15,13 +16,18 @@ use lumigraph_core::mesh::Mesh;
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::Renderer;
 
+use lumigraph_core::bake::sha256_hex;
+use lumigraph_core::volume::bake::{VolumeBakeOptions, VolumeBaker};
+
 use super::args::ShadingArgs;
 use super::common::{gpu, load_source, progress_bar};
+use super::render::{VolumeArgs, is_volume_path};
 
 /// `lumigraph bake`.
 #[derive(Debug, Args)]
 pub struct BakeArgs {
-    /// Mesh file (omit with --demo).
+    /// Mesh file (omit with --demo), or a volume (.nii, .nii.gz, .npy, .mha, .mhd, .nrrd, .nhdr,
+    /// .inr, .inr.gz, .vti) baked through --tf (docs/volumes.md).
     #[arg(required_unless_present = "demo", conflicts_with = "demo")]
     pub mesh: Option<PathBuf>,
     /// Bake the built-in demo scene (a trefoil-knot tube).
@@ -65,9 +71,22 @@ pub struct BakeArgs {
     /// With --auto: print the report as JSON on stdout.
     #[arg(long, requires = "auto")]
     pub json: bool,
+    /// Volume ray casting.
+    #[command(flatten)]
+    pub volume: VolumeArgs,
 }
 
 pub(super) fn bake(args: &BakeArgs) -> Result<()> {
+    if let Some(path) = &args.mesh
+        && is_volume_path(path)
+    {
+        return bake_volume(path, args);
+    }
+    if args.volume.given() {
+        anyhow::bail!(
+            "--tf, --labels, --shade, --step, --depth-threshold and --spacing apply to volumes only"
+        );
+    }
     if args.auto {
         return bake_auto(args);
     }
@@ -252,5 +271,57 @@ fn bake_auto(args: &BakeArgs) -> Result<()> {
     if let Some(message) = &report.message {
         eprintln!("warning: {message}");
     }
+    Ok(())
+}
+
+/// `lumigraph bake VOLUME --tf ...`: the GPU ray cast into the cameras' maps
+/// (lumigraph_core::volume::bake). Volume assets are not calibrated: the calibration measures
+/// against the mesh reference.
+fn bake_volume(path: &std::path::Path, args: &BakeArgs) -> Result<()> {
+    if args.auto {
+        anyhow::bail!(
+            "--auto chooses settings for meshes; give a volume --cameras and --resolution"
+        );
+    }
+    let (volume, tf, raycast) = args.volume.load(path, &args.shading)?;
+    let options = VolumeBakeOptions {
+        cameras: args.cameras,
+        resolution: args.resolution,
+        depth_bits: args.depth_bits,
+        raycast,
+    };
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let provenance = Provenance {
+        source_name: path.file_name().map_or_else(
+            || path.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        ),
+        source_sha256: sha256_hex(&bytes),
+        ..Default::default()
+    };
+    drop(bytes);
+    let baker = VolumeBaker::new(gpu()?);
+    let bar = progress_bar(u64::from(options.cameras), "ray-casting cameras");
+    let report = baker.bake_to_file(
+        &volume,
+        &tf,
+        &options,
+        &provenance,
+        &args.output,
+        &mut |done, _| bar.set_position(u64::from(done)),
+    )?;
+    bar.finish_and_clear();
+    let [nx, ny, nz] = volume.dims;
+    println!(
+        "baked {} cameras at {} px from a {nx}x{ny}x{nz} volume (step {:.4}) in {:.0} ms, {:.1} % \
+         of texels covered: {} ({:.1} MiB)",
+        report.cameras,
+        report.resolution,
+        report.step,
+        report.bake_ms,
+        100.0 * report.covered_fraction,
+        args.output.display(),
+        report.asset_bytes as f64 / (1024.0 * 1024.0)
+    );
     Ok(())
 }

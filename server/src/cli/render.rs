@@ -90,7 +90,8 @@ pub struct VolumeArgs {
 }
 
 impl VolumeArgs {
-    fn given(&self) -> bool {
+    /// Whether any volume-only flag was given.
+    pub(super) fn given(&self) -> bool {
         self.tf.is_some()
             || self.labels
             || self.shade
@@ -227,7 +228,7 @@ fn render_scene(args: &RenderArgs, views: &[View], many: bool) -> Result<()> {
 
 pub(super) fn reference(args: &ReferenceArgs) -> Result<()> {
     if let Some(path) = &args.mesh
-        && VolumeFormat::from_name(&path.to_string_lossy()).is_some()
+        && is_volume_path(path)
     {
         return reference_volume(path, args);
     }
@@ -254,50 +255,65 @@ pub(super) fn reference(args: &ReferenceArgs) -> Result<()> {
     Ok(())
 }
 
+impl VolumeArgs {
+    /// The transfer function of `--tf` (a preset or a JSON file), the volume at `path` and the
+    /// ray-cast options of these flags and `shading`'s `--light` and `--ambient`; refuses the
+    /// mesh-only shading flags.
+    pub(super) fn load(
+        &self,
+        path: &Path,
+        shading: &ShadingArgs,
+    ) -> Result<(Volume, TransferFunction, RaycastOptions)> {
+        if shading.unlit || shading.specular.is_some() {
+            bail!("--unlit and --specular apply to meshes; a volume's colour comes from its --tf");
+        }
+        let Some(tf_arg) = &self.tf else {
+            bail!(
+                "a volume needs --tf TF.json or a preset ({})",
+                PRESETS.join(", ")
+            );
+        };
+        let tf = if PRESETS.contains(&tf_arg.as_str()) {
+            TransferFunction::preset(tf_arg)?
+        } else {
+            let text = std::fs::read_to_string(tf_arg).with_context(|| {
+                format!(
+                    "--tf {tf_arg}: not a preset ({}) and not a readable file",
+                    PRESETS.join(", ")
+                )
+            })?;
+            TransferFunction::from_json(&text).with_context(|| format!("--tf {tf_arg}"))?
+        };
+        let volume = Volume::load(
+            path,
+            &LoadOptions {
+                labels: self.labels,
+                spacing: self.spacing,
+            },
+        )
+        .with_context(|| format!("cannot load {}", path.display()))?;
+        let defaults = RaycastOptions::default();
+        let options = RaycastOptions {
+            step: self.step,
+            shade: self.shade,
+            light: shading.light.map_or(defaults.light, |l| l.map(f64::from)),
+            ambient: shading.ambient.map_or(defaults.ambient, f64::from),
+            depth_threshold: self.depth_threshold.unwrap_or(defaults.depth_threshold),
+        };
+        Ok((volume, tf, options))
+    }
+}
+
+/// Whether `path` names a volume file (by its extension).
+pub(super) fn is_volume_path(path: &Path) -> bool {
+    VolumeFormat::from_name(&path.to_string_lossy()).is_some()
+}
+
 /// `lumigraph reference VOLUME --tf ...`: the direct ray cast (lumigraph_core::volume::raycast).
 fn reference_volume(path: &Path, args: &ReferenceArgs) -> Result<()> {
-    let v = &args.volume;
-    if args.shading.unlit || args.shading.specular.is_some() {
-        bail!("--unlit and --specular apply to meshes; a volume's colour comes from its --tf");
-    }
-    let Some(tf_arg) = &v.tf else {
-        bail!(
-            "a volume needs --tf TF.json or a preset ({})",
-            PRESETS.join(", ")
-        );
-    };
-    let tf = if PRESETS.contains(&tf_arg.as_str()) {
-        TransferFunction::preset(tf_arg)?
-    } else {
-        let text = std::fs::read_to_string(tf_arg).with_context(|| {
-            format!(
-                "--tf {tf_arg}: not a preset ({}) and not a readable file",
-                PRESETS.join(", ")
-            )
-        })?;
-        TransferFunction::from_json(&text).with_context(|| format!("--tf {tf_arg}"))?
-    };
     let (views, many) = read_views(&args.views)?;
     check_depth_path(&args.depth, many)?;
-    let volume = Volume::load(
-        path,
-        &LoadOptions {
-            labels: v.labels,
-            spacing: v.spacing,
-        },
-    )
-    .with_context(|| format!("cannot load {}", path.display()))?;
-    let defaults = RaycastOptions::default();
-    let options = RaycastOptions {
-        step: v.step,
-        shade: v.shade,
-        light: args
-            .shading
-            .light
-            .map_or(defaults.light, |l| l.map(f64::from)),
-        ambient: args.shading.ambient.map_or(defaults.ambient, f64::from),
-        depth_threshold: v.depth_threshold.unwrap_or(defaults.depth_threshold),
-    };
+    let (volume, tf, options) = args.volume.load(path, &args.shading)?;
     for (i, view) in views.iter().enumerate() {
         let start = std::time::Instant::now();
         let image = raycast(&volume, &tf, view, &options)?;
