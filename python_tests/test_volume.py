@@ -162,3 +162,62 @@ def test_bad_input_is_refused() -> None:
         lg.reference_volume("/nonexistent/head.nii.gz", view, tf="mri-brain")
     with pytest.raises(ValueError, match="origin applies to arrays"):
         lg.reference_volume("/nonexistent/head.nii.gz", view, tf="mri-brain", origin=(0, 0, 0))
+
+
+def _blob() -> np.ndarray:
+    rng = np.random.default_rng(3)
+    vol = ndimage.gaussian_filter(rng.random((20, 18, 16)), 2.0)
+    z, y, x = np.mgrid[:20, :18, :16]
+    ball = np.sqrt(((z - 9.5) / 9) ** 2 + ((y - 8.5) / 8) ** 2 + ((x - 7.5) / 7) ** 2)
+    return ((1 - ball).clip(0, 1) * (0.6 + vol)).astype(np.float32)
+
+
+def test_bake_volume_renders_close_to_the_direct_ray_cast(tmp_path: Path) -> None:
+    """A baked volume light field against ``reference_volume`` over black: 42 cameras of 64 px
+    on a 64² view of a soft blob (the CLI and Rust suites hold every baked texel to the CPU ray
+    cast; here the fronts agree end to end). Measured about 30 dB full-frame PSNR over black and
+    an MAE near 2 levels; a lost premultiplication, transfer function or shading costs 10 dB."""
+    vol = _blob()
+    tf = {"points": [[0.0, 0, 0, 0, 0], [0.1, 0.2, 0.5, 0.9, 0.05], [0.5, 1, 0.8, 0.4, 0.8]]}
+    seen: list[tuple[int, int]] = []
+    lf = lg.bake_volume(
+        vol, tf=tf, spacing=(0.8, 1.0, 1.2), shade=True, cameras=42, resolution=64, progress=lambda d, t: seen.append((d, t))
+    )
+    assert seen and seen[-1] == (42, 42)
+    assert lf.cameras == 42 and lf.info["geometry"]["camera_count"] == 42
+    view = {"eye": [30.0, 14.0, -20.0], "target": [6.0, 8.5, 11.4], "up": [0, 1, 0], "yfov_deg": 40, "width": 64, "height": 64}
+    frame = lf.render(view)
+    truth = lg.reference_volume(vol, view, tf=tf, spacing=(0.8, 1.0, 1.2), shade=True)
+
+    def over_black(color: np.ndarray) -> np.ndarray:
+        return color[..., :3].astype(float) * color[..., 3:4] / 255.0
+
+    a, b = over_black(frame.color), over_black(truth.color)
+    mse = ((a - b) ** 2).mean()
+    psnr = 10 * np.log10(255.0**2 / mse)
+    assert (truth.color[..., 3] > 0).mean() > 0.1, "the blob fills the view"
+    assert psnr > 26.0, f"PSNR over black {psnr:.2f} dB"
+    assert np.abs(a - b).mean() < 4.0
+    # Depth only where the opacity reached τ_d = 0.5, as in the reference.
+    assert np.array_equal(np.isfinite(frame.depth), frame.color[..., 3] >= 128)
+    # Saved and reopened: the same frame.
+    path = tmp_path / "blob.lfa"
+    lf.save(path)
+    again = lg.LightField.open(path).render(view)
+    assert np.array_equal(again.color, frame.color)
+
+
+def test_bake_volume_refuses_bad_input() -> None:
+    vol = _blob()
+    with pytest.raises(ValueError, match="cameras"):
+        lg.bake_volume(vol, tf=TF, cameras=13, progress=False)
+    with pytest.raises(ValueError, match="resolution"):
+        lg.bake_volume(vol, tf=TF, resolution=0, progress=False)
+    with pytest.raises(ValueError, match="scalar transfer function"):
+        lg.bake_volume(vol, tf={"labels": {"1": [1, 0, 0, 1]}}, progress=False)
+    with pytest.raises(ValueError, match="depth threshold"):
+        lg.bake_volume(vol, tf=TF, depth_threshold=0.0, progress=False)
+    with pytest.raises(TypeError, match="progress"):
+        lg.bake_volume(vol, tf=TF, progress=3)  # type: ignore[arg-type]
+    with pytest.raises(FileNotFoundError):
+        lg.bake_volume("/nonexistent/head.nii.gz", tf="mri-brain", progress=False)

@@ -7,11 +7,13 @@ use lumigraph_core::bake::Baker;
 use lumigraph_core::gpu::{Gpu, GpuError};
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::Renderer;
+use lumigraph_core::volume::bake::VolumeBaker;
 use pyo3::prelude::*;
 
 static BAKER: OnceLock<Baker> = OnceLock::new();
 static RENDERER: OnceLock<Renderer> = OnceLock::new();
 static REFERENCE: OnceLock<ReferenceRenderer> = OnceLock::new();
+static VOLUME_BAKER: OnceLock<VolumeBaker> = OnceLock::new();
 
 /// The shared device (`Gpu::shared` remembers a failure, so a missing driver is reported on
 /// every call with the same message).
@@ -26,6 +28,15 @@ pub fn baker() -> Result<&'static Baker, GpuError> {
     }
     let gpu = gpu()?;
     Ok(BAKER.get_or_init(|| Baker::new(gpu)))
+}
+
+/// The volume baker; call with the GIL released.
+pub fn volume_baker() -> Result<&'static VolumeBaker, GpuError> {
+    if let Some(baker) = VOLUME_BAKER.get() {
+        return Ok(baker);
+    }
+    let gpu = gpu()?;
+    Ok(VOLUME_BAKER.get_or_init(|| VolumeBaker::new(gpu)))
 }
 
 /// The light-field renderer; call with the GIL released.

@@ -58,6 +58,7 @@ fn _lumigraph(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(lightfield::bake, m)?)?;
     m.add_function(wrap_pyfunction!(mesh::reference_render, m)?)?;
     m.add_function(wrap_pyfunction!(volume::reference_volume, m)?)?;
+    m.add_function(wrap_pyfunction!(volume::bake_volume, m)?)?;
     m.add_function(wrap_pyfunction!(engines::device_info, m)?)?;
     metrics::register(m)?;
     Ok(())

@@ -23,7 +23,7 @@ use crate::mesh::{PyMesh, shading};
 use crate::{engines, errors, view};
 
 /// Where the asset's bytes live, for `save` / `to_bytes`.
-enum Origin {
+pub(crate) enum Origin {
     /// Baked or loaded from bytes: the encoded file.
     Memory(Arc<Vec<u8>>),
     /// Opened from a file (read lazily; checked against the header on save).
@@ -44,7 +44,7 @@ pub struct PyLightField {
 }
 
 impl PyLightField {
-    fn new(asset: AssetFile, origin: Origin) -> Self {
+    pub(crate) fn new(asset: AssetFile, origin: Origin) -> Self {
         Self {
             asset: Arc::new(asset),
             origin,

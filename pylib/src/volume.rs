@@ -1,5 +1,12 @@
 //! Volumes from Python: `reference_volume` ray-casts a numpy array or a volume file directly
-//! (DESIGN §9, `lumigraph_core::volume::raycast`), the ground truth for volume light fields.
+//! (DESIGN §9, `lumigraph_core::volume::raycast`), the ground truth for volume light fields;
+//! `bake_volume` bakes one into a semi-transparent light field on the GPU
+//! (`lumigraph_core::volume::bake`).
+
+use std::sync::Arc;
+
+use lumigraph_core::asset::{AssetFile, Provenance};
+use lumigraph_core::volume::bake::{VolumeBakeError, VolumeBakeOptions};
 
 use lumigraph_core::volume::raycast::{RaycastOptions, raycast};
 use lumigraph_core::volume::tf::{PRESETS, TransferFunction};
@@ -8,7 +15,8 @@ use pyo3::exceptions::{PyFileNotFoundError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 
 use crate::frame::PyFrame;
-use crate::{arrays, view};
+use crate::lightfield::{Origin, PyLightField};
+use crate::{arrays, engines, errors, view};
 
 fn volume_error(error: &VolumeError) -> PyErr {
     match error {
@@ -46,6 +54,121 @@ fn parse_tf(tf: &Bound<'_, PyAny>) -> PyResult<TransferFunction> {
     TransferFunction::from_json(&text).map_err(|e| PyValueError::new_err(e.to_string()))
 }
 
+/// A volume from a path or a numpy array, and its name for the provenance (a file's name and
+/// the SHA-256 of its bytes; an array's shape).
+fn load_volume(
+    py: Python<'_>,
+    volume: &Bound<'_, PyAny>,
+    spacing: Option<[f64; 3]>,
+    origin: Option<[f64; 3]>,
+    labels: bool,
+) -> PyResult<(Volume, Provenance)> {
+    if let Ok(path) = volume.extract::<std::path::PathBuf>() {
+        if origin.is_some() {
+            return Err(PyValueError::new_err(
+                "origin applies to arrays; a volume file carries its own",
+            ));
+        }
+        let loaded = py
+            .detach(|| Volume::load(&path, &LoadOptions { labels, spacing }))
+            .map_err(|e| volume_error(&e))?;
+        let sha = py.detach(|| std::fs::read(&path).map(|b| lumigraph_core::bake::sha256_hex(&b)));
+        let provenance = Provenance {
+            source_name: path.file_name().map_or_else(
+                || path.display().to_string(),
+                |n| n.to_string_lossy().into_owned(),
+            ),
+            source_sha256: sha.unwrap_or_default(),
+            ..Provenance::default()
+        };
+        return Ok((loaded, provenance));
+    }
+    let (dims, voxels) = arrays::volume(volume, "volume", labels)?;
+    let s = spacing.unwrap_or([1.0; 3]);
+    let affine = [[s[0], 0.0, 0.0], [0.0, s[1], 0.0], [0.0, 0.0, s[2]]];
+    let loaded = Volume::from_values(dims, voxels, affine, origin.unwrap_or([0.0; 3]))
+        .map_err(|e| volume_error(&e))?;
+    let provenance = Provenance {
+        source_name: format!("array {}x{}x{}", dims[0], dims[1], dims[2]),
+        ..Provenance::default()
+    };
+    Ok((loaded, provenance))
+}
+
+/// Native volume bake (the Python wrapper documents it).
+#[pyfunction]
+#[pyo3(signature = (volume, *, tf, spacing, origin, labels, shade, step, depth_threshold, light, ambient, cameras, resolution, depth_bits, progress))]
+pub fn bake_volume(
+    py: Python<'_>,
+    volume: &Bound<'_, PyAny>,
+    tf: &Bound<'_, PyAny>,
+    spacing: Option<[f64; 3]>,
+    origin: Option<[f64; 3]>,
+    labels: bool,
+    shade: bool,
+    step: Option<f64>,
+    depth_threshold: f64,
+    light: [f64; 3],
+    ambient: f64,
+    cameras: u32,
+    resolution: u32,
+    depth_bits: u8,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<PyLightField> {
+    if let Some(callback) = &progress
+        && !callback.bind(py).is_callable()
+    {
+        return Err(PyTypeError::new_err(
+            "progress must be a bool or a callable(done, total)",
+        ));
+    }
+    let tf = parse_tf(tf)?;
+    let (volume, provenance) = load_volume(py, volume, spacing, origin, labels)?;
+    let options = VolumeBakeOptions {
+        cameras,
+        resolution,
+        depth_bits,
+        raycast: RaycastOptions {
+            step,
+            shade,
+            light,
+            ambient,
+            depth_threshold,
+        },
+    };
+    let (bytes, callback_error) = py.detach(|| {
+        let baker =
+            engines::volume_baker().map_err(|e| errors::BakeError::new_err(e.to_string()))?;
+        // As in `bake_mesh`: the callback's first exception is raised after the bake.
+        let mut callback_error: Option<PyErr> = None;
+        let mut report = |done: u32, total: u32| {
+            if let (Some(callback), None) = (&progress, &callback_error) {
+                Python::attach(|py| {
+                    if let Err(e) = callback.call1(py, (done, total)) {
+                        callback_error = Some(e);
+                    }
+                });
+            }
+        };
+        let (bytes, _) = baker
+            .bake_to_bytes(&volume, &tf, &options, &provenance, &mut report)
+            .map_err(|e| match e {
+                VolumeBakeError::Options(e) => errors::bake(&e),
+                VolumeBakeError::Gpu(e) => errors::BakeError::new_err(e.to_string()),
+                VolumeBakeError::Asset(e) => errors::asset(&e, None),
+                other => PyValueError::new_err(other.to_string()),
+            })?;
+        PyResult::Ok((bytes, callback_error))
+    })?;
+    if let Some(error) = callback_error {
+        return Err(error);
+    }
+    let asset = py
+        .detach(|| AssetFile::from_bytes(bytes.clone()))
+        .map_err(|e| errors::asset(&e, None))?;
+    Ok(PyLightField::new(asset, Origin::Memory(Arc::new(bytes))))
+}
+
 /// Native direct ray cast (the Python wrapper documents it).
 #[pyfunction]
 #[pyo3(signature = (volume, view, *, tf, spacing, origin, labels, shade, step, depth_threshold, light, ambient))]
@@ -65,21 +188,7 @@ pub fn reference_volume(
 ) -> PyResult<PyFrame> {
     let view = view::parse_view(view)?;
     let tf = parse_tf(tf)?;
-    let volume = if let Ok(path) = volume.extract::<std::path::PathBuf>() {
-        if origin.is_some() {
-            return Err(PyValueError::new_err(
-                "origin applies to arrays; a volume file carries its own",
-            ));
-        }
-        py.detach(|| Volume::load(&path, &LoadOptions { labels, spacing }))
-            .map_err(|e| volume_error(&e))?
-    } else {
-        let (dims, voxels) = arrays::volume(volume, "volume", labels)?;
-        let s = spacing.unwrap_or([1.0; 3]);
-        let affine = [[s[0], 0.0, 0.0], [0.0, s[1], 0.0], [0.0, 0.0, s[2]]];
-        Volume::from_values(dims, voxels, affine, origin.unwrap_or([0.0; 3]))
-            .map_err(|e| volume_error(&e))?
-    };
+    let (volume, _) = load_volume(py, volume, spacing, origin, labels)?;
     let options = RaycastOptions {
         step,
         shade,

@@ -42,6 +42,7 @@ from ._lumigraph import (
     orbit_views,
 )
 from ._lumigraph import bake as _bake
+from ._lumigraph import bake_volume as _bake_volume
 from ._lumigraph import reference_render as _reference_render
 from ._lumigraph import reference_volume as _reference_volume
 
@@ -62,6 +63,7 @@ __all__ = [
     "__version__",
     "as_mesh",
     "bake_mesh",
+    "bake_volume",
     "device_info",
     "metrics",
     "orbit_views",
@@ -320,6 +322,73 @@ def reference_render(
         specular=specular,
         unlit=unlit,
         background=background,
+    )
+
+
+def bake_volume(
+    volume: np.ndarray[Any, Any] | str | os.PathLike[str],
+    *,
+    tf: str | Mapping[str, Any],
+    spacing: Sequence[float] | None = None,
+    origin: Sequence[float] | None = None,
+    labels: bool = False,
+    shade: bool = False,
+    step: float | None = None,
+    depth_threshold: float = 0.5,
+    light: Sequence[float] = DEFAULT_LIGHT,
+    ambient: float = DEFAULT_AMBIENT,
+    cameras: int = 162,
+    resolution: int = 256,
+    depth_bits: int = 16,
+    progress: bool | Callable[[int, int], object] = True,
+) -> LightField:
+    """Bakes a volume into a semi-transparent spherical light field on the GPU (GIL released).
+
+    Every texel of every camera's parabolic map is ray-cast through the volume with the
+    sampling, transfer function, compositing and shading of :func:`reference_volume`; the maps
+    hold premultiplied RGBA and the depth where the accumulated opacity reached
+    ``depth_threshold`` (``docs/volumes.md``, "Volume light fields"). The result renders like
+    any :class:`LightField`; its frames carry alpha (``Frame.color[..., 3]``) and depth only
+    where the opacity reaches ``depth_threshold``.
+
+    Args:
+        volume, tf, spacing, origin, labels, shade, step, depth_threshold, light, ambient: as in
+            :func:`reference_volume`.
+        cameras: 12, 42, 162 (default) or 642.
+        resolution: side of each camera's parabolic map in pixels, 8..4096, default 256.
+        depth_bits: depth precision, 16 (default) or 8.
+        progress: True prints "baking cameras k/n" to stderr; a callable gets
+            ``(cameras_done, cameras_total)`` (its first exception is raised after the bake);
+            False is silent.
+
+    Returns:
+        The baked :class:`LightField` (in memory; :meth:`LightField.save` writes it).
+
+    Raises:
+        FileNotFoundError: no such file. ValueError: a bad array, file, tf or option.
+        TypeError: an argument of the wrong type. BakeError: the GPU device failed.
+    """
+    if progress is True:
+        callback: Callable[[int, int], object] | None = _progress_printer()
+    elif progress is False or progress is None:
+        callback = None
+    else:
+        callback = progress
+    return _bake_volume(
+        volume,
+        tf=tf,
+        spacing=None if spacing is None else _triple(spacing, "spacing"),
+        origin=None if origin is None else _triple(origin, "origin"),
+        labels=labels,
+        shade=shade,
+        step=step,
+        depth_threshold=depth_threshold,
+        light=tuple(light),
+        ambient=ambient,
+        cameras=cameras,
+        resolution=resolution,
+        depth_bits=depth_bits,
+        progress=callback,
     )
 
 

@@ -9,7 +9,7 @@ import numpy.typing as npt
 __version__: str
 __all__ = [
     "AssetError", "BakeError", "Frame", "LightField", "LumigraphError", "Mesh", "MeshError",
-    "RenderError", "View", "bake", "compare", "depth_error", "device_info", "mae", "masked_psnr",
+    "RenderError", "View", "bake", "bake_volume", "compare", "depth_error", "device_info", "mae", "masked_psnr",
     "orbit_views", "psnr", "reference_render", "reference_volume", "ssim", "__version__",
 ]
 
@@ -227,6 +227,23 @@ def reference_volume(
     light: Sequence[float],
     ambient: float,
 ) -> Frame: ...
+def bake_volume(
+    volume: npt.ArrayLike | str | PathLike[str],
+    *,
+    tf: str | Mapping[str, Any],
+    spacing: tuple[float, float, float] | None,
+    origin: tuple[float, float, float] | None,
+    labels: bool,
+    shade: bool,
+    step: float | None,
+    depth_threshold: float,
+    light: Sequence[float],
+    ambient: float,
+    cameras: int,
+    resolution: int,
+    depth_bits: int,
+    progress: Callable[[int, int], object] | None,
+) -> LightField: ...
 def device_info() -> str: ...
 def psnr(a: _Image, b: _Image, *, mask: npt.ArrayLike | None = None) -> float: ...
 def masked_psnr(
