@@ -2584,3 +2584,150 @@ async fn websocket_stream_sends_depth_on_request() {
     let _ = stop_tx.send(());
     let _ = server.await;
 }
+
+/// A small volume light field: a soft ball (value 100 at the centre, falling to 0 at radius 6
+/// voxels) through a TF with a faint halo and an opaque core, 12 cameras × 32 px.
+fn volume_asset() -> Vec<u8> {
+    use lumigraph_core::volume::bake::{VolumeBakeOptions, VolumeBaker};
+    use lumigraph_core::volume::tf::TransferFunction;
+    use lumigraph_core::volume::{Volume, Voxels};
+    let n = 16usize;
+    let c = (n as f32 - 1.0) / 2.0;
+    let mut values = Vec::with_capacity(n * n * n);
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                let d = ((i as f32 - c).powi(2) + (j as f32 - c).powi(2) + (k as f32 - c).powi(2))
+                    .sqrt();
+                values.push((100.0 * (1.0 - d / 6.0)).max(0.0));
+            }
+        }
+    }
+    // Spacing 2/15 puts the ball (radius 0.8) around the origin like the tiny asset.
+    let s = 2.0 / 15.0;
+    let volume = Volume::from_values(
+        [16, 16, 16],
+        Voxels::Scalar(values),
+        [[s, 0.0, 0.0], [0.0, s, 0.0], [0.0, 0.0, s]],
+        [-1.0, -1.0, -1.0],
+    )
+    .expect("volume");
+    let tf = TransferFunction::from_json(
+        r#"{"points": [[0, 0, 0, 0, 0], [5, 0.2, 0.5, 1, 0.1], [40, 0.2, 0.5, 1, 0.1], [60, 1, 0.6, 0.2, 1]]}"#,
+    )
+    .expect("tf");
+    let options = VolumeBakeOptions {
+        cameras: 12,
+        resolution: 32,
+        ..VolumeBakeOptions::default()
+    };
+    VolumeBaker::new(gpu())
+        .bake_to_bytes(
+            &volume,
+            &tf,
+            &options,
+            &lumigraph_core::asset::Provenance::default(),
+            &mut |_, _| {},
+        )
+        .expect("volume bake")
+        .0
+}
+
+/// A volume light field through the service: PNG frames carry the haze's partial alpha, an
+/// opaque background composites it (JPEG and PNG alike), depth is reported only where the
+/// opacity reached τ_d, and the stream serves it too.
+#[tokio::test(flavor = "multi_thread")]
+async fn volume_light_fields_render_with_alpha_over_http_and_the_stream() {
+    let (dir, state) = setup(None, |_| {}).await;
+    std::fs::write(dir.path().join("ball.lfa"), volume_asset()).expect("write");
+    state.load_assets().await.expect("loading assets");
+    let uri = "/v1/assets/ball/render";
+    let png = post_json(
+        &state,
+        uri,
+        serde_json::json!({"view": view_json(48, 48)}).to_string(),
+    )
+    .await;
+    assert_eq!(
+        png.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&png.body)
+    );
+    let (_, _, rgba) = lumigraph_core::image_io::decode_png_rgba8(&png.body).expect("png");
+    let alphas: Vec<u8> = rgba.chunks_exact(4).map(|p| p[3]).collect();
+    assert!(
+        alphas.iter().any(|&a| a > 0 && a < 128),
+        "the halo is partly transparent"
+    );
+    assert!(alphas.iter().any(|&a| a >= 250), "the core is opaque");
+    assert!(alphas.contains(&0), "the corners are empty");
+    // Over an opaque white background every pixel is opaque, and a hazy pixel is lighter than
+    // its straight colour (white shows through).
+    let white = post_json(
+        &state,
+        uri,
+        serde_json::json!({"view": view_json(48, 48), "background": [255, 255, 255, 255]})
+            .to_string(),
+    )
+    .await;
+    let (_, _, over) = lumigraph_core::image_io::decode_png_rgba8(&white.body).expect("png");
+    assert!(over.chunks_exact(4).all(|p| p[3] == 255));
+    let hazy = alphas
+        .iter()
+        .position(|&a| a > 10 && a < 100)
+        .expect("a hazy pixel");
+    assert!(
+        over[4 * hazy] > rgba[4 * hazy] && over[4 * hazy + 2] >= rgba[4 * hazy + 2],
+        "{:?} over white is {:?}",
+        &rgba[4 * hazy..4 * hazy + 4],
+        &over[4 * hazy..4 * hazy + 4]
+    );
+    let npy = post_json(
+        &state,
+        uri,
+        serde_json::json!({"view": view_json(48, 48), "format": "none", "depth": "npy"})
+            .to_string(),
+    )
+    .await;
+    let (_, _, depth) = lumigraph_core::image_io::decode_depth_npy(&npy.body).expect("npy");
+    for (a, z) in alphas.iter().zip(&depth) {
+        assert_eq!(z.is_finite(), *a >= 128, "alpha {a}, depth {z}");
+    }
+    let jpeg = post_json(
+        &state,
+        uri,
+        serde_json::json!({"view": view_json(48, 48), "format": "jpeg", "background": [0, 0, 0, 255]})
+            .to_string(),
+    )
+    .await;
+    assert_eq!(jpeg.status, StatusCode::OK);
+    assert!(jpeg.body.starts_with(&[0xff, 0xd8]));
+
+    let (addr, stop_tx, server) = serve_on_loopback(state).await;
+    let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset=ball"))
+        .await
+        .expect("connect");
+    let hello = next_json(&mut ws).await;
+    assert_eq!(hello["asset"]["id"], "ball");
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "settings", "interactive": false, "still_codec": "png"}),
+    )
+    .await;
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "view", "id": 1, "view": view_json(48, 48)}),
+    )
+    .await;
+    let (header, image) = next_frame(&mut ws).await;
+    assert_eq!(header.request_id, 1);
+    let (_, _, streamed) = lumigraph_core::image_io::decode_png_rgba8(&image).expect("png");
+    assert_eq!(
+        streamed, rgba,
+        "the stream's lossless frame is the HTTP frame"
+    );
+    drop(ws);
+    let _ = stop_tx.send(());
+    let _ = server.await;
+}
