@@ -295,6 +295,16 @@ impl VolumeBaker {
             count: None,
         };
         let storage = |read_only| wgpu::BufferBindingType::Storage { read_only };
+        let texture_entry = wgpu::BindGroupLayoutEntry {
+            binding: 5,
+            visibility: compute,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                view_dimension: wgpu::TextureViewDimension::D3,
+                multisampled: false,
+            },
+            count: None,
+        };
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("volume bake"),
             entries: &[
@@ -303,16 +313,7 @@ impl VolumeBaker {
                 buffer(2, storage(false)),
                 buffer(3, storage(false)),
                 buffer(4, storage(true)),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 5,
-                    visibility: compute,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                        view_dimension: wgpu::TextureViewDimension::D3,
-                        multisampled: false,
-                    },
-                    count: None,
-                },
+                texture_entry,
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -328,16 +329,6 @@ impl VolumeBaker {
             compilation_options: wgpu::PipelineCompilationOptions::default(),
             cache: None,
         });
-        let texture_entry = wgpu::BindGroupLayoutEntry {
-            binding: 5,
-            visibility: compute,
-            ty: wgpu::BindingType::Texture {
-                sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                view_dimension: wgpu::TextureViewDimension::D3,
-                multisampled: false,
-            },
-            count: None,
-        };
         let view_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("volume view"),
             entries: &[
