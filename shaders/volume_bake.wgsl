@@ -9,14 +9,15 @@ struct VolumeBakeParams {
     camera_count: u32,
     // 1: a label volume (nearest voxel, label colours); 0: scalar (trilinear, points).
     labels: u32,
-    // world = center + scale · p for a light-field point p (no rotation).
+    // world − origin = center + scale · p for a light-field point p (no rotation).
     center: vec3<f32>,
     scale: f32,
     // Rows of M⁻¹ (index space from world offsets); w unused.
     inv_m0: vec4<f32>,
     inv_m1: vec4<f32>,
     inv_m2: vec4<f32>,
-    // World position of voxel (0, 0, 0)'s centre.
+    // World position of voxel (0, 0, 0)'s centre: 0, since the host sends ray origins (`center`)
+    // relative to it, formed in f64 (bake.rs `shared_params`).
     origin: vec3<f32>,
     // Sample spacing Δ, world units.
     step: f32,

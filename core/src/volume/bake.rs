@@ -263,6 +263,8 @@ pub struct VolumeBaker {
 /// A volume and its transfer function resident on the GPU for direct view renders
 /// ([`VolumeBaker::prepare_direct`], [`VolumeBaker::render_view`]).
 pub struct DirectVolume {
+    /// World position of voxel (0, 0, 0).
+    origin: [f64; 3],
     texture: wgpu::Texture,
     view: wgpu::TextureView,
     tf_buffer: wgpu::Buffer,
@@ -385,6 +387,7 @@ impl VolumeBaker {
         );
         let params = shared_params(volume, &rays, options, entries.len());
         Ok(DirectVolume {
+            origin: volume.origin,
             texture,
             view,
             tf_buffer,
@@ -439,7 +442,10 @@ impl VolumeBaker {
         let rgba_buffer = out_buffer("volume view colour", pixels * 16);
         let depth_buffer = out_buffer("volume view depth", pixels * 4);
         let mut params = direct.params;
-        params.center = basis.eye.as_vec3().to_array();
+        // Relative to the volume's origin, in f64 before the f32 cast (see `shared_params`).
+        params.center = (basis.eye - DVec3::from(direct.origin))
+            .as_vec3()
+            .to_array();
         params.scale = 1.0;
         params.resolution = width;
         params.camera_count = height;
@@ -611,7 +617,7 @@ impl VolumeBaker {
         let out_depth = make_out("volume bake depth");
         let mut params = shared_params(volume, &rays, &options.raycast, entries.len());
         params.resolution = n;
-        params.center = frame.center.map(|c| c as f32);
+        params.center = [0, 1, 2].map(|a| (frame.center[a] - volume.origin[a]) as f32);
         params.scale = frame.world_from_lf_scale() as f32;
         progress(0, total);
         let mut first = 0;
@@ -793,7 +799,9 @@ fn shared_params(
         center: [0.0; 3],
         scale: 1.0,
         inv_m: [row(0), row(1), row(2)],
-        origin: volume.origin.map(|c| c as f32),
+        // The shader works relative to voxel (0, 0, 0): ray origins are sent as offsets from
+        // it, formed in f64, so large world coordinates do not cancel in f32.
+        origin: [0.0; 3],
         step: rays.step() as f32,
         dims: volume.dims.map(|d| d as f32),
         step_ratio: (rays.step() / rays.ref_step()) as f32,
