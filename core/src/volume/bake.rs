@@ -260,8 +260,9 @@ pub struct VolumeBaker {
     view_layout: wgpu::BindGroupLayout,
 }
 
-/// A volume and its transfer function resident on the GPU for direct view renders
-/// ([`VolumeBaker::prepare_direct`], [`VolumeBaker::render_view`]).
+/// A volume and its transfer function resident on the GPU, with the uniform fields bakes and
+/// direct views share ([`VolumeBaker::prepare_direct`], [`VolumeBaker::render_view`]; a bake
+/// makes one too). The texture is destroyed on drop.
 pub struct DirectVolume {
     /// World position of voxel (0, 0, 0).
     origin: [f64; 3],
@@ -364,8 +365,8 @@ impl VolumeBaker {
         }
     }
 
-    /// Uploads `volume` and `tf` for direct view renders with `options` (validated as the
-    /// CPU ray caster validates them).
+    /// Uploads `volume` and `tf` for direct view renders (and bakes) with `options`, validated
+    /// as the CPU ray caster validates them.
     ///
     /// # Errors
     /// [`VolumeBakeError`]: bad options, a label too large, a device limit.
@@ -381,7 +382,7 @@ impl VolumeBaker {
         let entries = tf_entries(tf);
         let tf_buffer = storage_buffer(
             &self.gpu,
-            "volume view transfer function",
+            "volume transfer function",
             bytemuck::cast_slice(&entries),
             wgpu::BufferUsages::empty(),
         );
@@ -449,43 +450,20 @@ impl VolumeBaker {
         params.scale = 1.0;
         params.resolution = width;
         params.camera_count = height;
-        let uniform = {
-            use wgpu::util::DeviceExt;
-            gpu.device
-                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some("volume view params"),
-                    contents: bytemuck::bytes_of(&params),
-                    usage: wgpu::BufferUsages::UNIFORM,
-                })
-        };
-        let entry = |binding, resource| wgpu::BindGroupEntry { binding, resource };
-        let group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("volume view"),
-            layout: &self.view_layout,
-            entries: &[
-                entry(0, uniform.as_entire_binding()),
-                entry(4, direct.tf_buffer.as_entire_binding()),
-                entry(5, wgpu::BindingResource::TextureView(&direct.view)),
-                entry(6, dir_buffer.as_entire_binding()),
-                entry(7, rgba_buffer.as_entire_binding()),
-                entry(8, depth_buffer.as_entire_binding()),
+        self.dispatch(
+            "volume view",
+            &self.view_pipeline,
+            &self.view_layout,
+            &params,
+            &[
+                (4, direct.tf_buffer.as_entire_binding()),
+                (5, wgpu::BindingResource::TextureView(&direct.view)),
+                (6, dir_buffer.as_entire_binding()),
+                (7, rgba_buffer.as_entire_binding()),
+                (8, depth_buffer.as_entire_binding()),
             ],
-        });
-        let mut encoder = gpu
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("volume view"),
-            });
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("volume view"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&self.view_pipeline);
-            pass.set_bind_group(0, &group, &[]);
-            pass.dispatch_workgroups(width.div_ceil(8), height.div_ceil(8), 1);
-        }
-        gpu.queue.submit([encoder.finish()]);
+            [width.div_ceil(8), height.div_ceil(8), 1],
+        );
         let rgba = gpu.read_buffer(&rgba_buffer, pixels * 16)?;
         let depth = gpu.read_buffer(&depth_buffer, pixels * 4)?;
         gpu.wait()?;
@@ -501,6 +479,55 @@ impl VolumeBaker {
                 .collect(),
             samples: 0,
         })
+    }
+
+    /// Runs `pipeline` once over `groups` workgroups with `params` as the uniform at binding 0
+    /// and `resources` at their bindings of `layout` (submitted; the caller reads back).
+    fn dispatch(
+        &self,
+        label: &str,
+        pipeline: &wgpu::ComputePipeline,
+        layout: &wgpu::BindGroupLayout,
+        params: &VolumeBakeParams,
+        resources: &[(u32, wgpu::BindingResource<'_>)],
+        groups: [u32; 3],
+    ) {
+        use wgpu::util::DeviceExt;
+        let device = &self.gpu.device;
+        let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(label),
+            contents: bytemuck::bytes_of(params),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let mut entries = vec![wgpu::BindGroupEntry {
+            binding: 0,
+            resource: uniform.as_entire_binding(),
+        }];
+        entries.extend(
+            resources
+                .iter()
+                .map(|(binding, resource)| wgpu::BindGroupEntry {
+                    binding: *binding,
+                    resource: resource.clone(),
+                }),
+        );
+        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(label),
+            layout,
+            entries: &entries,
+        });
+        let mut encoder =
+            device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(label),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, &group, &[]);
+            pass.dispatch_workgroups(groups[0], groups[1], groups[2]);
+        }
+        self.gpu.queue.submit([encoder.finish()]);
     }
 
     /// Bakes `volume` through `tf` into an `.lfa` file at `path` (written atomically), calling
@@ -519,12 +546,20 @@ impl VolumeBaker {
     ) -> Result<VolumeBakeReport, VolumeBakeError> {
         let start = Instant::now();
         let header = prepare(volume, tf, options, source)?;
-        let mut writer = AssetWriter::create(path, header)?;
         let mut covered = 0u64;
-        self.cast_all(volume, tf, options, progress, &mut |key, bytes, count| {
-            covered += count;
-            writer.add_image(key, &bytes)
-        })?;
+        let frame = header.frame.clone();
+        let mut writer = AssetWriter::create(path, header)?;
+        self.cast_all(
+            volume,
+            tf,
+            options,
+            &frame,
+            progress,
+            &mut |key, bytes, count| {
+                covered += count;
+                writer.add_image(key, &bytes)
+            },
+        )?;
         let bake_ms = start.elapsed().as_secs_f64() * 1e3;
         writer.set_bake_ms(bake_ms);
         writer.finish()?;
@@ -554,11 +589,19 @@ impl VolumeBaker {
         let mut header = prepare(volume, tf, options, source)?;
         let mut images = Vec::new();
         let mut covered = 0u64;
-        self.cast_all(volume, tf, options, progress, &mut |key, bytes, count| {
-            covered += count;
-            images.push((key, bytes));
-            Ok(())
-        })?;
+        let frame = header.frame.clone();
+        self.cast_all(
+            volume,
+            tf,
+            options,
+            &frame,
+            progress,
+            &mut |key, bytes, count| {
+                covered += count;
+                images.push((key, bytes));
+                Ok(())
+            },
+        )?;
         let bake_ms = start.elapsed().as_secs_f64() * 1e3;
         header.provenance.bake_ms = bake_ms;
         let bytes = encode_asset(header, images)?;
@@ -566,28 +609,19 @@ impl VolumeBaker {
         Ok((bytes, report))
     }
 
-    /// Ray-casts every camera's maps, handing each image to `sink` with its count of covered
-    /// texels (colour images; 0 for depth).
+    /// Ray-casts every camera's maps around `frame` (the header's: [`volume_frame`]), handing
+    /// each image to `sink` with its count of covered texels (colour images; 0 for depth).
     fn cast_all(
         &self,
         volume: &Volume,
         tf: &TransferFunction,
         options: &VolumeBakeOptions,
+        frame: &LfFrame,
         progress: &mut dyn FnMut(u32, u32),
         sink: &mut dyn FnMut(ImageKey, Vec<u8>, u64) -> Result<(), AssetError>,
     ) -> Result<(), VolumeBakeError> {
         let gpu = &self.gpu;
-        let rays = VolumeRays::new(volume, tf, &options.raycast)?;
-        let frame = volume_frame(volume, tf)?;
-        let texture = self.upload_volume(volume)?;
-        let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
-        let entries = tf_entries(tf);
-        let tf_buffer = storage_buffer(
-            gpu,
-            "volume bake transfer function",
-            bytemuck::cast_slice(&entries),
-            wgpu::BufferUsages::empty(),
-        );
+        let resident = self.prepare_direct(volume, tf, &options.raycast)?;
         let n = options.resolution;
         let texels = u64::from(n) * u64::from(n);
         // Batches of at most 1 Mi texels: a volume texel costs hundreds of samples, and a
@@ -615,8 +649,9 @@ impl VolumeBaker {
         };
         let out_color = make_out("volume bake colour");
         let out_depth = make_out("volume bake depth");
-        let mut params = shared_params(volume, &rays, &options.raycast, entries.len());
+        let mut params = resident.params;
         params.resolution = n;
+        // Relative to the volume's origin, in f64 before the f32 cast (see `shared_params`).
         params.center = [0, 1, 2].map(|a| (frame.center[a] - volume.origin[a]) as f32);
         params.scale = frame.world_from_lf_scale() as f32;
         progress(0, total);
@@ -625,60 +660,20 @@ impl VolumeBaker {
             let count = per_batch.min(total - first);
             params.first_camera = first;
             params.camera_count = count;
-            let uniform = {
-                use wgpu::util::DeviceExt;
-                gpu.device
-                    .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                        label: Some("volume bake params"),
-                        contents: bytemuck::bytes_of(&params),
-                        usage: wgpu::BufferUsages::UNIFORM,
-                    })
-            };
-            let group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("volume bake"),
-                layout: &self.layout,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: uniform.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: camera_buffer.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: out_color.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 3,
-                        resource: out_depth.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 4,
-                        resource: tf_buffer.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 5,
-                        resource: wgpu::BindingResource::TextureView(&view),
-                    },
+            self.dispatch(
+                "volume bake",
+                &self.pipeline,
+                &self.layout,
+                &params,
+                &[
+                    (1, camera_buffer.as_entire_binding()),
+                    (2, out_color.as_entire_binding()),
+                    (3, out_depth.as_entire_binding()),
+                    (4, resident.tf_buffer.as_entire_binding()),
+                    (5, wgpu::BindingResource::TextureView(&resident.view)),
                 ],
-            });
-            let mut encoder = gpu
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("volume bake"),
-                });
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("volume bake"),
-                    timestamp_writes: None,
-                });
-                pass.set_pipeline(&self.pipeline);
-                pass.set_bind_group(0, &group, &[]);
-                pass.dispatch_workgroups(n.div_ceil(8), n.div_ceil(8), count);
-            }
-            gpu.queue.submit([encoder.finish()]);
+                [n.div_ceil(8), n.div_ceil(8), count],
+            );
             let used = u64::from(count) * texels * 4;
             let depths = gpu.read_buffer(&out_depth, used)?;
             let colors = gpu.read_buffer(&out_color, used)?;
@@ -697,7 +692,6 @@ impl VolumeBaker {
             first += count;
             progress(first, total);
         }
-        texture.destroy();
         Ok(())
     }
 
