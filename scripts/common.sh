@@ -1,4 +1,10 @@
-# Helpers sourced by the other scripts; defines functions only, changes nothing by itself.
+# Helpers sourced by the other scripts: functions, and the start time that `stage` counts from.
+
+# `stage TEXT` heads a stage with the seconds since the outermost script started, so a slow CI run
+# shows where its time went.
+: "${LUMIGRAPH_T0:=$(date +%s)}"
+export LUMIGRAPH_T0
+stage() { echo "== [$(($(date +%s) - LUMIGRAPH_T0)) s] $*"; }
 
 # Runs a command as root: directly when we are root, else through sudo.
 as_root() {

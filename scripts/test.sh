@@ -7,13 +7,13 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
-echo "== fixtures (scripts/fixtures.sh)"
+stage "fixtures (scripts/fixtures.sh)"
 bash scripts/fixtures.sh "${LUMIGRAPH_FIXTURES:-fixtures}"
-echo "== cargo fmt --check"
+stage "cargo fmt --check"
 cargo fmt --all -- --check
-echo "== cargo clippy"
+stage "cargo clippy"
 cargo clippy --workspace --all-targets --locked -q -- -D warnings
-echo "== cargo test"
+stage "cargo test"
 cargo test --workspace --locked -- --test-threads=2
 # The Python and service suites reuse this debug build instead of a second, release one.
 export LUMIGRAPH_PROFILE=dev
@@ -21,20 +21,20 @@ export LUMIGRAPH_PROFILE=dev
 # asked for with LUMIGRAPH_FUZZ=1 (alone: `bash scripts/fuzz.sh --smoke`). The parsers' own tests
 # and property tests run in `cargo test` above either way.
 if [ "${LUMIGRAPH_FUZZ:-0}" = 1 ]; then
-  echo "== fuzz smoke (scripts/fuzz.sh --smoke: every target for a few seconds)"
+  stage "fuzz smoke (scripts/fuzz.sh --smoke: every target for a few seconds)"
   LUMIGRAPH_BIN=${CARGO_TARGET_DIR:-$PWD/target}/debug/lumigraph bash scripts/fuzz.sh --smoke
 fi
-echo "== Python bindings (maturin build, stubtest, pytest, examples)"
+stage "Python bindings (maturin build, stubtest, pytest, examples)"
 bash scripts/test_python.sh
-echo "== service end to end (HTTP, WebSocket, headless Chromium)"
+stage "service end to end (HTTP, WebSocket, headless Chromium)"
 bash scripts/test_service_e2e.sh
-echo "== deployment manifests (docker/k8s/validate.sh)"
+stage "deployment manifests (docker/k8s/validate.sh)"
 bash docker/k8s/validate.sh
 # The container image build and its smoke run take minutes and a Debian mirror: asked for with
 # LUMIGRAPH_DOCKER=1 (run them alone with `bash docker/build.sh && bash docker/smoke.sh`).
 if [ "${LUMIGRAPH_DOCKER:-0}" = 1 ]; then
-  echo "== container image (docker/build.sh, docker/smoke.sh)"
+  stage "container image (docker/build.sh, docker/smoke.sh)"
   bash docker/build.sh
   bash docker/smoke.sh
 fi
-echo "== all tests passed"
+stage "all tests passed"

@@ -19,22 +19,22 @@ pip_install_once "$VENV" "$(sha256sum pylib/requirements-test.txt | cut -d' ' -f
 # built (they are optimized at opt-level 2 even in dev); the GPU work runs in the driver anyway.
 PROFILE_FLAG=--release
 if [ "${LUMIGRAPH_PROFILE:-release}" = dev ]; then PROFILE_FLAG=""; fi
-echo "== maturin develop ${PROFILE_FLAG} (lumigraph._lumigraph)"
+stage "maturin develop ${PROFILE_FLAG} (lumigraph._lumigraph)"
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$ROOT/target}
 (cd pylib && VIRTUAL_ENV=$VENV PATH="$VENV/bin:$PATH" maturin develop $PROFILE_FLAG --locked -q)
 
-echo "== mypy.stubtest + mypy"
+stage "mypy.stubtest + mypy"
 (cd pylib/python && "$PY" -m mypy.stubtest lumigraph._lumigraph --mypy-config-file ../pyproject.toml)
 "$PY" -m mypy --config-file pylib/pyproject.toml pylib/python/lumigraph pylib/examples
 
-echo "== pytest python_tests"
+stage "pytest python_tests"
 "$PY" -m pytest python_tests -q --durations=10 ${LUMIGRAPH_PYTEST_ARGS:-}
 
-echo "== examples"
+stage "examples"
 EXAMPLES_OUT=$(mktemp -d)
 trap 'rm -rf "$EXAMPLES_OUT"' EXIT
 (cd "$EXAMPLES_OUT" && "$PY" "$ROOT/pylib/examples/quickstart.py")
 "$PY" pylib/examples/batch_bake_report.py --out "$EXAMPLES_OUT/report"
 "$PY" pylib/examples/exr_roundtrip.py --out "$EXAMPLES_OUT/exr"
 "$PY" pylib/examples/quality_vs_speed.py --out "$EXAMPLES_OUT/plot.png"
-echo "== python tests passed"
+stage "python tests passed"

@@ -28,7 +28,7 @@ pip_install_once "$VENV" "$PACKAGES" $PACKAGES
 
 # LUMIGRAPH_PROFILE=dev (scripts/test.sh) reuses the binary `cargo test` just built.
 if [ "${LUMIGRAPH_PROFILE:-release}" = dev ]; then PROFILE_DIR=debug; PROFILE_FLAG=""; else PROFILE_DIR=release; PROFILE_FLAG=--release; fi
-echo "== cargo build ${PROFILE_FLAG} -p lumigraph_server"
+stage "cargo build ${PROFILE_FLAG} -p lumigraph_server"
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$ROOT/target}
 if [ "$PROFILE_DIR" = debug ]; then
   # The binary exactly as `cargo test --workspace` builds it (same feature unification, so
@@ -41,12 +41,12 @@ export LUMIGRAPH_BIN=$CARGO_TARGET_DIR/$PROFILE_DIR/lumigraph
 
 export LUMIGRAPH_CHROMIUM=$CHROMIUM
 
-echo "== pytest python_tests/service"
+stage "pytest python_tests/service"
 "$VENV/bin/python" -m pytest -c python_tests/service/pytest.ini python_tests/service \
   -p no:cacheprovider -q --durations=10 ${LUMIGRAPH_PYTEST_ARGS:-}
 SOAK_SECONDS=${LUMIGRAPH_SOAK_SECONDS:-60}
 if [ "$SOAK_SECONDS" != 0 ]; then
-  echo "== soak ${SOAK_SECONDS} s (scripts/soak.py)"
+  stage "soak ${SOAK_SECONDS} s (scripts/soak.py)"
   "$VENV/bin/python" scripts/soak.py --seconds "$SOAK_SECONDS" --out "$CARGO_TARGET_DIR/soak"
 fi
-echo "== service e2e tests passed"
+stage "service e2e tests passed"
