@@ -30,6 +30,8 @@
 //!   still, rejecting stray samples.
 //! - [`quality`] is the one quality request every front speaks (knobs, a goal or automatic LOD):
 //!   it plans against an asset and renders a view, returning the frame and the decision.
+//! - [`layers`] holds runtime layer opacities and the depth-ordered compositing of layers and
+//!   scene objects (DESIGN §9).
 //! - [`scene`] composites light-field instances and meshes, each with its own transform, by depth.
 
 pub mod asset;
@@ -41,6 +43,7 @@ mod fsutil;
 pub mod geometry;
 pub mod gpu;
 pub mod image_io;
+pub mod layers;
 pub mod lod;
 pub mod mesh;
 pub mod metrics;

@@ -21,6 +21,7 @@ use serde::{Deserialize, Serialize};
 use crate::asset::AssetHeader;
 use crate::calibration::{Calibration, CalibrationError, Choice, Goal};
 use crate::frame::Frame;
+use crate::layers::{LayerImage, LayerOpacities};
 use crate::lod::{
     DEFAULT_BLEND_BAND, DEFAULT_MAX_PSNR_DROP, Ladder, LodDecision, LodError, LodPolicy,
 };
@@ -66,6 +67,9 @@ pub enum QualityError {
          object in the scene file (docs/scene.md)"
     )]
     Scene,
+    /// Layer opacities out of range, or naming a layer the asset does not have.
+    #[error("layers: {0}")]
+    Layers(String),
     /// The request is not a JSON object of quality fields.
     #[error("invalid quality options: {0}")]
     Json(String),
@@ -173,6 +177,16 @@ pub struct Quality {
         arg(long, value_name = "SAMPLES", allow_hyphen_values = true)
     )]
     pub refine: Option<u32>,
+    /// Runtime opacity per named layer of a multi light field, each in [0, 1]
+    /// (`skin=0.3,bone=1`; JSON: `{"skin": 0.3, "bone": 1}`); layers not named keep the
+    /// asset's default. Layers composite per pixel in depth order (DESIGN §9).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(
+        feature = "clap",
+        arg(long, value_name = "NAME=OPACITY,...", allow_hyphen_values = true)
+    )]
+    #[cfg_attr(feature = "openapi", schema(value_type = Option<std::collections::BTreeMap<String, f32>>))]
+    pub layers: Option<LayerOpacities>,
 }
 
 impl Quality {
@@ -191,6 +205,7 @@ impl Quality {
         "lod_max_psnr_drop",
         "lod_blend",
         "refine",
+        "layers",
     ];
 
     /// The request of a JSON object holding only quality keys (`null` = absent).
@@ -309,6 +324,9 @@ impl Quality {
         if let Some(samples) = self.refine {
             refine::validate_samples(samples)?;
         }
+        if let Some(layers) = &self.layers {
+            layers.validate().map_err(QualityError::Layers)?;
+        }
         Ok(())
     }
 
@@ -363,8 +381,15 @@ impl Quality {
         } else {
             Strategy::Options(options)
         };
+        let opacities = self
+            .layers
+            .clone()
+            .unwrap_or_default()
+            .resolve(&header.layers)
+            .map_err(QualityError::Layers)?;
         Ok(Plan {
             strategy,
+            opacities,
             quality: self.clone(),
             max_level,
             max_cameras,
@@ -395,6 +420,8 @@ pub enum Strategy {
 #[derive(Clone, Debug)]
 pub struct Plan {
     strategy: Strategy,
+    /// Opacity of every layer of the asset, in its order.
+    opacities: Vec<f32>,
     quality: Quality,
     max_level: u32,
     max_cameras: u32,
@@ -542,15 +569,44 @@ impl Plan {
             Job::Single(options) => (options, options, 0.0),
             Job::Blend(a, b, weight) => (a, b, weight),
         };
+        let opacities = &self.opacities;
         let frame = match self.quality.refine {
-            None | Some(1) => renderer.render_blend(field, view, &a, &b, weight)?,
+            None | Some(1) => {
+                renderer.render_layered(field, view, (&a, &b, weight), [0.0; 2], opacities)?
+            }
             Some(samples) => refine::refine(samples, |jitter| {
                 renderer
-                    .render_jittered(field, view, &a, &b, weight, jitter)
+                    .render_layered(field, view, (&a, &b, weight), jitter, opacities)
                     .map_err(QualityError::from)
             })?,
         };
         Ok(Rendered { frame, decision })
+    }
+
+    /// The opacity of every layer of the asset the plan was made for, in its order.
+    pub fn opacities(&self) -> &[f32] {
+        &self.opacities
+    }
+
+    /// Renders every layer of `field` for `view` as the plan decides, uncomposited: each
+    /// layer's premultiplied colour and sort depth (a scene composites them with its other
+    /// objects, [`crate::layers::composite`]). Single-sample (a scene's objects do not refine).
+    ///
+    /// # Errors
+    /// As [`Plan::render`].
+    pub fn render_layers(
+        &self,
+        renderer: &Renderer,
+        field: &GpuLightField,
+        view: &View,
+    ) -> Result<(Vec<LayerImage>, Decision), QualityError> {
+        let (decision, job) = self.job(view)?;
+        let (a, b, weight) = match job {
+            Job::Single(options) => (options, options, 0.0),
+            Job::Blend(a, b, weight) => (a, b, weight),
+        };
+        let images = renderer.render_layer_images(field, view, (&a, &b, weight), [0.0; 2])?;
+        Ok((images, decision))
     }
 }
 
@@ -582,6 +638,7 @@ mod tests {
             lod_max_psnr_drop: Some(2.0),
             lod_blend: Some(0.1),
             refine: Some(4),
+            layers: Some("skin=0.5".parse().expect("opacities")),
         }
     }
 

@@ -20,9 +20,10 @@ use glam::{DQuat, DVec3};
 use serde::Deserialize;
 
 use crate::asset::{AssetError, AssetFile};
-use crate::frame::{Frame, FrameStats};
+use crate::frame::Frame;
 use crate::gpu::GpuError;
 use crate::gpu::mesh::GpuMesh;
+use crate::layers::LayerImage;
 use crate::lod::LodPolicy;
 use crate::mesh::{MeshError, load_mesh};
 use crate::quality::{Plan, Quality, QualityError};
@@ -384,16 +385,6 @@ impl Scene {
                             path: path.display().to_string(),
                             source,
                         })?;
-                        if file.header().encoding(crate::asset::Channel::Color)
-                            == Some(crate::asset::Encoding::Rgba8Premultiplied)
-                        {
-                            // A z-buffer alone cannot composite a semi-transparent layer.
-                            return Err(invalid(format!(
-                                "object {index} ({}): semi-transparent (volume) light fields \
-                                 cannot be placed in scenes yet: scenes composite by depth alone",
-                                path.display()
-                            )));
-                        }
                         let uploaded = renderer
                             .upload(&file)
                             .map_err(|source| SceneError::Render { index, source })?;
@@ -472,7 +463,11 @@ impl Scene {
         self.layers.len()
     }
 
-    /// Renders every object from `view` and composites them by depth.
+    /// Renders every object from `view` and composites them per pixel in depth order: every
+    /// layer of every light field and every mesh is one fragment per pixel, sorted by depth and
+    /// blended front to back ([`crate::layers::composite`]), so semi-transparent light fields
+    /// (volumes) show the meshes and light fields behind them. Only opaque objects: a plain
+    /// depth test.
     ///
     /// # Errors
     /// [`SceneError`] for a bad view or a failed render.
@@ -483,17 +478,9 @@ impl Scene {
         view: &View,
     ) -> Result<Frame, SceneError> {
         view.basis(crate::view::DEFAULT_MAX_VIEW_PX)?;
-        let pixels = view.width as usize * view.height as usize;
-        let mut out = Frame {
-            width: view.width,
-            height: view.height,
-            color: vec![0; 4 * pixels],
-            depth: vec![f32::INFINITY; pixels],
-            translucent: false,
-            stats: FrameStats::default(),
-        };
+        let mut images: Vec<(LayerImage, f32)> = Vec::new();
         for (index, layer) in self.layers.iter().enumerate() {
-            let (frame, scale) = match layer {
+            match layer {
                 Layer::Field {
                     field,
                     placement,
@@ -501,15 +488,17 @@ impl Scene {
                     path,
                 } => {
                     let local = placement.view_to_local(view);
-                    let frame = plan
-                        .render(renderer, &self.fields[*field], &local)
+                    let (layers, _) = plan
+                        .render_layers(renderer, &self.fields[*field], &local)
                         .map_err(|source| SceneError::Quality {
                             index,
                             path: path.clone(),
                             source,
-                        })?
-                        .frame;
-                    (frame, placement.scale())
+                        })?;
+                    for (mut image, &o) in layers.into_iter().zip(plan.opacities()) {
+                        image.scale_depth(placement.scale());
+                        images.push((image, o));
+                    }
                 }
                 Layer::Mesh {
                     mesh,
@@ -520,12 +509,19 @@ impl Scene {
                     let frame = reference
                         .render(&self.meshes[*mesh], &local, shading)
                         .map_err(|source| SceneError::Reference { index, source })?;
-                    (frame, placement.scale())
+                    let mut image = LayerImage::from_opaque(&frame);
+                    image.scale_depth(placement.scale());
+                    images.push((image, 1.0));
                 }
-            };
-            composite_into(&mut out, &frame, scale);
+            }
         }
-        Ok(out)
+        let pairs: Vec<(&LayerImage, f32)> = images.iter().map(|(i, o)| (i, *o)).collect();
+        Ok(crate::layers::composite(
+            &pairs,
+            view.width,
+            view.height,
+            crate::volume::raycast::DEFAULT_DEPTH_THRESHOLD as f32,
+        ))
     }
 }
 
@@ -544,27 +540,6 @@ fn object_quality(options: &RenderOptions, auto_lod: Option<&LodPolicy>) -> Qual
         lod_blend: auto_lod.map(|p| p.blend_band),
         ..Quality::default()
     }
-}
-
-/// Depth test of `layer` (z-depth in its object's units, × `scale` for world units) into `acc`:
-/// per pixel the nearer surface wins; ties keep what is already there. Stats add up.
-pub fn composite_into(acc: &mut Frame, layer: &Frame, scale: f64) {
-    for (i, &z) in layer.depth.iter().enumerate() {
-        if !z.is_finite() {
-            continue;
-        }
-        let z = (f64::from(z) * scale) as f32;
-        if z < acc.depth[i] {
-            acc.depth[i] = z;
-            acc.color[4 * i..4 * i + 4].copy_from_slice(&layer.color[4 * i..4 * i + 4]);
-        }
-    }
-    acc.stats = FrameStats {
-        render_ms: acc.stats.render_ms + layer.stats.render_ms,
-        rays: acc.stats.rays + layer.stats.rays,
-        steps: acc.stats.steps + layer.stats.steps,
-        fetches: acc.stats.fetches + layer.stats.fetches,
-    };
 }
 
 #[cfg(test)]
@@ -651,24 +626,5 @@ mod tests {
         )
         .expect("valid scene");
         assert_eq!(ok.objects.len(), 2);
-    }
-
-    #[test]
-    fn compositing_keeps_the_nearest_surface() {
-        let frame = |depth: Vec<f32>, c: u8| Frame {
-            width: 3,
-            height: 1,
-            color: vec![c; 12],
-            depth,
-            translucent: false,
-            stats: FrameStats::default(),
-        };
-        let mut acc = frame(vec![1.0, f32::INFINITY, 2.0], 10);
-        // Layer depths are in object units; × 2 gives world units 0.8, 6, 4.
-        composite_into(&mut acc, &frame(vec![0.4, 3.0, 2.0], 20), 2.0);
-        assert_eq!(acc.depth, vec![0.8, 6.0, 2.0]);
-        assert_eq!(acc.color[0], 20);
-        assert_eq!(acc.color[4], 20);
-        assert_eq!(acc.color[8], 10);
     }
 }

@@ -14,9 +14,18 @@ use lumigraph_core::metrics;
 use lumigraph_core::render::{RenderOptions, Renderer};
 use lumigraph_core::view::View;
 use lumigraph_core::volume::bake::{VolumeBakeError, VolumeBakeOptions, VolumeBaker, volume_frame};
+use lumigraph_core::volume::layers::{VolumeLayer, reference_layers};
 use lumigraph_core::volume::raycast::{RaycastOptions, VolumeRays, raycast};
 use lumigraph_core::volume::tf::TransferFunction;
 use lumigraph_core::volume::{Volume, Voxels};
+
+/// Mean masked PSNR (dB) a two-layer bake of the blob at 162 cameras and 96-px maps keeps
+/// against its layers' composited direct ray casts over four views. Measured 29.0 / 29.7 /
+/// 33.4 dB at opacities (1, 1) / (0.6, 1) / (0.25, 0.5), beside 31.4 dB for the one-layer
+/// blob: the layers' error is that of one layer (camera spacing against the shell's parallax).
+/// 1.5 dB below the lowest; a wrong order, a lost layer or an opacity applied twice costs far
+/// more.
+const LAYERED_MIN_MASKED_PSNR: f64 = 27.5;
 
 fn gpu() -> Arc<Gpu> {
     Gpu::shared().expect("a GPU adapter (install mesa-vulkan-drivers)")
@@ -664,5 +673,152 @@ fn tiny_and_huge_scales_bake_like_the_cpu() {
             .expect("a valid volume");
         let stats = bake_against_cpu(&volume, &tf, &options);
         assert_close(&stats, &format!("scale {scale}"));
+    }
+}
+
+/// The blob's layers: its translucent shell and its dense core, each through its own TF
+/// (seed 002 §6: one light field per structure).
+fn blob_layers() -> Vec<VolumeLayer> {
+    let shell = TransferFunction::from_json(
+        r#"{"points": [[0, 0, 0, 0, 0], [10, 0, 0, 0, 0], [40, 0.9, 0.5, 0.3, 0.08],
+            [90, 0.3, 0.6, 0.9, 0.15], [100, 0, 0, 0, 0]]}"#,
+    )
+    .expect("shell TF");
+    let core = TransferFunction::from_json(
+        r#"{"points": [[0, 0, 0, 0, 0], [100, 0, 0, 0, 0], [110, 1, 1, 0.8, 0.9], [250, 1, 1, 1, 1]]}"#,
+    )
+    .expect("core TF");
+    vec![
+        VolumeLayer {
+            name: "shell".to_owned(),
+            tf: shell,
+            opacity: 0.6,
+        },
+        VolumeLayer {
+            name: "core".to_owned(),
+            tf: core,
+            opacity: 1.0,
+        },
+    ]
+}
+
+#[test]
+fn a_multi_light_field_composites_its_layers_like_their_direct_ray_casts() {
+    let volume = blob([36, 32, 28]);
+    let layers = blob_layers();
+    let options = VolumeBakeOptions {
+        cameras: 162,
+        resolution: 96,
+        ..VolumeBakeOptions::default()
+    };
+    let (bytes, report) = baker()
+        .bake_layers_to_bytes(
+            &volume,
+            &layers,
+            &options,
+            &Provenance::default(),
+            &mut |_, _| {},
+        )
+        .expect("layered bake");
+    assert!(report.covered_fraction > 0.0);
+    let asset = AssetFile::from_bytes(bytes).expect("reads back");
+    let names: Vec<(&str, f32)> = asset
+        .header()
+        .layers
+        .iter()
+        .map(|l| (l.name.as_str(), l.default_opacity))
+        .collect();
+    assert_eq!(names, vec![("shell", 0.6), ("core", 1.0)]);
+    // Both layers share the frame of the union of what their TFs show; the shell's covers the
+    // core, so layer 0 is texel for texel the single-TF bake of the shell (the bake is
+    // deterministic).
+    assert_eq!(
+        asset.header().frame,
+        volume_frame(&volume, &layers[0].tf).expect("frame")
+    );
+    let (single, _) = baker()
+        .bake_to_bytes(
+            &volume,
+            &layers[0].tf,
+            &options,
+            &Provenance::default(),
+            &mut |_, _| {},
+        )
+        .expect("single bake");
+    let single = AssetFile::from_bytes(single).expect("reads back");
+    for camera in [0, 17, 161] {
+        for channel in [Channel::Color, Channel::Depth] {
+            assert_eq!(
+                asset
+                    .read_image(ImageKey::new(0, 0, camera, channel))
+                    .expect("layer 0"),
+                single
+                    .read_image(ImageKey::new(0, 0, camera, channel))
+                    .expect("single"),
+                "camera {camera} {channel:?}"
+            );
+        }
+    }
+    let renderer = Renderer::new(gpu());
+    let field = renderer.upload(&asset).expect("upload");
+    let shell_only = renderer.upload(&single).expect("upload");
+    assert_eq!(field.layers.len(), 2);
+    assert_eq!(
+        field.gpu_bytes,
+        2 * shell_only.gpu_bytes,
+        "one set of maps per layer"
+    );
+    let views = views_around(&volume, 4, 96);
+    let (a, b) = (RenderOptions::default(), RenderOptions::default());
+    for opacities in [[1.0, 1.0], [0.6, 1.0], [0.25, 0.5]] {
+        let mut masked = 0.0;
+        for view in &views {
+            let frame = renderer
+                .render_layered(&field, view, (&a, &b, 0.0), [0.0; 2], &opacities)
+                .expect("render");
+            assert!(frame.translucent);
+            let reference = reference_layers(&volume, &layers, view, &options.raycast, &opacities)
+                .expect("reference");
+            masked += metrics::compare(&frame, &reference)
+                .expect("compare")
+                .masked_psnr;
+        }
+        masked /= views.len() as f64;
+        assert!(
+            masked > LAYERED_MIN_MASKED_PSNR,
+            "{opacities:?}: masked {masked:.2} dB"
+        );
+    }
+    // Opacity 0 removes a layer: the shell alone, as its single-layer asset renders it (the
+    // composite straightens the same premultiplied codes: at most one code step apart).
+    for view in &views {
+        let layered = renderer
+            .render_layered(&field, view, (&a, &b, 0.0), [0.0; 2], &[1.0, 0.0])
+            .expect("render");
+        let alone = renderer.render(&shell_only, view, &a).expect("render");
+        let worst = layered
+            .color
+            .iter()
+            .zip(&alone.color)
+            .map(|(x, y)| x.abs_diff(*y))
+            .max()
+            .unwrap_or(0);
+        assert!(
+            worst <= 1,
+            "layered with the core at 0 differs by {worst} codes"
+        );
+        assert_eq!(
+            layered.depth.iter().filter(|z| z.is_finite()).count(),
+            alone.depth.iter().filter(|z| z.is_finite()).count()
+        );
+    }
+    // A wrong opacity count or value is refused, not guessed.
+    for bad in [&[1.0][..], &[1.0, 1.0, 1.0], &[1.0, f32::NAN], &[1.5, 1.0]] {
+        assert!(
+            renderer
+                .render_layered(&field, &views[0], (&a, &b, 0.0), [0.0; 2], bad)
+                .is_err(),
+            "{bad:?}"
+        );
     }
 }

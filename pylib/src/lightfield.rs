@@ -165,8 +165,16 @@ fn json_of(value: &Bound<'_, PyAny>) -> PyResult<serde_json::Value> {
     if let Ok(text) = value.cast::<PyString>() {
         return Ok(serde_json::Value::String(text.to_str()?.to_owned()));
     }
+    // A dict: the `layers` opacities ({"skin": 0.3}).
+    if let Ok(dict) = value.cast::<pyo3::types::PyDict>() {
+        let mut map = serde_json::Map::new();
+        for (key, item) in dict.iter() {
+            map.insert(key.extract::<String>()?, json_of(&item)?);
+        }
+        return Ok(serde_json::Value::Object(map));
+    }
     Err(PyTypeError::new_err(format!(
-        "a quality option must be a number, a string or None, got {}",
+        "a quality option must be a number, a string, a dict (layers) or None, got {}",
         value.get_type().name()?
     )))
 }

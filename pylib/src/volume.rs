@@ -5,8 +5,10 @@
 
 use std::sync::Arc;
 
-use lumigraph_core::asset::{AssetFile, Provenance};
+use lumigraph_core::asset::{AssetFile, LayerDesc, Provenance};
+use lumigraph_core::layers::LayerOpacities;
 use lumigraph_core::volume::bake::{VolumeBakeError, VolumeBakeOptions};
+use lumigraph_core::volume::layers::{VolumeLayer, reference_layers};
 
 use lumigraph_core::volume::raycast::{RaycastOptions, raycast};
 use lumigraph_core::volume::tf::{PRESETS, TransferFunction};
@@ -54,6 +56,54 @@ fn parse_tf(tf: &Bound<'_, PyAny>) -> PyResult<TransferFunction> {
     TransferFunction::from_json(&text).map_err(|e| PyValueError::new_err(e.to_string()))
 }
 
+/// The layers of a multi light field: a list of ``{"name", "tf", "opacity"}`` dicts (a dict
+/// holding such a list under "layers", or its JSON, also works); TF file names resolve
+/// against the working directory.
+fn parse_layers(layers: &Bound<'_, PyAny>) -> PyResult<Vec<VolumeLayer>> {
+    let py = layers.py();
+    let text: String = if let Ok(text) = layers.extract::<String>() {
+        text
+    } else if layers.is_instance_of::<pyo3::types::PyList>()
+        || layers.is_instance_of::<pyo3::types::PyTuple>()
+    {
+        let wrapped = pyo3::types::PyDict::new(py);
+        wrapped.set_item(
+            "layers",
+            pyo3::types::PyList::new(py, layers.try_iter()?.collect::<PyResult<Vec<_>>>()?)?,
+        )?;
+        py.import("json")?
+            .call_method1("dumps", (wrapped,))?
+            .extract()?
+    } else if layers.is_instance_of::<pyo3::types::PyDict>() {
+        py.import("json")?
+            .call_method1("dumps", (layers,))?
+            .extract()?
+    } else {
+        return Err(PyTypeError::new_err(
+            "layers must be a list of {\"name\", \"tf\", \"opacity\"} dicts (or its JSON)",
+        ));
+    };
+    VolumeLayer::parse(&text, std::path::Path::new("."))
+        .map_err(|e| PyValueError::new_err(e.to_string()))
+}
+
+/// Exactly one of `tf` and `layers`, as layers.
+fn tf_or_layers(
+    tf: Option<&Bound<'_, PyAny>>,
+    layers: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Vec<VolumeLayer>> {
+    match (tf, layers) {
+        (Some(tf), None) => Ok(vec![VolumeLayer::single(&parse_tf(tf)?)]),
+        (None, Some(layers)) => parse_layers(layers),
+        (Some(_), Some(_)) => Err(PyValueError::new_err(
+            "give tf or layers, not both: each layer names its own tf",
+        )),
+        (None, None) => Err(PyValueError::new_err(
+            "a volume needs tf (a preset, dict or JSON) or layers",
+        )),
+    }
+}
+
 /// A volume from a path or a numpy array, and its name for the provenance (a file's name and
 /// the SHA-256 of its bytes; an array's shape).
 fn load_volume(
@@ -97,11 +147,12 @@ fn load_volume(
 
 /// Native volume bake (the Python wrapper documents it).
 #[pyfunction]
-#[pyo3(signature = (volume, *, tf, spacing, origin, labels, shade, step, depth_threshold, light, ambient, cameras, resolution, depth_bits, progress))]
+#[pyo3(signature = (volume, *, tf, layers, spacing, origin, labels, shade, step, depth_threshold, light, ambient, cameras, resolution, depth_bits, progress))]
 pub fn bake_volume(
     py: Python<'_>,
     volume: &Bound<'_, PyAny>,
-    tf: &Bound<'_, PyAny>,
+    tf: Option<&Bound<'_, PyAny>>,
+    layers: Option<&Bound<'_, PyAny>>,
     spacing: Option<[f64; 3]>,
     origin: Option<[f64; 3]>,
     labels: bool,
@@ -122,7 +173,7 @@ pub fn bake_volume(
             "progress must be a bool or a callable(done, total)",
         ));
     }
-    let tf = parse_tf(tf)?;
+    let layers = tf_or_layers(tf, layers)?;
     let (volume, provenance) = load_volume(py, volume, spacing, origin, labels)?;
     let options = VolumeBakeOptions {
         cameras,
@@ -151,7 +202,7 @@ pub fn bake_volume(
             }
         };
         let (bytes, _) = baker
-            .bake_to_bytes(&volume, &tf, &options, &provenance, &mut report)
+            .bake_layers_to_bytes(&volume, &layers, &options, &provenance, &mut report)
             .map_err(|e| match e {
                 VolumeBakeError::Options(e) => errors::bake(&e),
                 VolumeBakeError::Gpu(e) => errors::BakeError::new_err(e.to_string()),
@@ -171,12 +222,14 @@ pub fn bake_volume(
 
 /// Native direct ray cast (the Python wrapper documents it).
 #[pyfunction]
-#[pyo3(signature = (volume, view, *, tf, spacing, origin, labels, shade, step, depth_threshold, light, ambient))]
+#[pyo3(signature = (volume, view, *, tf, layers, opacities, spacing, origin, labels, shade, step, depth_threshold, light, ambient))]
 pub fn reference_volume(
     py: Python<'_>,
     volume: &Bound<'_, PyAny>,
     view: &Bound<'_, PyAny>,
-    tf: &Bound<'_, PyAny>,
+    tf: Option<&Bound<'_, PyAny>>,
+    layers: Option<&Bound<'_, PyAny>>,
+    opacities: Option<std::collections::BTreeMap<String, f32>>,
     spacing: Option<[f64; 3]>,
     origin: Option<[f64; 3]>,
     labels: bool,
@@ -187,7 +240,21 @@ pub fn reference_volume(
     ambient: f64,
 ) -> PyResult<PyFrame> {
     let view = view::parse_view(view)?;
-    let tf = parse_tf(tf)?;
+    let layered = layers.is_some();
+    let layers = tf_or_layers(tf, layers)?;
+    if opacities.is_some() && !layered {
+        return Err(PyValueError::new_err("opacities apply with layers"));
+    }
+    let descs: Vec<LayerDesc> = layers
+        .iter()
+        .map(|l| LayerDesc {
+            name: l.name.clone(),
+            default_opacity: l.opacity,
+        })
+        .collect();
+    let requested = LayerOpacities(opacities.unwrap_or_default());
+    requested.validate().map_err(PyValueError::new_err)?;
+    let opacities = requested.resolve(&descs).map_err(PyValueError::new_err)?;
     let (volume, _) = load_volume(py, volume, spacing, origin, labels)?;
     let options = RaycastOptions {
         step,
@@ -196,8 +263,14 @@ pub fn reference_volume(
         ambient,
         depth_threshold,
     };
+    if layered {
+        let frame = py
+            .detach(|| reference_layers(&volume, &layers, &view, &options, &opacities))
+            .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        return Ok(PyFrame::new(frame, None));
+    }
     let image = py
-        .detach(|| raycast(&volume, &tf, &view, &options))
+        .detach(|| raycast(&volume, &layers[0].tf, &view, &options))
         .map_err(|e| PyValueError::new_err(e.to_string()))?;
     Ok(PyFrame::new(image.to_frame(), None))
 }

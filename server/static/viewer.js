@@ -175,6 +175,58 @@
     scheduleUrlUpdate();
   }
 
+  // --- layer opacity sliders (multi light fields) --------------------------------------------
+  // One slider per layer of an asset with several; each change sends `layers` in a settings
+  // message of its own and goes into the link as `layers=name:opacity,...`.
+  function fromUrlLayers() {
+    return state.fromUrl && state.fromUrl.settings.layers ? state.fromUrl.settings.layers : {};
+  }
+
+  function fillLayers(asset, initial) {
+    const box = $("layers");
+    box.innerHTML = "";
+    const names = asset.layers || [];
+    const defaults = asset.layer_opacities || [];
+    box.hidden = names.length < 2;
+    if (box.hidden) return;
+    const title = document.createElement("div");
+    title.textContent = "Layer opacity";
+    box.appendChild(title);
+    names.forEach((name, i) => {
+      const label = document.createElement("label");
+      label.className = "row";
+      const input = document.createElement("input");
+      input.type = "range";
+      input.min = "0";
+      input.max = "1";
+      input.step = "0.01";
+      input.dataset.layer = name;
+      input.value = String(initial[name] ?? defaults[i] ?? 1);
+      input.setAttribute("aria-label", `opacity of layer ${name}`);
+      const text = document.createElement("span");
+      text.textContent = ` ${name}`;
+      label.append(input, text);
+      box.appendChild(label);
+      input.addEventListener("input", sendLayers);
+    });
+  }
+
+  function layerOpacities() {
+    const out = {};
+    for (const input of $("layers").querySelectorAll("input[data-layer]")) {
+      out[input.dataset.layer] = Number(input.value);
+    }
+    return out;
+  }
+
+  function sendLayers() {
+    const layers = layerOpacities();
+    state.extra.layers = Object.entries(layers).map(([k, v]) => `${k}:${v}`).join(",");
+    send({ type: "settings", layers });
+    sendView(true);
+    scheduleUrlUpdate();
+  }
+
   // --- the state in the URL ------------------------------------------------------------------
   // Precision (docs/protocol.md, "Viewer links"): angles to 0.001°, distance to 6 significant
   // digits, the target to 1e-6 of the distance; at 4096 px and 40° that moves a point by at most
@@ -214,6 +266,12 @@
     return out;
   }
 
+  // The sliders' opacities for the image link (`layers=name:opacity,...`), if any.
+  function layerParams() {
+    const layers = Object.entries(layerOpacities());
+    return layers.length ? [["layers", layers.map(([k, v]) => `${k}:${v}`).join(",")]] : [];
+  }
+
   function viewerQuery() {
     const p = [["asset", state.asset ? state.asset.id : ""], ...cameraParams(), ...qualityParams()];
     if ($("still_codec").value !== CONTROL_DEFAULTS.still_codec) p.push(["still_codec", $("still_codec").value]);
@@ -242,7 +300,7 @@
   function imageLink() {
     const [w, h] = viewSize();
     const p = [...cameraParams(), ["width", String(w)], ["height", String(h)],
-      ...qualityParams(), ["background", backgroundRgba().join(",")], ["format", "png"]];
+      ...qualityParams(), ...layerParams(), ["background", backgroundRgba().join(",")], ["format", "png"]];
     const id = state.asset ? state.asset.id : "";
     return `${location.origin}/v1/assets/${encodeURIComponent(id)}/render?${toQuery(p)}`;
   }
@@ -480,6 +538,7 @@
         state.asset = msg.asset;
         state.maxPx = msg.max_px;
         fillLod(msg.asset.camera_count);
+        fillLayers(msg.asset, fromUrlLayers());
         if (!same) resetCamera();
         const fromUrl = state.fromUrl;
         state.fromUrl = null;

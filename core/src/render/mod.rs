@@ -65,27 +65,42 @@ pub struct GpuLightField {
     pub resolution: u32,
     /// Bytes of texture memory used.
     pub gpu_bytes: u64,
-    /// Axis-aligned box (light-field units) holding every surface point any camera saw, grown
-    /// by the maps' texel footprint: the default marcher clips rays to it (empty when nothing
-    /// was seen).
+    /// Axis-aligned box (light-field units) holding every surface point any camera saw in any
+    /// layer, grown by the maps' texel footprint (empty when nothing was seen); the default
+    /// marcher clips each layer's rays to that layer's own box.
     pub visible_box: [[f32; 3]; 2],
+    /// The asset's layers (names and default opacities), in the order of its maps.
+    pub layers: Vec<crate::asset::LayerDesc>,
     /// `Some(τ_d)` for a translucent light field (premultiplied RGBA maps, a volume): frames are
     /// [translucent](Frame::translucent) and report depth where their alpha reaches `τ_d`;
     /// `None`: opaque.
     pub translucent: Option<f32>,
-    group: wgpu::BindGroup,
-    /// The colour and depth texture arrays, destroyed on drop.
-    textures: [wgpu::Texture; 2],
+    /// Every layer's maps, in the asset's layer order (one for most assets).
+    maps: Vec<LayerMaps>,
     /// The device, polled on drop so that wgpu reclaims the textures at once.
     gpu: Arc<Gpu>,
     /// The renderer's count of resident fields, decremented on drop.
     resident: Arc<ResidentCounter>,
 }
 
+/// One layer's maps on the GPU.
+struct LayerMaps {
+    /// The layer's visible box (see [`GpuLightField::visible_box`]).
+    visible_box: [[f32; 3]; 2],
+    group: wgpu::BindGroup,
+    /// The colour and depth texture arrays, destroyed on drop.
+    textures: [wgpu::Texture; 2],
+}
+
 impl GpuLightField {
     /// The device the field lives on: only a renderer of that device can draw it.
     pub fn gpu(&self) -> &Arc<Gpu> {
         &self.gpu
+    }
+
+    /// The layers' default opacities, in their order.
+    pub fn default_opacities(&self) -> Vec<f32> {
+        self.layers.iter().map(|l| l.default_opacity).collect()
     }
 }
 
@@ -95,7 +110,7 @@ impl Drop for GpuLightField {
         // only when some later frame is submitted: an asset deleted on an idle service would
         // stay resident. `destroy` frees the textures now, or as soon as the last submission
         // that reads them completes, whoever else still holds a handle to them.
-        for texture in &self.textures {
+        for texture in self.maps.iter().flat_map(|m| &m.textures) {
             texture.destroy();
         }
         // A non-blocking poll reclaims what completed submissions held. Its only error is a
@@ -427,6 +442,115 @@ impl Renderer {
         weight: f32,
         jitter: [f32; 2],
     ) -> Result<Frame, RenderError> {
+        self.render_layered(
+            field,
+            view,
+            (a, b, weight),
+            jitter,
+            &field.default_opacities(),
+        )
+    }
+
+    /// [`Renderer::render_jittered`] with a runtime opacity per layer (`opacities`, one per
+    /// layer of the field, in its order): every layer is rendered and the layers are
+    /// composited per pixel in depth order ([`crate::layers::composite`]). A single layer at
+    /// opacity 1 is one pass with no compositing.
+    ///
+    /// # Errors
+    /// As [`Renderer::render_jittered`]; [`RenderError::Option`] for an opacity count that is
+    /// not the field's layer count or an opacity outside [0, 1].
+    pub fn render_layered(
+        &self,
+        field: &GpuLightField,
+        view: &View,
+        (a, b, weight): (&RenderOptions, &RenderOptions, f32),
+        jitter: [f32; 2],
+        opacities: &[f32],
+    ) -> Result<Frame, RenderError> {
+        if opacities.len() != field.maps.len()
+            || !opacities
+                .iter()
+                .all(|o| o.is_finite() && (0.0..=1.0).contains(o))
+        {
+            return Err(RenderError::Option(format!(
+                "layer opacities {opacities:?}: the light field has {} layers, each opacity in \
+                 [0, 1]",
+                field.maps.len()
+            )));
+        }
+        if let ([maps], [o]) = (field.maps.as_slice(), opacities)
+            && *o >= 1.0
+        {
+            let mut frame = self.render_maps(field, maps, view, a, b, weight, jitter)?;
+            if let Some(tau) = field.translucent {
+                straighten(&mut frame.color, &mut frame.depth, tau);
+            }
+            return Ok(frame);
+        }
+        let images = self.render_layer_images(field, view, (a, b, weight), jitter)?;
+        let start = Instant::now();
+        let pairs: Vec<(&crate::layers::LayerImage, f32)> =
+            images.iter().zip(opacities.iter().copied()).collect();
+        let tau = field
+            .translucent
+            .unwrap_or(crate::volume::raycast::DEFAULT_DEPTH_THRESHOLD as f32);
+        let mut frame = crate::layers::composite(&pairs, view.width, view.height, tau);
+        frame.stats.render_ms += start.elapsed().as_secs_f64() * 1e3;
+        Ok(frame)
+    }
+
+    /// Every layer of `field` rendered for `view`, uncomposited: premultiplied colour and the
+    /// depth of the maps' surface each pixel met (its sort depth, also where a translucent
+    /// layer's alpha stays below `τ_d`).
+    ///
+    /// # Errors
+    /// As [`Renderer::render_jittered`].
+    pub fn render_layer_images(
+        &self,
+        field: &GpuLightField,
+        view: &View,
+        (a, b, weight): (&RenderOptions, &RenderOptions, f32),
+        jitter: [f32; 2],
+    ) -> Result<Vec<crate::layers::LayerImage>, RenderError> {
+        let mut out = Vec::with_capacity(field.maps.len());
+        for maps in &field.maps {
+            let frame = self.render_maps(field, maps, view, a, b, weight, jitter)?;
+            out.push(if frame.translucent {
+                let mut premultiplied = frame.color;
+                let mut depth = frame.depth;
+                for (px, z) in premultiplied.chunks_exact_mut(4).zip(depth.iter_mut()) {
+                    if px[3] == 0 {
+                        px.copy_from_slice(&[0; 4]);
+                        *z = f32::INFINITY;
+                    }
+                }
+                crate::layers::LayerImage {
+                    width: frame.width,
+                    height: frame.height,
+                    premultiplied,
+                    depth,
+                    translucent: true,
+                    stats: frame.stats,
+                }
+            } else {
+                crate::layers::LayerImage::from_opaque(&frame)
+            });
+        }
+        Ok(out)
+    }
+
+    /// One layer's pass: the marcher's output as it is (premultiplied colour for a translucent
+    /// field, depth wherever the maps' surface was met).
+    fn render_maps(
+        &self,
+        field: &GpuLightField,
+        maps: &LayerMaps,
+        view: &View,
+        a: &RenderOptions,
+        b: &RenderOptions,
+        weight: f32,
+        jitter: [f32; 2],
+    ) -> Result<Frame, RenderError> {
         if !Arc::ptr_eq(&field.gpu, &self.gpu) {
             return Err(RenderError::Option(
                 "the light field was uploaded on another device than this renderer's".to_owned(),
@@ -478,9 +602,9 @@ impl Renderer {
             blend: weight,
             coarse_factor: 0,
             near_scale: 0.0,
-            box_min: field.visible_box[0],
+            box_min: maps.visible_box[0],
             tiled: Tiling::Grid.code(),
-            box_max: field.visible_box[1],
+            box_max: maps.visible_box[1],
             interior_curvature: 0.0,
             level_b: second.level,
             step_b: second.step,
@@ -624,7 +748,7 @@ impl Renderer {
                     &mut encoder,
                     targets,
                     &level.group,
-                    &field.group,
+                    &maps.group,
                     (cw, ch, PRE_FACTOR),
                 );
             }
@@ -632,7 +756,7 @@ impl Renderer {
                 &mut encoder,
                 "render coarse",
                 self.pipeline(methods, Role::Coarse),
-                (&level.group, &field.group),
+                (&level.group, &maps.group),
                 if compact {
                     Workgroups::Indirect(&targets.tile_args, 0)
                 } else {
@@ -674,7 +798,7 @@ impl Renderer {
                 &mut encoder,
                 targets,
                 &targets.group,
-                &field.group,
+                &maps.group,
                 (view.width, view.height, factor),
             );
             encoder = timer.split(gpu, encoder, "tiles")?;
@@ -688,7 +812,7 @@ impl Renderer {
             &mut encoder,
             "render",
             self.pipeline(methods, role),
-            (&targets.group, &field.group),
+            (&targets.group, &maps.group),
             if tiled {
                 Workgroups::Indirect(&targets.tile_args, 0)
             } else {
@@ -708,7 +832,7 @@ impl Renderer {
                         Role::Interior
                     },
                 ),
-                (&targets.group, &field.group),
+                (&targets.group, &maps.group),
                 Workgroups::Indirect(&targets.tile_args, INTERIOR_ARGS),
             );
             encoder.copy_buffer_to_buffer(
@@ -722,7 +846,7 @@ impl Renderer {
                 &mut encoder,
                 "render given back",
                 self.pipeline(methods, Role::Guided),
-                (&targets.given_back_group, &field.group),
+                (&targets.given_back_group, &maps.group),
                 Workgroups::Indirect(&targets.tile_args, GIVEN_BACK_ARGS),
             );
             encoder = timer.split(gpu, encoder, "interior")?;
@@ -770,10 +894,6 @@ impl Renderer {
             )?,
         };
         drop(guard);
-        let (mut color, mut depth) = (color, depth);
-        if let Some(tau) = field.translucent {
-            straighten(&mut color, &mut depth, tau);
-        }
         let render_ms = start.elapsed().as_secs_f64() * 1e3;
         timer.finish(view.width, view.height);
         Ok(Frame {

@@ -15,12 +15,13 @@ use super::{GpuLightField, Renderer};
 
 /// Texture bytes [`Renderer::upload`] allocates on the device for an asset: one colour
 /// (RGBA8, 4 bytes) and one depth-footprint (RGBA16, 8 bytes) texel per map texel, for every
-/// camera (padded as [`Gpu::padded_layers`] does) of the base state and first layer. The upload
-/// stages as much again on the host while it runs. Saturates instead of overflowing.
+/// camera (padded as [`Gpu::padded_layers`] does) and every layer of the base state. The upload
+/// stages one layer's worth again on the host while it runs. Saturates instead of overflowing.
 pub fn field_bytes(header: &AssetHeader) -> u64 {
     let side = u64::from(header.geometry.resolution_px);
     [
         u64::from(Gpu::padded_layers(header.geometry.camera_count)),
+        header.layers.len() as u64,
         side,
         side,
         FIELD_TEXEL_BYTES,
@@ -33,7 +34,8 @@ pub fn field_bytes(header: &AssetHeader) -> u64 {
 const FIELD_TEXEL_BYTES: u64 = 4 + 8;
 
 impl Renderer {
-    /// Uploads an asset's base state and first layer (all cameras) as texture arrays.
+    /// Uploads an asset's base state, every layer and camera, as texture arrays (one pair per
+    /// layer).
     ///
     /// # Errors
     /// [`RenderError::Asset`] for unreadable images, [`RenderError::Gpu`] for device limits.
@@ -85,111 +87,131 @@ impl Renderer {
         self.gpu.check_layers(Gpu::padded_layers(cameras))?;
         let translucent = (header.encoding(Channel::Color) == Some(Encoding::Rgba8Premultiplied))
             .then(|| translucent_depth_threshold(header));
-        let mut colors = Vec::with_capacity(cameras as usize);
-        let mut depths = Vec::with_capacity(cameras as usize);
-        let mut visible = VisibleBox::default();
-        let positions = &geometry::camera_set().positions;
-        for k in 0..cameras {
-            colors.push(asset.read_image(ImageKey::new(0, 0, k, Channel::Color))?);
-            let raw = asset.read_image(ImageKey::new(0, 0, k, Channel::Depth))?;
-            let codes: Vec<u16> = match depth_encoding {
-                Encoding::R16 => raw
-                    .chunks_exact(2)
-                    .map(|c| u16::from_le_bytes([c[0], c[1]]))
-                    .collect(),
-                Encoding::R8 => raw
-                    .iter()
-                    .map(|&v| {
-                        geometry::encode_depth_u16(if v == geometry::NO_HIT_U8 {
-                            1.0
-                        } else {
-                            geometry::decode_depth_u8(v)
+        let layer_count = u16::try_from(header.layers.len())
+            .map_err(|_| AssetError::Header("too many layers".to_owned()))?;
+        let mut maps = Vec::with_capacity(header.layers.len());
+        let mut union = VisibleBox::default();
+        for layer in 0..layer_count {
+            let mut colors = Vec::with_capacity(cameras as usize);
+            let mut depths = Vec::with_capacity(cameras as usize);
+            let mut visible = VisibleBox::default();
+            let positions = &geometry::camera_set().positions;
+            for k in 0..cameras {
+                colors.push(asset.read_image(ImageKey::new(layer, 0, k, Channel::Color))?);
+                let raw = asset.read_image(ImageKey::new(layer, 0, k, Channel::Depth))?;
+                let codes: Vec<u16> = match depth_encoding {
+                    Encoding::R16 => raw
+                        .chunks_exact(2)
+                        .map(|c| u16::from_le_bytes([c[0], c[1]]))
+                        .collect(),
+                    Encoding::R8 => raw
+                        .iter()
+                        .map(|&v| {
+                            geometry::encode_depth_u16(if v == geometry::NO_HIT_U8 {
+                                1.0
+                            } else {
+                                geometry::decode_depth_u8(v)
+                            })
                         })
-                    })
-                    .collect(),
-                _ => raw
-                    .chunks_exact(4)
-                    .map(|c| {
-                        geometry::encode_depth_u16(
-                            f32::from_le_bytes([c[0], c[1], c[2], c[3]]).max(0.0),
-                        )
-                    })
-                    .collect(),
-            };
-            let codes = if requantize_8 {
-                codes.into_iter().map(requantize_u16_to_u8).collect()
-            } else {
-                codes
-            };
-            visible.add_map(&codes, n as usize, positions[k as usize]);
-            // Premultiplied maps have no edge texels (docs/format.md §8.5).
-            let codes = if translucent.is_some() {
-                codes
-            } else {
-                edge_codes(&codes, &mut colors[k as usize], n as usize)
-            };
-            depths.push(footprint_texels(&codes, n as usize));
-        }
-        let color_refs: Vec<&[u8]> = colors.iter().map(Vec::as_slice).collect();
-        let depth_refs: Vec<&[u8]> = depths.iter().map(Vec::as_slice).collect();
-        let color_tex = texture_array(
-            &self.gpu,
-            "light-field colour",
-            wgpu::TextureFormat::Rgba8Unorm,
-            n,
-            n,
-            &color_refs,
-        );
-        let depth_tex = texture_array(
-            &self.gpu,
-            "light-field depth footprints",
-            wgpu::TextureFormat::Rgba16Uint,
-            n,
-            n,
-            &depth_refs,
-        );
-        // Submitting flushes the texture writes, which wgpu otherwise holds (with a staging copy
-        // of every byte) until the next frame is submitted; waiting frees that copy and turns an
-        // allocation failure into an error here rather than in some later frame.
-        self.gpu.queue.submit(std::iter::empty());
-        drop((colors, depths));
-        self.gpu.wait()?;
-        let gpu_bytes = field_bytes(header);
-        let color_view = array_view(&color_tex);
-        let depth_view = array_view(&depth_tex);
-        let group = self
-            .gpu
-            .device
-            .create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("light field"),
-                layout: &self.field_layout,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: self.camera_buffer.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: self.hierarchy_buffer.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: wgpu::BindingResource::TextureView(&color_view),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 3,
-                        resource: wgpu::BindingResource::TextureView(&depth_view),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 4,
-                        resource: wgpu::BindingResource::Sampler(&self.linear),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 5,
-                        resource: wgpu::BindingResource::TextureView(&self.lookup_view),
-                    },
-                ],
+                        .collect(),
+                    _ => raw
+                        .chunks_exact(4)
+                        .map(|c| {
+                            geometry::encode_depth_u16(
+                                f32::from_le_bytes([c[0], c[1], c[2], c[3]]).max(0.0),
+                            )
+                        })
+                        .collect(),
+                };
+                let codes = if requantize_8 {
+                    codes.into_iter().map(requantize_u16_to_u8).collect()
+                } else {
+                    codes
+                };
+                visible.add_map(&codes, n as usize, positions[k as usize]);
+                // Premultiplied maps have no edge texels (docs/format.md §8.5).
+                let codes = if translucent.is_some() {
+                    codes
+                } else {
+                    edge_codes(&codes, &mut colors[k as usize], n as usize)
+                };
+                depths.push(footprint_texels(&codes, n as usize));
+            }
+            let color_refs: Vec<&[u8]> = colors.iter().map(Vec::as_slice).collect();
+            let depth_refs: Vec<&[u8]> = depths.iter().map(Vec::as_slice).collect();
+            let color_tex = texture_array(
+                &self.gpu,
+                "light-field colour",
+                wgpu::TextureFormat::Rgba8Unorm,
+                n,
+                n,
+                &color_refs,
+            );
+            let depth_tex = texture_array(
+                &self.gpu,
+                "light-field depth footprints",
+                wgpu::TextureFormat::Rgba16Uint,
+                n,
+                n,
+                &depth_refs,
+            );
+            // Submitting flushes the texture writes, which wgpu otherwise holds (with a staging copy
+            // of every byte) until the next frame is submitted; waiting frees that copy and turns an
+            // allocation failure into an error here rather than in some later frame.
+            self.gpu.queue.submit(std::iter::empty());
+            drop((colors, depths));
+            self.gpu.wait()?;
+            let color_view = array_view(&color_tex);
+            let depth_view = array_view(&depth_tex);
+            let group = self
+                .gpu
+                .device
+                .create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("light field"),
+                    layout: &self.field_layout,
+                    entries: &[
+                        wgpu::BindGroupEntry {
+                            binding: 0,
+                            resource: self.camera_buffer.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 1,
+                            resource: self.hierarchy_buffer.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 2,
+                            resource: wgpu::BindingResource::TextureView(&color_view),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 3,
+                            resource: wgpu::BindingResource::TextureView(&depth_view),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 4,
+                            resource: wgpu::BindingResource::Sampler(&self.linear),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 5,
+                            resource: wgpu::BindingResource::TextureView(&self.lookup_view),
+                        },
+                    ],
+                });
+            let visible_box = visible.finish(n, requantize_8 || depth_encoding == Encoding::R8);
+            let (lo, hi) = (
+                glam::Vec3::from(visible_box[0]),
+                glam::Vec3::from(visible_box[1]),
+            );
+            if lo.cmple(hi).all() {
+                union.lo = union.lo.min(lo);
+                union.hi = union.hi.max(hi);
+            }
+            maps.push(super::LayerMaps {
+                visible_box,
+                group,
+                textures: [color_tex, depth_tex],
             });
+        }
+        let gpu_bytes = field_bytes(header);
         let frame = &header.frame;
         // Decremented by the field's drop.
         self.resident.fields.fetch_add(1, Ordering::AcqRel);
@@ -201,10 +223,14 @@ impl Renderer {
             max_level,
             resolution: n,
             gpu_bytes,
-            visible_box: visible.finish(n, requantize_8 || depth_encoding == Encoding::R8),
+            visible_box: if union.lo.cmple(union.hi).all() {
+                [union.lo.to_array(), union.hi.to_array()]
+            } else {
+                maps[0].visible_box
+            },
+            layers: header.layers.clone(),
             translucent,
-            group,
-            textures: [color_tex, depth_tex],
+            maps,
             gpu: Arc::clone(&self.gpu),
             resident: Arc::clone(&self.resident),
         })

@@ -26,6 +26,7 @@ use std::time::Instant;
 use glam::DVec3;
 use serde::Serialize;
 
+use super::layers::{LayersError, VolumeLayer, validate as validate_layers};
 use super::raycast::{RaycastError, RaycastOptions, VolumeRays};
 use super::tf::TransferFunction;
 use super::{Volume, Voxels};
@@ -62,6 +63,9 @@ pub enum VolumeBakeError {
     /// Writing the asset failed.
     #[error(transparent)]
     Asset(#[from] AssetError),
+    /// The layers are inconsistent (names, opacities, kinds of TF).
+    #[error(transparent)]
+    Layers(#[from] LayersError),
 }
 
 /// Options of `lumigraph bake VOLUME`.
@@ -237,7 +241,31 @@ pub fn visible_box(volume: &Volume, tf: &TransferFunction) -> Option<([f64; 3], 
 /// # Errors
 /// [`VolumeBakeError::Empty`] where `tf` leaves every voxel transparent.
 pub fn volume_frame(volume: &Volume, tf: &TransferFunction) -> Result<LfFrame, VolumeBakeError> {
-    let (lo, hi) = visible_box(volume, tf).ok_or(VolumeBakeError::Empty)?;
+    layers_frame(volume, &[tf])
+}
+
+/// [`volume_frame`] of several layers' TFs: the sphere around the union of their visible boxes
+/// (every layer of a multi light field shares one camera set).
+///
+/// # Errors
+/// [`VolumeBakeError::Empty`] where every TF leaves every voxel transparent.
+pub fn layers_frame(
+    volume: &Volume,
+    tfs: &[&TransferFunction],
+) -> Result<LfFrame, VolumeBakeError> {
+    let mut union: Option<([f64; 3], [f64; 3])> = None;
+    for tf in tfs {
+        if let Some((l, h)) = visible_box(volume, tf) {
+            union = Some(match union {
+                None => (l, h),
+                Some((ul, uh)) => (
+                    [0, 1, 2].map(|a| ul[a].min(l[a])),
+                    [0, 1, 2].map(|a| uh[a].max(h[a])),
+                ),
+            });
+        }
+    }
+    let (lo, hi) = union.ok_or(VolumeBakeError::Empty)?;
     let center = DVec3::from(volume.world([0, 1, 2].map(|a| f64::midpoint(lo[a], hi[a]))));
     let mut radius: f64 = 0.0;
     for corner in 0..8 {
@@ -544,14 +572,33 @@ impl VolumeBaker {
         path: &Path,
         progress: &mut dyn FnMut(u32, u32),
     ) -> Result<VolumeBakeReport, VolumeBakeError> {
+        let layers = [VolumeLayer::single(tf)];
+        self.bake_layers_to_file(volume, &layers, options, source, path, progress)
+    }
+
+    /// Bakes a multi light field: every layer of `layers` through its TF on one camera set
+    /// ([`layers_frame`]), into an `.lfa` file at `path` (written atomically). `progress` counts
+    /// cameras over all layers.
+    ///
+    /// # Errors
+    /// [`VolumeBakeError`]; on error nothing is left at `path`.
+    pub fn bake_layers_to_file(
+        &self,
+        volume: &Volume,
+        layers: &[VolumeLayer],
+        options: &VolumeBakeOptions,
+        source: &Provenance,
+        path: &Path,
+        progress: &mut dyn FnMut(u32, u32),
+    ) -> Result<VolumeBakeReport, VolumeBakeError> {
         let start = Instant::now();
-        let header = prepare(volume, tf, options, source)?;
+        let header = prepare(volume, layers, options, source)?;
         let mut covered = 0u64;
         let frame = header.frame.clone();
         let mut writer = AssetWriter::create(path, header)?;
         self.cast_all(
             volume,
-            tf,
+            layers,
             options,
             &frame,
             progress,
@@ -565,7 +612,7 @@ impl VolumeBaker {
         writer.finish()?;
         Ok(report(
             volume,
-            tf,
+            layers,
             options,
             covered,
             bake_ms,
@@ -585,14 +632,30 @@ impl VolumeBaker {
         source: &Provenance,
         progress: &mut dyn FnMut(u32, u32),
     ) -> Result<(Vec<u8>, VolumeBakeReport), VolumeBakeError> {
+        let layers = [VolumeLayer::single(tf)];
+        self.bake_layers_to_bytes(volume, &layers, options, source, progress)
+    }
+
+    /// [`VolumeBaker::bake_layers_to_file`] into an in-memory `.lfa` image.
+    ///
+    /// # Errors
+    /// [`VolumeBakeError`].
+    pub fn bake_layers_to_bytes(
+        &self,
+        volume: &Volume,
+        layers: &[VolumeLayer],
+        options: &VolumeBakeOptions,
+        source: &Provenance,
+        progress: &mut dyn FnMut(u32, u32),
+    ) -> Result<(Vec<u8>, VolumeBakeReport), VolumeBakeError> {
         let start = Instant::now();
-        let mut header = prepare(volume, tf, options, source)?;
+        let mut header = prepare(volume, layers, options, source)?;
         let mut images = Vec::new();
         let mut covered = 0u64;
         let frame = header.frame.clone();
         self.cast_all(
             volume,
-            tf,
+            layers,
             options,
             &frame,
             progress,
@@ -605,7 +668,14 @@ impl VolumeBaker {
         let bake_ms = start.elapsed().as_secs_f64() * 1e3;
         header.provenance.bake_ms = bake_ms;
         let bytes = encode_asset(header, images)?;
-        let report = report(volume, tf, options, covered, bake_ms, bytes.len() as u64);
+        let report = report(
+            volume,
+            layers,
+            options,
+            covered,
+            bake_ms,
+            bytes.len() as u64,
+        );
         Ok((bytes, report))
     }
 
@@ -614,14 +684,14 @@ impl VolumeBaker {
     fn cast_all(
         &self,
         volume: &Volume,
-        tf: &TransferFunction,
+        layers: &[VolumeLayer],
         options: &VolumeBakeOptions,
         frame: &LfFrame,
         progress: &mut dyn FnMut(u32, u32),
         sink: &mut dyn FnMut(ImageKey, Vec<u8>, u64) -> Result<(), AssetError>,
     ) -> Result<(), VolumeBakeError> {
         let gpu = &self.gpu;
-        let resident = self.prepare_direct(volume, tf, &options.raycast)?;
+        let mut resident = self.prepare_direct(volume, &layers[0].tf, &options.raycast)?;
         let n = options.resolution;
         let texels = u64::from(n) * u64::from(n);
         // Batches of at most 1 Mi texels: a volume texel costs hundreds of samples, and a
@@ -649,48 +719,73 @@ impl VolumeBaker {
         };
         let out_color = make_out("volume bake colour");
         let out_depth = make_out("volume bake depth");
-        let mut params = resident.params;
-        params.resolution = n;
-        // Relative to the volume's origin, in f64 before the f32 cast (see `shared_params`).
-        params.center = [0, 1, 2].map(|a| (frame.center[a] - volume.origin[a]) as f32);
-        params.scale = frame.world_from_lf_scale() as f32;
-        progress(0, total);
-        let mut first = 0;
-        while first < total {
-            let count = per_batch.min(total - first);
-            params.first_camera = first;
-            params.camera_count = count;
-            self.dispatch(
-                "volume bake",
-                &self.pipeline,
-                &self.layout,
-                &params,
-                &[
-                    (1, camera_buffer.as_entire_binding()),
-                    (2, out_color.as_entire_binding()),
-                    (3, out_depth.as_entire_binding()),
-                    (4, resident.tf_buffer.as_entire_binding()),
-                    (5, wgpu::BindingResource::TextureView(&resident.view)),
-                ],
-                [n.div_ceil(8), n.div_ceil(8), count],
-            );
-            let used = u64::from(count) * texels * 4;
-            let depths = gpu.read_buffer(&out_depth, used)?;
-            let colors = gpu.read_buffer(&out_color, used)?;
-            gpu.wait()?;
-            let image_bytes = (texels * 4) as usize;
-            for c in 0..count {
-                let camera = first + c;
-                let range = c as usize * image_bytes..(c as usize + 1) * image_bytes;
-                let color = colors[range.clone()].to_vec();
-                let covered = color.chunks_exact(4).filter(|t| t[3] > 0).count() as u64;
-                let depth_f32: &[f32] = bytemuck::cast_slice(&depths[range]);
-                let depth = encode_depth(depth_f32, options.depth_bits);
-                sink(ImageKey::new(0, 0, camera, Channel::Color), color, covered)?;
-                sink(ImageKey::new(0, 0, camera, Channel::Depth), depth, 0)?;
+        let grand_total = total * layers.len() as u32;
+        progress(0, grand_total);
+        for (layer_index, layer) in layers.iter().enumerate() {
+            if layer_index > 0 {
+                // The next layer's TF on the resident volume (the texture is uploaded once).
+                let rays = VolumeRays::new(volume, &layer.tf, &options.raycast)?;
+                let entries = tf_entries(&layer.tf);
+                resident.tf_buffer = storage_buffer(
+                    gpu,
+                    "volume transfer function",
+                    bytemuck::cast_slice(&entries),
+                    wgpu::BufferUsages::empty(),
+                );
+                resident.params = shared_params(volume, &rays, &options.raycast, entries.len());
             }
-            first += count;
-            progress(first, total);
+            let layer_key = u16::try_from(layer_index).unwrap_or(u16::MAX);
+            let done_before = total * layer_index as u32;
+            let mut params = resident.params;
+            params.resolution = n;
+            // Relative to the volume's origin, in f64 before the f32 cast (see `shared_params`).
+            params.center = [0, 1, 2].map(|a| (frame.center[a] - volume.origin[a]) as f32);
+            params.scale = frame.world_from_lf_scale() as f32;
+            let mut first = 0;
+            while first < total {
+                let count = per_batch.min(total - first);
+                params.first_camera = first;
+                params.camera_count = count;
+                self.dispatch(
+                    "volume bake",
+                    &self.pipeline,
+                    &self.layout,
+                    &params,
+                    &[
+                        (1, camera_buffer.as_entire_binding()),
+                        (2, out_color.as_entire_binding()),
+                        (3, out_depth.as_entire_binding()),
+                        (4, resident.tf_buffer.as_entire_binding()),
+                        (5, wgpu::BindingResource::TextureView(&resident.view)),
+                    ],
+                    [n.div_ceil(8), n.div_ceil(8), count],
+                );
+                let used = u64::from(count) * texels * 4;
+                let depths = gpu.read_buffer(&out_depth, used)?;
+                let colors = gpu.read_buffer(&out_color, used)?;
+                gpu.wait()?;
+                let image_bytes = (texels * 4) as usize;
+                for c in 0..count {
+                    let camera = first + c;
+                    let range = c as usize * image_bytes..(c as usize + 1) * image_bytes;
+                    let color = colors[range.clone()].to_vec();
+                    let covered = color.chunks_exact(4).filter(|t| t[3] > 0).count() as u64;
+                    let depth_f32: &[f32] = bytemuck::cast_slice(&depths[range]);
+                    let depth = encode_depth(depth_f32, options.depth_bits);
+                    sink(
+                        ImageKey::new(layer_key, 0, camera, Channel::Color),
+                        color,
+                        covered,
+                    )?;
+                    sink(
+                        ImageKey::new(layer_key, 0, camera, Channel::Depth),
+                        depth,
+                        0,
+                    )?;
+                }
+                first += count;
+                progress(done_before + first, grand_total);
+            }
         }
         Ok(())
     }
@@ -833,10 +928,12 @@ fn tf_entries(tf: &TransferFunction) -> Vec<TfEntry> {
 /// The header of a volume asset: the bake's options as provenance, premultiplied colour.
 fn prepare(
     volume: &Volume,
-    tf: &TransferFunction,
+    layers: &[VolumeLayer],
     options: &VolumeBakeOptions,
     source: &Provenance,
 ) -> Result<AssetHeader, VolumeBakeError> {
+    validate_layers(layers)?;
+    let tf = &layers[0].tf;
     let level = geometry::level_for_camera_count(options.cameras)
         .ok_or(BakeError::BadCameras(options.cameras))?;
     if !(8..=crate::bake::MAX_BAKE_RESOLUTION).contains(&options.resolution) {
@@ -846,6 +943,9 @@ fn prepare(
         return Err(BakeError::BadDepthBits(options.depth_bits).into());
     }
     // The same checks the direct ray caster makes, before anything is uploaded.
+    for layer in &layers[1..] {
+        VolumeRays::new(volume, &layer.tf, &options.raycast)?;
+    }
     let rays = VolumeRays::new(volume, tf, &options.raycast)?;
     let r = &options.raycast;
     let provenance = Provenance {
@@ -876,30 +976,48 @@ fn prepare(
     } else {
         Encoding::R16
     };
+    let mut provenance = provenance;
+    if (layers.len() > 1 || layers[0].name != "default")
+        && let serde_json::Value::Object(map) = &mut provenance.bake_options
+    {
+        map.insert(
+            "layers".to_owned(),
+            VolumeLayer::to_json(layers)["layers"].clone(),
+        );
+    }
+    let tfs: Vec<&TransferFunction> = layers.iter().map(|l| &l.tf).collect();
     let mut header = AssetHeader::new_spherical(
         u8::try_from(level).unwrap_or(u8::MAX),
         options.resolution,
-        volume_frame(volume, tf)?,
+        layers_frame(volume, &tfs)?,
         depth,
         provenance,
     )?;
     header.set_color_encoding(Encoding::Rgba8Premultiplied);
+    header.layers = layers
+        .iter()
+        .map(|l| crate::asset::LayerDesc {
+            name: l.name.clone(),
+            default_opacity: l.opacity,
+        })
+        .collect();
     Ok(header)
 }
 
 fn report(
     volume: &Volume,
-    tf: &TransferFunction,
+    layers: &[VolumeLayer],
     options: &VolumeBakeOptions,
     covered: u64,
     bake_ms: f64,
     asset_bytes: u64,
 ) -> VolumeBakeReport {
-    let texels = u64::from(options.cameras) * u64::from(options.resolution).pow(2);
+    let texels =
+        u64::from(options.cameras) * u64::from(options.resolution).pow(2) * layers.len() as u64;
     let step = options
         .raycast
         .step
-        .unwrap_or_else(|| tf.ref_step_for(volume) / 2.0);
+        .unwrap_or_else(|| layers[0].tf.ref_step_for(volume) / 2.0);
     VolumeBakeReport {
         cameras: options.cameras,
         resolution: options.resolution,

@@ -17,6 +17,7 @@
 
 pub mod bake;
 mod inr;
+pub mod layers;
 mod metaimage;
 mod nifti;
 mod npy;

@@ -294,6 +294,22 @@ pub fn raycast(
     view: &View,
     options: &RaycastOptions,
 ) -> Result<VolumeImage, RaycastError> {
+    raycast_with_sort_depth(volume, tf, view, options).map(|(image, _)| image)
+}
+
+/// [`raycast`] with each pixel's sort depth (z, world units): where its `A` crossed `τ_d`
+/// (interpolated within the sample's slab, [`RaySample::t_cross`]), else the opacity-weighted
+/// mean of its samples ([`RaySample::t_mean`]), `+inf` where the ray gathered nothing — the
+/// depth a bake stores, at which a layer composites ([`super::layers`]).
+///
+/// # Errors
+/// As [`raycast`].
+pub fn raycast_with_sort_depth(
+    volume: &Volume,
+    tf: &TransferFunction,
+    view: &View,
+    options: &RaycastOptions,
+) -> Result<(VolumeImage, Vec<f64>), RaycastError> {
     let rays = VolumeRays::new(volume, tf, options)?;
     let basis = view
         .basis(crate::view::DEFAULT_MAX_VIEW_PX)
@@ -301,27 +317,40 @@ pub fn raycast(
     let (width, height) = (basis.width as usize, basis.height as usize);
     let mut rgba = vec![[0.0; 4]; width * height];
     let mut depth = vec![f64::INFINITY; width * height];
+    let mut sort = vec![f64::INFINITY; width * height];
     let threads = std::thread::available_parallelism()
         .map_or(1, usize::from)
         .min(height.max(1));
     let rows_per = height.div_ceil(threads.max(1)).max(1);
     let samples: u64 = std::thread::scope(|scope| {
         let mut handles = Vec::new();
-        for (band, (rgba, depth)) in rgba
+        for (band, ((rgba, depth), sort)) in rgba
             .chunks_mut(rows_per * width)
             .zip(depth.chunks_mut(rows_per * width))
+            .zip(sort.chunks_mut(rows_per * width))
             .enumerate()
         {
             let (rays, basis) = (&rays, &basis);
             handles.push(scope.spawn(move || {
                 let mut samples = 0u64;
-                for (n, (out, z)) in rgba.iter_mut().zip(depth.iter_mut()).enumerate() {
+                for (n, ((out, z), s)) in rgba
+                    .iter_mut()
+                    .zip(depth.iter_mut())
+                    .zip(sort.iter_mut())
+                    .enumerate()
+                {
                     let i = (band * rows_per + n / width) as u32;
                     let j = (n % width) as u32;
                     let dir = basis.pixel_dir(i, j);
                     let ray = rays.cast(basis.eye.to_array(), dir.to_array());
                     *out = ray.rgba;
                     *z = ray.t_depth * dir.dot(basis.forward);
+                    let t = if ray.t_depth.is_finite() {
+                        ray.t_cross
+                    } else {
+                        ray.t_mean
+                    };
+                    *s = t * dir.dot(basis.forward);
                     samples += ray.samples;
                 }
                 samples
@@ -329,13 +358,16 @@ pub fn raycast(
         }
         handles.into_iter().map(|h| h.join().unwrap_or(0)).sum()
     });
-    Ok(VolumeImage {
-        width: basis.width,
-        height: basis.height,
-        rgba,
-        depth,
-        samples,
-    })
+    Ok((
+        VolumeImage {
+            width: basis.width,
+            height: basis.height,
+            rgba,
+            depth,
+            samples,
+        },
+        sort,
+    ))
 }
 
 struct Shading {

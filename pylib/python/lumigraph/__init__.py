@@ -328,7 +328,8 @@ def reference_render(
 def bake_volume(
     volume: np.ndarray[Any, Any] | str | os.PathLike[str],
     *,
-    tf: str | Mapping[str, Any],
+    tf: str | Mapping[str, Any] | None = None,
+    layers: Sequence[Mapping[str, Any]] | Mapping[str, Any] | str | None = None,
     spacing: Sequence[float] | None = None,
     origin: Sequence[float] | None = None,
     labels: bool = False,
@@ -354,6 +355,11 @@ def bake_volume(
     Args:
         volume, tf, spacing, origin, labels, shade, step, depth_threshold, light, ambient: as in
             :func:`reference_volume`.
+        layers: instead of ``tf``, a multi light field: a list of
+            ``{"name": str, "tf": preset | dict, "opacity": float}`` (opacity, default 1, is the
+            layer's default runtime opacity), baked on one camera set. Render it with
+            ``LightField.render(view, layers={"skin": 0.3})``: the layers composite per pixel
+            in depth order (``docs/volumes.md``, "Layers").
         cameras: 12, 42, 162 (default) or 642.
         resolution: side of each camera's parabolic map in pixels, 8..4096, default 256.
         depth_bits: depth precision, 16 (default) or 8.
@@ -377,6 +383,7 @@ def bake_volume(
     return _bake_volume(
         volume,
         tf=tf,
+        layers=layers,
         spacing=None if spacing is None else _triple(spacing, "spacing"),
         origin=None if origin is None else _triple(origin, "origin"),
         labels=labels,
@@ -396,7 +403,9 @@ def reference_volume(
     volume: np.ndarray[Any, Any] | str | os.PathLike[str],
     view: ViewLike,
     *,
-    tf: str | Mapping[str, Any],
+    tf: str | Mapping[str, Any] | None = None,
+    layers: Sequence[Mapping[str, Any]] | Mapping[str, Any] | str | None = None,
+    opacities: Mapping[str, float] | None = None,
     spacing: Sequence[float] | None = None,
     origin: Sequence[float] | None = None,
     labels: bool = False,
@@ -423,6 +432,10 @@ def reference_volume(
         shade: gradient shading with ``light`` and ``ambient`` (scalar volumes only).
         step: sample spacing along rays, world units (default half the tf's reference step).
         depth_threshold: accumulated opacity that places the depth, in (0, 1].
+        layers: instead of ``tf``, layers as :func:`bake_volume` takes them: each is ray-cast
+            with its tf and the layers composite per pixel in depth order, as a baked multi
+            light field renders.
+        opacities: with ``layers``, runtime opacities by layer name (others keep theirs).
 
     Returns:
         A :class:`Frame`: straight colour with alpha ``round(255·A)``; ``depth`` is ``inf``
@@ -437,6 +450,8 @@ def reference_volume(
         volume,
         view,
         tf=tf,
+        layers=layers,
+        opacities=None if opacities is None else {str(k): float(v) for k, v in opacities.items()},
         spacing=None if spacing is None else _triple(spacing, "spacing"),
         origin=None if origin is None else _triple(origin, "origin"),
         labels=labels,

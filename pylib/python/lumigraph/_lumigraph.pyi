@@ -30,6 +30,7 @@ class _Quality(TypedDict, total=False):
     lod_max_psnr_drop: float | None
     lod_blend: float | None
     refine: int | None
+    layers: Mapping[str, float] | str | None
 
 _Image = Frame | npt.ArrayLike
 
@@ -217,7 +218,9 @@ def reference_volume(
     volume: npt.ArrayLike | str | PathLike[str],
     view: _ViewLike,
     *,
-    tf: str | Mapping[str, Any],
+    tf: str | Mapping[str, Any] | None,
+    layers: Sequence[Mapping[str, Any]] | Mapping[str, Any] | str | None,
+    opacities: Mapping[str, float] | None,
     spacing: tuple[float, float, float] | None,
     origin: tuple[float, float, float] | None,
     labels: bool,
@@ -230,7 +233,8 @@ def reference_volume(
 def bake_volume(
     volume: npt.ArrayLike | str | PathLike[str],
     *,
-    tf: str | Mapping[str, Any],
+    tf: str | Mapping[str, Any] | None,
+    layers: Sequence[Mapping[str, Any]] | Mapping[str, Any] | str | None,
     spacing: tuple[float, float, float] | None,
     origin: tuple[float, float, float] | None,
     labels: bool,

@@ -74,6 +74,11 @@ pub struct BakeArgs {
     /// Volume ray casting.
     #[command(flatten)]
     pub volume: VolumeArgs,
+    /// A volume multi light field: one layer per transfer function of LAYERS.json (names,
+    /// TFs, default opacities; docs/volumes.md), instead of --tf. Render with
+    /// `--layers NAME=OPACITY,...`.
+    #[arg(long, value_name = "LAYERS.json")]
+    pub layers: Option<PathBuf>,
 }
 
 pub(super) fn bake(args: &BakeArgs) -> Result<()> {
@@ -82,9 +87,10 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
     {
         return bake_volume(path, args);
     }
-    if args.volume.given() {
+    if args.volume.given() || args.layers.is_some() {
         anyhow::bail!(
-            "--tf, --labels, --shade, --step, --depth-threshold and --spacing apply to volumes only"
+            "--tf, --layers, --labels, --shade, --step, --depth-threshold and --spacing apply to \
+             volumes only"
         );
     }
     if args.auto {
@@ -283,7 +289,9 @@ fn bake_volume(path: &std::path::Path, args: &BakeArgs) -> Result<()> {
             "--auto chooses settings for meshes; give a volume --cameras and --resolution"
         );
     }
-    let (volume, tf, raycast) = args.volume.load(path, &args.shading)?;
+    let (volume, layers, raycast) =
+        args.volume
+            .load_layers(path, &args.shading, args.layers.as_deref())?;
     let options = VolumeBakeOptions {
         cameras: args.cameras,
         resolution: args.resolution,
@@ -301,10 +309,13 @@ fn bake_volume(path: &std::path::Path, args: &BakeArgs) -> Result<()> {
     };
     drop(bytes);
     let baker = VolumeBaker::new(gpu()?);
-    let bar = progress_bar(u64::from(options.cameras), "ray-casting cameras");
-    let report = baker.bake_to_file(
+    let bar = progress_bar(
+        u64::from(options.cameras) * layers.len() as u64,
+        "ray-casting cameras",
+    );
+    let report = baker.bake_layers_to_file(
         &volume,
-        &tf,
+        &layers,
         &options,
         &provenance,
         &args.output,
@@ -313,9 +324,10 @@ fn bake_volume(path: &std::path::Path, args: &BakeArgs) -> Result<()> {
     bar.finish_and_clear();
     let [nx, ny, nz] = volume.dims;
     println!(
-        "baked {} cameras at {} px from a {nx}x{ny}x{nz} volume (step {:.4}) in {:.0} ms, {:.1} % \
-         of texels covered: {} ({:.1} MiB)",
+        "baked {} cameras × {} layer(s) at {} px from a {nx}x{ny}x{nz} volume (step {:.4}) in \
+         {:.0} ms, {:.1} % of texels covered: {} ({:.1} MiB)",
         report.cameras,
+        layers.len(),
         report.resolution,
         report.step,
         report.bake_ms,

@@ -18,6 +18,7 @@ use super::args::{describe, describe_lod};
 use lumigraph_core::view::{View, evaluation_views};
 
 use lumigraph_core::volume::bake::VolumeBaker;
+use lumigraph_core::volume::layers::{VolumeLayer, reference_layers};
 use lumigraph_core::volume::raycast::{RaycastOptions, raycast};
 use lumigraph_core::volume::tf::TransferFunction;
 use lumigraph_core::volume::{LoadOptions, Volume};
@@ -196,16 +197,36 @@ pub(super) fn eval(args: &EvalArgs) -> Result<()> {
     let renderer = Renderer::new(gpu.clone());
     let mut direct_of: Option<FrameOf> = None;
     let truth_of: FrameOf = if let Some(path) = &args.volume {
-        let (volume, tf, options) =
-            volume_reference(path, &args.volume_args.as_volume_args(), &header)?;
-        if args.floor {
-            let baker = VolumeBaker::new(gpu.clone());
-            let direct = baker.prepare_direct(&volume, &tf, &options)?;
-            direct_of = Some(Box::new(move |view| {
-                Ok(baker.render_view(&direct, view)?.to_frame())
-            }));
+        let flags = args.volume_args.as_volume_args();
+        let (volume, tf, options) = volume_reference(path, &flags, &header)?;
+        // A multi light field is held to its layers' ray casts composited with the same
+        // opacities (lumigraph_core::volume::layers::reference_layers).
+        let recorded_layers = header.provenance.bake_options.get("layers");
+        if let (Some(layers), None) = (recorded_layers, &flags.tf) {
+            let layers = VolumeLayer::parse(
+                &serde_json::json!({ "layers": layers }).to_string(),
+                Path::new("."),
+            )
+            .context("the asset's recorded layers")?;
+            if args.floor {
+                bail!("--floor measures a single-layer volume asset; this one has layers");
+            }
+            let opacities = plan.opacities().to_vec();
+            Box::new(move |view| {
+                Ok(reference_layers(
+                    &volume, &layers, view, &options, &opacities,
+                )?)
+            })
+        } else {
+            if args.floor {
+                let baker = VolumeBaker::new(gpu.clone());
+                let direct = baker.prepare_direct(&volume, &tf, &options)?;
+                direct_of = Some(Box::new(move |view| {
+                    Ok(baker.render_view(&direct, view)?.to_frame())
+                }));
+            }
+            Box::new(move |view| Ok(raycast(&volume, &tf, view, &options)?.to_frame()))
         }
-        Box::new(move |view| Ok(raycast(&volume, &tf, view, &options)?.to_frame()))
     } else {
         if args.volume_args.as_volume_args().given() {
             bail!(

@@ -12,6 +12,7 @@ use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::Renderer;
 use lumigraph_core::scene::Scene;
 use lumigraph_core::view::View;
+use lumigraph_core::volume::layers::{VolumeLayer, reference_layers};
 use lumigraph_core::volume::raycast::{RaycastOptions, raycast};
 use lumigraph_core::volume::tf::{PRESETS, TransferFunction};
 use lumigraph_core::volume::{LoadOptions, Volume, VolumeFormat};
@@ -64,6 +65,14 @@ pub struct ReferenceArgs {
     /// Volume ray casting.
     #[command(flatten)]
     pub volume: VolumeArgs,
+    /// A volume's layers (LAYERS.json, as `bake --layers` takes it) instead of --tf: each
+    /// layer is ray-cast with its TF and the layers are composited in depth order.
+    #[arg(long, value_name = "LAYERS.json")]
+    pub layers: Option<PathBuf>,
+    /// With --layers: runtime opacities (the renderer's `--layers` values); layers not named
+    /// keep the file's opacity.
+    #[arg(long, value_name = "NAME=OPACITY,...", requires = "layers")]
+    pub opacity: Option<lumigraph_core::layers::LayerOpacities>,
 }
 
 /// The flags of a volume (DESIGN §9).
@@ -232,7 +241,7 @@ pub(super) fn reference(args: &ReferenceArgs) -> Result<()> {
     {
         return reference_volume(path, args);
     }
-    if args.volume.given() {
+    if args.volume.given() || args.layers.is_some() {
         bail!(
             "--tf, --labels, --shade, --step, --depth-threshold and --spacing apply to volumes only"
         );
@@ -256,6 +265,29 @@ pub(super) fn reference(args: &ReferenceArgs) -> Result<()> {
 }
 
 impl VolumeArgs {
+    /// [`VolumeArgs::load`] with the layers of `layers_file` (LAYERS.json) instead of `--tf`,
+    /// or the one layer of `--tf` without it.
+    pub(super) fn load_layers(
+        &self,
+        path: &Path,
+        shading: &ShadingArgs,
+        layers_file: Option<&Path>,
+    ) -> Result<(Volume, Vec<VolumeLayer>, RaycastOptions)> {
+        let Some(file) = layers_file else {
+            let (volume, tf, options) = self.load(path, shading)?;
+            return Ok((volume, vec![VolumeLayer::single(&tf)], options));
+        };
+        if self.tf.is_some() {
+            bail!("give --tf or --layers, not both: each layer names its own TF");
+        }
+        let text = std::fs::read_to_string(file)
+            .with_context(|| format!("cannot read {}", file.display()))?;
+        let base = file.parent().unwrap_or_else(|| Path::new("."));
+        let layers = VolumeLayer::parse(&text, base).with_context(|| file.display().to_string())?;
+        let (volume, _, options) = self.load_with_tf(path, shading, layers[0].tf.clone())?;
+        Ok((volume, layers, options))
+    }
+
     /// The transfer function of `--tf` (a preset or a JSON file), the volume at `path` and the
     /// ray-cast options of these flags and `shading`'s `--light` and `--ambient`; refuses the
     /// mesh-only shading flags.
@@ -264,9 +296,6 @@ impl VolumeArgs {
         path: &Path,
         shading: &ShadingArgs,
     ) -> Result<(Volume, TransferFunction, RaycastOptions)> {
-        if shading.unlit || shading.specular.is_some() {
-            bail!("--unlit and --specular apply to meshes; a volume's colour comes from its --tf");
-        }
         let Some(tf_arg) = &self.tf else {
             bail!(
                 "a volume needs --tf TF.json or a preset ({})",
@@ -284,6 +313,19 @@ impl VolumeArgs {
             })?;
             TransferFunction::from_json(&text).with_context(|| format!("--tf {tf_arg}"))?
         };
+        self.load_with_tf(path, shading, tf)
+    }
+
+    /// The volume at `path` and these flags' ray-cast options, with `tf`.
+    fn load_with_tf(
+        &self,
+        path: &Path,
+        shading: &ShadingArgs,
+        tf: TransferFunction,
+    ) -> Result<(Volume, TransferFunction, RaycastOptions)> {
+        if shading.unlit || shading.specular.is_some() {
+            bail!("--unlit and --specular apply to meshes; a volume's colour comes from its --tf");
+        }
         let volume = Volume::load(
             path,
             &LoadOptions {
@@ -313,6 +355,35 @@ pub(super) fn is_volume_path(path: &Path) -> bool {
 fn reference_volume(path: &Path, args: &ReferenceArgs) -> Result<()> {
     let (views, many) = read_views(&args.views)?;
     check_depth_path(&args.depth, many)?;
+    if let Some(file) = &args.layers {
+        let (volume, layers, options) = args.volume.load_layers(path, &args.shading, Some(file))?;
+        let descs: Vec<lumigraph_core::asset::LayerDesc> = layers
+            .iter()
+            .map(|l| lumigraph_core::asset::LayerDesc {
+                name: l.name.clone(),
+                default_opacity: l.opacity,
+            })
+            .collect();
+        let opacities = args
+            .opacity
+            .clone()
+            .unwrap_or_default()
+            .resolve(&descs)
+            .map_err(anyhow::Error::msg)?;
+        for (i, view) in views.iter().enumerate() {
+            let start = std::time::Instant::now();
+            let frame = reference_layers(&volume, &layers, view, &options, &opacities)?;
+            let ms = start.elapsed().as_secs_f64() * 1e3;
+            write_outputs(&frame, i, many, &args.output, &args.depth)?;
+            println!(
+                "view {i:03}: {ms:.2} ms ({} px covered, {} layers, {} samples)",
+                frame.covered_count(),
+                layers.len(),
+                frame.stats.steps
+            );
+        }
+        return Ok(());
+    }
     let (volume, tf, options) = args.volume.load(path, &args.shading)?;
     for (i, view) in views.iter().enumerate() {
         let start = std::time::Instant::now();

@@ -100,6 +100,9 @@ pub struct AssetSummary {
     pub resolution_px: u32,
     /// Layer names.
     pub layers: Vec<String>,
+    /// Each layer's default opacity, in the order of `layers` (the `layers` render option
+    /// overrides them per request).
+    pub layer_opacities: Vec<f32>,
     /// State names.
     pub states: Vec<String>,
     /// Bounding sphere centre in world units (a good orbit target).
@@ -125,6 +128,7 @@ impl LoadedAsset {
             camera_count: h.geometry.camera_count,
             resolution_px: h.geometry.resolution_px,
             layers: h.layers.iter().map(|l| l.name.clone()).collect(),
+            layer_opacities: h.layers.iter().map(|l| l.default_opacity).collect(),
             states: h.states.iter().map(|s| s.name.clone()).collect(),
             center: h.frame.center,
             radius: h.frame.radius,

@@ -65,7 +65,7 @@ fn whole(key: &str, value: &str) -> Result<u32, AppError> {
 /// A quality key's value as the JSON a body would carry: `method` a string, the others numbers
 /// (whole numbers stay integers, so `lod=12.5` gets the body's type error).
 fn quality_value(key: &str, value: &str) -> Result<Value, AppError> {
-    if key == "method" {
+    if key == "method" || key == "layers" {
         return Ok(Value::String(value.to_owned()));
     }
     if let Ok(n) = value.parse::<u64>() {

@@ -7,7 +7,6 @@ use std::time::{Duration, Instant};
 use axum::extract::ws::{CloseFrame, Message, WebSocket, close_code};
 use futures_util::{SinkExt as _, StreamExt as _};
 use lumigraph_core::asset::AssetHeader;
-use lumigraph_core::frame::Frame;
 use lumigraph_core::view::View;
 use tokio::sync::{mpsc, watch};
 
@@ -486,11 +485,9 @@ impl Sender<'_> {
             );
         }
         let cameras = rendered.decision.cameras();
-        let opacity = effective.opacity;
         let with_depth = settings.depth;
-        let mut frame = rendered.frame;
+        let frame = rendered.frame;
         let encoded = encode_blocking(move || {
-            apply_opacity(&mut frame, opacity);
             let encode = |encoding| {
                 encode_color(&frame, encoding).map_err(|e| {
                     AppError::Internal(anyhow::Error::new(e).context("encoding a frame"))
@@ -624,14 +621,5 @@ impl Sender<'_> {
         let scale = (budget_ms / ms_per_mpx / full_mpx).sqrt();
         // Quantized so small speed changes do not change the frame size every frame.
         ((scale.clamp(0.25, 1.0) * 8.0).floor() / 8.0).max(0.25)
-    }
-}
-
-fn apply_opacity(frame: &mut Frame, opacity: f32) {
-    if opacity >= 1.0 {
-        return;
-    }
-    for px in frame.color.chunks_exact_mut(4) {
-        px[3] = (f32::from(px[3]) * opacity).round() as u8;
     }
 }

@@ -1,6 +1,5 @@
 //! Sticky per-session settings and their validation against the asset.
 
-use std::collections::BTreeMap;
 use std::time::Duration;
 
 use lumigraph_core::quality::{Plan, Quality};
@@ -41,15 +40,13 @@ pub struct Settings {
     pub max_in_flight: u32,
     /// RGBA8 where nothing is hit (JPEG: the matte colour).
     pub background: [u8; 4],
-    /// Opacity per layer name, in [0, 1].
-    pub layers: BTreeMap<String, f32>,
     /// Named state of the asset (lighting, animation frame); absent = the base state.
     pub state: Option<String>,
     /// Append each frame's depth and view to its header (the depth extension), so the client
     /// can reproject the frame to a newer camera while the next one is on its way.
     pub depth: bool,
-    /// The quality request (core `Quality`) as its JSON keys: a message's quality key sets
-    /// it, `null` clears it. Resting frames render with it; moving frames with its motion
+    /// The quality request (core `Quality`) as its JSON keys, layer opacities (`layers`)
+    /// included: a message's quality key sets it, `null` clears it. Resting frames render with it; moving frames with its motion
     /// quality (`Quality::for_motion`, `interactive_lod` replacing `lod` without `auto_lod`).
     #[serde(skip)]
     pub quality: serde_json::Map<String, serde_json::Value>,
@@ -70,7 +67,6 @@ impl Settings {
             rest_ms: u32::try_from(rest.as_millis()).unwrap_or(u32::MAX),
             max_in_flight: 2,
             background: [0; 4],
-            layers: BTreeMap::new(),
             state: None,
             depth: false,
             quality: serde_json::Map::new(),
@@ -86,8 +82,6 @@ pub(super) struct Effective {
     pub(super) still: Plan,
     /// The plan of interactive frames while the view moves.
     pub(super) motion: Plan,
-    /// Opacity of layer 0 (the one rendered), multiplied into alpha.
-    pub(super) opacity: f32,
 }
 
 pub(super) fn validate_settings(
@@ -133,23 +127,6 @@ pub(super) fn validate_settings(
             s.max_in_flight
         ));
     }
-    let mut opacity = header.layers.first().map_or(1.0, |l| l.default_opacity);
-    for (name, &value) in &s.layers {
-        let Some(index) = header.layers.iter().position(|l| &l.name == name) else {
-            let names: Vec<&str> = header.layers.iter().map(|l| l.name.as_str()).collect();
-            return Err(format!(
-                "the asset has no layer {name:?} (layers: {names:?})"
-            ));
-        };
-        if !(value.is_finite() && (0.0..=1.0).contains(&value)) {
-            return Err(format!(
-                "opacity of layer {name:?} must be in [0, 1], got {value}"
-            ));
-        }
-        if index == 0 {
-            opacity = value;
-        }
-    }
     if let Some(state) = &s.state {
         match header.states.iter().position(|st| &st.name == state) {
             None => {
@@ -177,7 +154,6 @@ pub(super) fn validate_settings(
         settings,
         still,
         motion,
-        opacity,
     })
 }
 
