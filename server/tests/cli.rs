@@ -1327,13 +1327,196 @@ fn bakes_renders_and_scores_a_volume_light_field() {
         &["eval", s(&mesh_asset), "--volume", v, "--views", "1"],
         "not baked from a volume",
     );
-    // A scene cannot composite a translucent light field yet: refused, not drawn wrongly.
+    // A scene composites the translucent ball with an opaque light field behind it: the ball's
+    // core stays opaque and the mesh shows through its faint halo.
     let scene = write(
         "ball-scene.json",
-        format!(r#"{{"objects": [{{"type": "lightfield", "asset": "{a}"}}]}}"#).as_bytes(),
+        format!(
+            r#"{{"objects": [{{"type": "lightfield", "asset": "{a}"}},
+                {{"type": "lightfield", "asset": "{}", "transform": {{"translation": [5.75, 5.75, 20], "scale": 8}}}}]}}"#,
+            s(&mesh_asset)
+        )
+        .as_bytes(),
+    );
+    let scene_png = path("ball-scene.png");
+    let o = lumigraph(&["render", s(&scene), "--view", s(&view), "-o", s(&scene_png)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (_, _, scene_rgba) = lumigraph_core::image_io::read_png_rgba8(&scene_png).expect("png");
+    assert!(
+        scene_rgba[4 * (24 * 48 + 24) + 3] >= 250,
+        "the core is opaque"
+    );
+    let opaque = scene_rgba.chunks_exact(4).filter(|p| p[3] == 255).count();
+    let ball_opaque = rgba.chunks_exact(4).filter(|p| p[3] == 255).count();
+    assert!(
+        opaque > ball_opaque,
+        "the mesh behind adds opaque pixels: {opaque} vs {ball_opaque}"
+    );
+}
+
+/// `bake VOLUME --layers LAYERS.json`: a multi light field of the ball (its faint halo and its
+/// core as separate layers) renders with runtime opacities (`render --layers`), matches the
+/// composited direct ray cast (`reference --layers --opacity`, `eval --volume`), and bad layer
+/// input fails cleanly.
+/// Masked PSNR (dB) of the two-layer ball (42 cameras, 64-px maps) against its composited
+/// reference at 48², with the halo at 0.5: measured 19.8 and 19.2 dB on the two views (the
+/// halo's parallax between 42 cameras dominates, as for one layer). 1.5 dB below the lowest;
+/// a lost or misordered layer costs far more.
+const LAYERED_BALL_MIN_PSNR: f64 = 17.7;
+
+#[test]
+fn bakes_and_renders_a_layered_volume() {
+    let volume = write("layers-ball.npy", &ball_npy(24));
+    let layers = write(
+        "layers-ball.json",
+        br#"{"layers": [
+            {"name": "halo", "tf": {"points": [[0, 0, 0, 0, 0], [40, 0.2, 0.6, 1, 0.05], [60, 0, 0, 0, 0]]}, "opacity": 0.8},
+            {"name": "core", "tf": {"points": [[0, 0, 0, 0, 0], [60, 0, 0, 0, 0], [80, 1, 0.5, 0, 0.9]]}}
+        ]}"#,
+    );
+    let asset = path("layers-ball.lfa");
+    let v = s(&volume);
+    let a = s(&asset);
+    let o = lumigraph(&[
+        "bake",
+        v,
+        "--spacing",
+        "0.5,0.5,0.5",
+        "--layers",
+        s(&layers),
+        "--cameras",
+        "42",
+        "--resolution",
+        "64",
+        "-o",
+        a,
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        stdout.contains("42 cameras × 2 layers at 64 px"),
+        "{stdout}"
+    );
+    let view = write(
+        "layers-ball-view.json",
+        br#"{"eye": [5.75, 9, -14], "target": [5.75, 5.75, 5.75], "up": [0, 1, 0], "yfov_deg": 40, "width": 48, "height": 48}"#,
+    );
+    let alpha_at_centre = |args: &[&str], out: &str| {
+        let png = path(out);
+        let mut all = args.to_vec();
+        all.extend(["--view", s(&view), "-o", s(&png)]);
+        let o = lumigraph(&all);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let (_, _, rgba) = lumigraph_core::image_io::read_png_rgba8(&png).expect("png");
+        rgba[4 * (24 * 48 + 24) + 3]
+    };
+    // The core is opaque at its default opacity, half transparent at 0.5, gone at 0.
+    assert!(alpha_at_centre(&["render", a], "layers-full.png") >= 250);
+    let half = alpha_at_centre(&["render", a, "--layers", "core=0.5"], "layers-half.png");
+    assert!((120..=180).contains(&half), "core at 0.5: alpha {half}");
+    let none = alpha_at_centre(
+        &["render", a, "--layers", "core=0,halo=0"],
+        "layers-none.png",
+    );
+    assert_eq!(none, 0, "every layer at 0");
+    // The reference composites the same way.
+    let reference = alpha_at_centre(
+        &[
+            "reference",
+            v,
+            "--spacing",
+            "0.5,0.5,0.5",
+            "--layers",
+            s(&layers),
+            "--opacity",
+            "core=0.5",
+        ],
+        "layers-reference.png",
+    );
+    assert!(
+        half.abs_diff(reference) <= 12,
+        "render {half} against the reference {reference}"
+    );
+    let o = lumigraph(&[
+        "eval",
+        a,
+        "--volume",
+        v,
+        "--spacing",
+        "0.5,0.5,0.5",
+        "--views",
+        "2",
+        "--size",
+        "48",
+        "--layers",
+        "halo=0.5",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("eval JSON");
+    for view in report["views"].as_array().expect("views") {
+        let masked = view["masked_psnr"].as_f64().expect("masked PSNR");
+        assert!(
+            masked > LAYERED_BALL_MIN_PSNR,
+            "masked PSNR {masked}: {view}"
+        );
+    }
+    assert_fails(
+        &[
+            "render",
+            a,
+            "--view",
+            s(&view),
+            "-o",
+            s(&path("x.png")),
+            "--layers",
+            "skin=1",
+        ],
+        "no layer \"skin\"",
     );
     assert_fails(
-        &["render", s(&scene), "--view", s(&view), "-o", s(&png)],
-        "semi-transparent",
+        &[
+            "render",
+            a,
+            "--view",
+            s(&view),
+            "-o",
+            s(&path("x.png")),
+            "--layers",
+            "core=2",
+        ],
+        "[0, 1]",
+    );
+    assert_fails(
+        &[
+            "bake",
+            v,
+            "--tf",
+            "ct-bone",
+            "--layers",
+            s(&layers),
+            "-o",
+            s(&path("x.lfa")),
+        ],
+        "not both",
+    );
+    let bad = write(
+        "layers-bad.json",
+        br#"{"layers": [{"name": "a", "tf": "ct-skin"}, {"name": "a", "tf": "ct-bone"}]}"#,
+    );
+    assert_fails(
+        &["bake", v, "--layers", s(&bad), "-o", s(&path("x.lfa"))],
+        "used twice",
+    );
+    assert_fails(
+        &[
+            "bake",
+            "--demo",
+            "--layers",
+            s(&layers),
+            "-o",
+            s(&path("x.lfa")),
+        ],
+        "apply to volumes only",
     );
 }

@@ -2588,6 +2588,33 @@ async fn websocket_stream_sends_depth_on_request() {
 /// A small volume light field: a soft ball (value 100 at the centre, falling to 0 at radius 6
 /// voxels) through a TF with a faint halo and an opaque core, 12 cameras × 32 px.
 fn volume_asset() -> Vec<u8> {
+    volume_asset_with(None)
+}
+
+/// The ball as a two-layer multi light field: its halo and its core through separate TFs.
+fn layered_volume_asset() -> Vec<u8> {
+    use lumigraph_core::volume::layers::VolumeLayer;
+    use lumigraph_core::volume::tf::TransferFunction;
+    let layer = |name: &str, tf: &str, opacity: f32| VolumeLayer {
+        name: name.to_owned(),
+        tf: TransferFunction::from_json(tf).expect("tf"),
+        opacity,
+    };
+    volume_asset_with(Some(vec![
+        layer(
+            "halo",
+            r#"{"points": [[0, 0, 0, 0, 0], [5, 0.2, 0.5, 1, 0.1], [40, 0.2, 0.5, 1, 0.1], [50, 0, 0, 0, 0]]}"#,
+            1.0,
+        ),
+        layer(
+            "core",
+            r#"{"points": [[0, 0, 0, 0, 0], [50, 0, 0, 0, 0], [60, 1, 0.6, 0.2, 1]]}"#,
+            1.0,
+        ),
+    ]))
+}
+
+fn volume_asset_with(layers: Option<Vec<lumigraph_core::volume::layers::VolumeLayer>>) -> Vec<u8> {
     use lumigraph_core::volume::bake::{VolumeBakeOptions, VolumeBaker};
     use lumigraph_core::volume::tf::TransferFunction;
     use lumigraph_core::volume::{Volume, Voxels};
@@ -2621,16 +2648,98 @@ fn volume_asset() -> Vec<u8> {
         resolution: 32,
         ..VolumeBakeOptions::default()
     };
+    let layers =
+        layers.unwrap_or_else(|| vec![lumigraph_core::volume::layers::VolumeLayer::single(&tf)]);
     VolumeBaker::new(gpu())
-        .bake_to_bytes(
+        .bake_layers_to_bytes(
             &volume,
-            &tf,
+            &layers,
             &options,
             &lumigraph_core::asset::Provenance::default(),
             &mut |_, _| {},
         )
         .expect("volume bake")
         .0
+}
+
+/// A multi light field over HTTP: `layers` in the render body and the query string changes
+/// the frame (the core hidden leaves only the halo), the summary lists the layers with their
+/// opacities, and an unknown layer or a bad opacity is a 400 naming it.
+#[tokio::test(flavor = "multi_thread")]
+async fn layered_volumes_take_runtime_opacities_over_http() {
+    let (dir, state) = setup(None, |_| {}).await;
+    std::fs::write(dir.path().join("layers.lfa"), layered_volume_asset()).expect("write");
+    state.load_assets().await.expect("loading assets");
+    let summary = get(&state, "/v1/assets/layers").await;
+    let summary: serde_json::Value = serde_json::from_slice(&summary.body).expect("json");
+    assert_eq!(summary["layers"], serde_json::json!(["halo", "core"]));
+    assert_eq!(summary["layer_opacities"], serde_json::json!([1.0, 1.0]));
+    let uri = "/v1/assets/layers/render";
+    let centre_alpha = |body: &[u8]| {
+        let (w, h, rgba) = lumigraph_core::image_io::decode_png_rgba8(body).expect("png");
+        rgba[4 * ((h as usize / 2) * w as usize + w as usize / 2) + 3]
+    };
+    let full = post_json(
+        &state,
+        uri,
+        serde_json::json!({"view": view_json(48, 48)}).to_string(),
+    )
+    .await;
+    assert_eq!(
+        full.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&full.body)
+    );
+    let hidden = post_json(
+        &state,
+        uri,
+        serde_json::json!({"view": view_json(48, 48), "layers": {"core": 0}}).to_string(),
+    )
+    .await;
+    assert_eq!(
+        hidden.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&hidden.body)
+    );
+    let (a_full, a_hidden) = (centre_alpha(&full.body), centre_alpha(&hidden.body));
+    assert!(a_full >= 250, "the core is opaque: {a_full}");
+    assert!(
+        a_hidden < 200,
+        "without the core only the halo is left: {a_hidden}"
+    );
+    // The query string's `name:opacity` form gives the same frame as the body.
+    let query = get(
+        &state,
+        "/v1/assets/layers/render?eye=0,0,3&target=0,0,0&yfov_deg=40&width=48&height=48&layers=core:0&format=png",
+    )
+    .await;
+    assert_eq!(
+        query.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&query.body)
+    );
+    for (body, needle) in [
+        (
+            serde_json::json!({"view": view_json(48, 48), "layers": {"skin": 1}}),
+            "no layer",
+        ),
+        (
+            serde_json::json!({"view": view_json(48, 48), "layers": {"core": 1.5}}),
+            "[0, 1]",
+        ),
+        (
+            serde_json::json!({"view": view_json(48, 48), "layers": "core"}),
+            "NAME=OPACITY",
+        ),
+    ] {
+        let reply = post_json(&state, uri, body.to_string()).await;
+        let text = String::from_utf8_lossy(&reply.body);
+        assert_eq!(reply.status, StatusCode::UNPROCESSABLE_ENTITY, "{text}");
+        assert!(text.contains(needle), "{needle}: {text}");
+    }
 }
 
 /// A volume light field through the service: PNG frames carry the haze's partial alpha, an

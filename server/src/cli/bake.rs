@@ -324,10 +324,14 @@ fn bake_volume(path: &std::path::Path, args: &BakeArgs) -> Result<()> {
     bar.finish_and_clear();
     let [nx, ny, nz] = volume.dims;
     println!(
-        "baked {} cameras × {} layer(s) at {} px from a {nx}x{ny}x{nz} volume (step {:.4}) in \
-         {:.0} ms, {:.1} % of texels covered: {} ({:.1} MiB)",
+        "baked {} cameras{} at {} px from a {nx}x{ny}x{nz} volume (step {:.4}) in {:.0} ms, \
+         {:.1} % of texels covered: {} ({:.1} MiB)",
         report.cameras,
-        layers.len(),
+        if layers.len() > 1 {
+            format!(" × {} layers", layers.len())
+        } else {
+            String::new()
+        },
         report.resolution,
         report.step,
         report.bake_ms,
