@@ -635,6 +635,38 @@ fn header_constructor_and_frame() {
 }
 
 #[test]
+fn ray_ordered_layers_need_format_version_3() {
+    use lumigraph_core::asset::{LAYER_ORDER_SINCE, LayerOrder};
+    let mut h = AssetHeader::new_spherical(0, 16, frame(), Encoding::R16, provenance()).unwrap();
+    assert_eq!(
+        (h.layer_order, h.required_version()),
+        (LayerOrder::Depth, 1)
+    );
+    // The default order is left out of the JSON, so version-1 and -2 headers stay as they were.
+    let json = serde_json::to_value(&h).unwrap();
+    assert!(json.get("layer_order").is_none(), "{json}");
+    h.set_layer_order(LayerOrder::Ray);
+    assert_eq!(h.format_version, LAYER_ORDER_SINCE);
+    assert_eq!(h.validate().map_err(|e| e.to_string()), Ok(()));
+    let json = serde_json::to_value(&h).unwrap();
+    assert_eq!(json["layer_order"], "ray");
+    assert_eq!(serde_json::from_value::<AssetHeader>(json).unwrap(), h);
+    // Premultiplied colour (version 2) and ray order: still version 3; back to depth order:
+    // version 2.
+    h.set_color_encoding(Encoding::Rgba8Premultiplied);
+    assert_eq!(h.format_version, 3);
+    h.set_layer_order(LayerOrder::Depth);
+    assert_eq!(h.format_version, 2);
+    // A header that says ray order at version 2 is refused, naming the field.
+    h.layer_order = LayerOrder::Ray;
+    let msg = h.validate().unwrap_err().to_string();
+    assert!(
+        msg.contains("layer_order") && msg.contains("version 3"),
+        "{msg}"
+    );
+}
+
+#[test]
 fn readers_can_be_shared_between_threads() {
     fn assert_send_sync<T: Send + Sync>() {}
     assert_send_sync::<AssetFile>();
@@ -816,12 +848,12 @@ fn hostile_preamble_values_are_typed_errors_without_big_allocations() {
         ("flags", Box::new(|p| p.flags = 1), |e| {
             matches!(e, AssetError::Preamble(_))
         }),
-        ("version 3", Box::new(|p| p.version = 3), |e| {
+        ("version 4", Box::new(|p| p.version = 4), |e| {
             matches!(
                 e,
                 AssetError::UnsupportedVersion {
-                    found: 3,
-                    supported: 2
+                    found: 4,
+                    supported: 3
                 }
             )
         }),
@@ -1121,6 +1153,15 @@ fn hostile_header_values_are_typed_errors() {
             "opacity -0.5",
             Box::new(|h| h["layers"][0]["default_opacity"] = json!(-0.5)),
         ),
+        // Ray-ordered layers are a version-3 field; a version-1 header cannot say it.
+        (
+            "layer_order ray in version 1",
+            Box::new(|h| h["layer_order"] = json!("ray")),
+        ),
+        (
+            "layer_order unknown",
+            Box::new(|h| h["layer_order"] = json!("random")),
+        ),
         ("no states", Box::new(|h| h["states"] = json!([]))),
         ("radius 0", Box::new(|h| h["frame"]["radius"] = json!(0.0))),
         (
@@ -1236,10 +1277,10 @@ fn hostile_page_data_is_a_typed_error_on_read() {
 #[test]
 fn error_messages_say_what_is_wrong() {
     let bytes = tiny_asset();
-    let v3 = patch_preamble(&bytes, |p| p.version = 3);
-    let msg = AssetFile::from_bytes(v3).unwrap_err().to_string();
+    let v4 = patch_preamble(&bytes, |p| p.version = 4);
+    let msg = AssetFile::from_bytes(v4).unwrap_err().to_string();
     assert!(
-        msg.contains("version 3") && msg.contains("reads versions 1 to 2"),
+        msg.contains("version 4") && msg.contains("reads versions 1 to 3"),
         "{msg}"
     );
     let msg = AssetFile::from_bytes(b"GIF89a".to_vec())

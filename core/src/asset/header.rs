@@ -196,6 +196,9 @@ impl Encoding {
     }
 }
 
+/// The first format version with the header field `layer_order`.
+pub const LAYER_ORDER_SINCE: u32 = 3;
+
 /// One channel of every image and its encoding.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -214,6 +217,25 @@ pub struct LayerDesc {
     pub name: String,
     /// Opacity in [0, 1] a viewer starts with.
     pub default_opacity: f32,
+}
+
+/// How a multi light field's layers composite per pixel (format version 3 adds [`Self::Ray`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LayerOrder {
+    /// Sorted by each fragment's depth (layers per structure or TF: seed 002 §6).
+    #[default]
+    Depth,
+    /// In the header's layer order, front to back: depth layers, consecutive segments of every
+    /// ray (seed 002 §7), whose order along the ray is fixed by the split.
+    Ray,
+}
+
+impl LayerOrder {
+    /// The default, [`Self::Depth`] (left out of the header).
+    pub fn is_depth(&self) -> bool {
+        *self == LayerOrder::Depth
+    }
 }
 
 /// A named state (light direction, animation frame, deformation) with its parameter values.
@@ -266,6 +288,9 @@ pub struct AssetHeader {
     pub channels: Vec<ChannelDesc>,
     /// 1..=256 layers.
     pub layers: Vec<LayerDesc>,
+    /// How the layers composite; absent (depth order) before version 3.
+    #[serde(default, skip_serializing_if = "LayerOrder::is_depth")]
+    pub layer_order: LayerOrder,
     /// 1..=256 states; state 0 is the base state.
     pub states: Vec<StateDesc>,
     /// How the asset was made.
@@ -314,6 +339,7 @@ impl AssetHeader {
                 name: "default".to_owned(),
                 default_opacity: 1.0,
             }],
+            layer_order: LayerOrder::Depth,
             states: vec![StateDesc {
                 name: "base".to_owned(),
                 params: serde_json::Map::new(),
@@ -379,13 +405,24 @@ impl AssetHeader {
         .fold(1, u64::saturating_mul)
     }
 
-    /// The lowest format version that can express this header: 2 with a version-2 encoding,
-    /// else 1.
+    /// The lowest format version that can express this header: 3 with layers in ray order, 2
+    /// with a version-2 encoding, else 1.
     pub fn required_version(&self) -> u32 {
+        let order = if self.layer_order.is_depth() {
+            MIN_FORMAT_VERSION
+        } else {
+            LAYER_ORDER_SINCE
+        };
         self.channels
             .iter()
             .map(|c| c.encoding.since_version())
-            .fold(MIN_FORMAT_VERSION, u32::max)
+            .fold(order, u32::max)
+    }
+
+    /// Sets how the layers composite and the format version to the lowest that can say it.
+    pub fn set_layer_order(&mut self, order: LayerOrder) {
+        self.layer_order = order;
+        self.format_version = self.required_version();
     }
 
     /// Sets the colour channel's encoding and the format version to the lowest that has it.
@@ -419,6 +456,12 @@ impl AssetHeader {
                 c.encoding,
                 c.encoding.since_version(),
                 self.format_version
+            ));
+        }
+        if !self.layer_order.is_depth() && self.format_version < LAYER_ORDER_SINCE {
+            return bad(format!(
+                "layer_order {:?} needs format version {LAYER_ORDER_SINCE} (the header says {})",
+                self.layer_order, self.format_version
             ));
         }
         let g = &self.geometry;

@@ -32,19 +32,20 @@ pub use format::{
     Codec, INDEX_ENTRY_LEN, IndexEntry, MAGIC, MAX_HEADER_LEN, PREAMBLE_LEN, Preamble, zstd_bound,
 };
 pub use header::{
-    AssetHeader, AssetKind, Channel, ChannelDesc, DEFAULT_PAGE_SIZE, Encoding, LayerDesc, LfFrame,
-    MAX_CAMERA_LEVEL, MAX_LAYERS, MAX_PAGE_SIZE, MAX_RESOLUTION_PX, MAX_STATES, MIN_PAGE_SIZE,
-    MapProjection, PageGrid, PageRect, Provenance, SphericalGeometry, StateDesc,
-    camera_count_for_level,
+    AssetHeader, AssetKind, Channel, ChannelDesc, DEFAULT_PAGE_SIZE, Encoding, LAYER_ORDER_SINCE,
+    LayerDesc, LayerOrder, LfFrame, MAX_CAMERA_LEVEL, MAX_LAYERS, MAX_PAGE_SIZE, MAX_RESOLUTION_PX,
+    MAX_STATES, MIN_PAGE_SIZE, MapProjection, PageGrid, PageRect, Provenance, SphericalGeometry,
+    StateDesc, camera_count_for_level,
 };
 pub use reader::AssetFile;
 pub use writer::{AssetWriter, encode_asset, write_asset};
 
 /// The newest `.lfa` format version this build reads and writes. Version 2 adds the colour
-/// encoding `rgba8_premultiplied` (semi-transparent light fields, e.g. volumes); a writer
-/// writes the lowest version that can express its asset ([`AssetHeader::required_version`]),
-/// so assets without it stay version 1.
-pub const FORMAT_VERSION: u32 = 2;
+/// encoding `rgba8_premultiplied` (semi-transparent light fields, e.g. volumes), version 3 the
+/// header field `layer_order` (depth layers composited in ray order); a writer writes the
+/// lowest version that can express its asset ([`AssetHeader::required_version`]), so assets
+/// without them stay version 1 or 2.
+pub const FORMAT_VERSION: u32 = 3;
 /// The oldest version this build reads.
 pub const MIN_FORMAT_VERSION: u32 = 1;
 
