@@ -37,7 +37,14 @@ struct VolumeBakeParams {
     shade: u32,
     // Entries of `tf`.
     tf_count: u32,
-    pad: u32,
+    // Depth layers (raycast.rs SplitRule): 0 whole rays, 1 split where the whole ray's A
+    // reaches each boundary, 2 where the sampled value does; `segment` is the one kept.
+    split_mode: u32,
+    segment: u32,
+    split_count: u32,
+    pad0: u32,
+    pad1: u32,
+    splits: array<vec4<f32>, 4>,
 }
 
 // A transfer-function entry: a scalar point (value, rgba) or a label (label, rgba); sorted by
@@ -176,7 +183,14 @@ struct Cast {
     t_mean: f32,
 }
 
-// The ray eye + t·dir (dir unit, world units): DESIGN §9's integration.
+// Boundary k of a split ray.
+fn split_at(k: u32) -> f32 {
+    return params.splits[k / 4u][k % 4u];
+}
+
+// The ray eye + t·dir (dir unit, world units): DESIGN §9's integration. For a depth layer, only
+// the samples of its segment are gathered (as a ray that starts empty there), while the split
+// events and the early stop follow the whole ray's opacity (raycast.rs `march`).
 fn march_ray(eye: vec3<f32>, dir: vec3<f32>) -> Cast {
     var out = Cast(vec4<f32>(0.0), -1.0, -1.0, -1.0);
     let u0 = to_index(eye - params.origin);
@@ -203,8 +217,11 @@ fn march_ray(eye: vec3<f32>, dir: vec3<f32>) -> Cast {
         return out;
     }
     var c = vec3<f32>(0.0);
+    // This segment's A (the whole ray's when it is not split) and the whole ray's A.
     var acc = 0.0;
+    var whole = 0.0;
     var weighted_t = 0.0;
+    var current = 0u;
     let labels = params.labels != 0u;
     for (var k = 0u; ; k++) {
         let t = t0 + (f32(k) + 0.5) * params.step;
@@ -212,28 +229,50 @@ fn march_ray(eye: vec3<f32>, dir: vec3<f32>) -> Cast {
             break;
         }
         let u = u0 + ud * t;
+        var value: f32;
         var rgba: vec4<f32>;
         if labels {
-            rgba = tf_label(nearest(u));
+            value = nearest(u);
+            rgba = tf_label(value);
         } else {
-            rgba = tf_scalar(trilinear(u));
+            value = trilinear(u);
+            rgba = tf_scalar(value);
         }
         let alpha = opacity_for_step(rgba.a);
         if alpha > 0.0 {
-            var rgb = rgba.rgb;
-            if params.shade != 0u {
-                rgb *= shade_factor(u);
+            if current == params.segment {
+                var rgb = rgba.rgb;
+                if params.shade != 0u {
+                    rgb *= shade_factor(u);
+                }
+                c += (1.0 - acc) * alpha * rgb;
+                weighted_t += (1.0 - acc) * alpha * t;
+                let before = acc;
+                acc += (1.0 - acc) * alpha;
+                if acc >= params.depth_threshold && out.t_depth < 0.0 {
+                    out.t_depth = t;
+                    let f = clamp((params.depth_threshold - before) / (acc - before), 0.0, 1.0);
+                    out.t_cross = t - 0.5 * params.step + params.step * f;
+                }
             }
-            c += (1.0 - acc) * alpha * rgb;
-            weighted_t += (1.0 - acc) * alpha * t;
-            let before = acc;
-            acc += (1.0 - acc) * alpha;
-            if acc >= params.depth_threshold && out.t_depth < 0.0 {
-                out.t_depth = t;
-                let f = clamp((params.depth_threshold - before) / (acc - before), 0.0, 1.0);
-                out.t_cross = t - 0.5 * params.step + params.step * f;
+            whole += (1.0 - whole) * alpha;
+            if whole >= EARLY_STOP_ALPHA {
+                break;
             }
-            if acc >= EARLY_STOP_ALPHA {
+        }
+        if params.split_mode != 0u {
+            loop {
+                if current >= params.split_count {
+                    break;
+                }
+                let b = split_at(current);
+                let fired = select(value >= b, whole >= b, params.split_mode == 1u);
+                if !fired {
+                    break;
+                }
+                current += 1u;
+            }
+            if current > params.segment {
                 break;
             }
         }

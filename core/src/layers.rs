@@ -24,7 +24,7 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
-use crate::asset::LayerDesc;
+use crate::asset::{LayerDesc, LayerOrder};
 use crate::frame::{Frame, FrameStats};
 
 /// Most layers one request may name (the format's limit).
@@ -191,8 +191,9 @@ impl LayerImage {
     }
 }
 
-/// Composites `layers` (each with its opacity) per pixel in depth order, front to back
-/// (DESIGN §9). The result is opaque (`translucent: false`, depth of the nearest fragment) when
+/// Composites `layers` (each with its opacity) per pixel front to back (DESIGN §9): in depth
+/// order ([`LayerOrder::Depth`]), or in the order given ([`LayerOrder::Ray`], depth layers whose
+/// order along every ray is fixed by the split: seed 002 §7 omits the sort for them). The result is opaque (`translucent: false`, depth of the nearest fragment) when
 /// every layer is opaque at opacity 1 — a plain depth test — and otherwise translucent: straight
 /// colour and alpha `round(255·A)`, depth of the first fragment after whose compositing
 /// `A ≥ τ_d` (`depth_threshold`), `+inf` elsewhere. Statistics add up.
@@ -205,6 +206,7 @@ pub fn composite(
     width: u32,
     height: u32,
     depth_threshold: f32,
+    order: LayerOrder,
 ) -> Frame {
     let pixels = width as usize * height as usize;
     let layers: Vec<(&LayerImage, f32)> = layers
@@ -218,6 +220,7 @@ pub fn composite(
         })
         .collect();
     let opaque = layers.iter().all(|(l, o)| !l.translucent && *o >= 1.0);
+    let by_depth = order == LayerOrder::Depth;
     let mut color = vec![0u8; 4 * pixels];
     let mut depth = vec![f32::INFINITY; pixels];
     let mut order: Vec<(f32, usize)> = Vec::with_capacity(layers.len());
@@ -226,16 +229,20 @@ pub fn composite(
         for (index, (layer, o)) in layers.iter().enumerate() {
             if *o > 0.0 && layer.premultiplied[4 * p + 3] > 0 {
                 let z = layer.depth[p];
-                // Insertion sort by depth; equal depths keep the input order. A fragment with no
-                // depth (NaN cannot occur: renderers write +inf) goes last.
-                let at = order.partition_point(|&(d, _)| d <= z);
-                order.insert(at, (z, index));
+                if by_depth {
+                    // Insertion sort by depth; equal depths keep the input order. A fragment
+                    // with no depth (NaN cannot occur: renderers write +inf) goes last.
+                    let at = order.partition_point(|&(d, _)| d <= z);
+                    order.insert(at, (z, index));
+                } else {
+                    order.push((z, index));
+                }
             }
         }
         if order.is_empty() {
             continue;
         }
-        if opaque {
+        if opaque && by_depth {
             let (z, index) = order[0];
             color[4 * p..4 * p + 4]
                 .copy_from_slice(&layers[index].0.premultiplied[4 * p..4 * p + 4]);
@@ -283,6 +290,46 @@ pub fn composite(
         depth,
         translucent: !opaque,
         stats,
+    }
+}
+
+/// One fragment per pixel from a light field's depth layers, composited in their order
+/// ([`LayerOrder::Ray`]), for sorting among a scene's other objects: premultiplied colour (the
+/// straight composite premultiplied again, within half a code) and, as sort depth, the nearest
+/// depth of the fragments that went in.
+pub fn flatten_in_ray_order(
+    layers: &[(&LayerImage, f32)],
+    width: u32,
+    height: u32,
+    depth_threshold: f32,
+) -> LayerImage {
+    let frame = composite(layers, width, height, depth_threshold, LayerOrder::Ray);
+    let mut premultiplied = frame.color;
+    let mut depth = vec![f32::INFINITY; premultiplied.len() / 4];
+    for (p, (px, z)) in premultiplied
+        .chunks_exact_mut(4)
+        .zip(&mut depth)
+        .enumerate()
+    {
+        let a = f32::from(px[3]) / 255.0;
+        for c in &mut px[..3] {
+            *c = (f32::from(*c) * a).round() as u8;
+        }
+        if px[3] > 0 {
+            *z = layers
+                .iter()
+                .filter(|(l, o)| *o > 0.0 && l.premultiplied.get(4 * p + 3).is_some_and(|&a| a > 0))
+                .filter_map(|(l, _)| l.depth.get(p).copied())
+                .fold(f32::INFINITY, f32::min);
+        }
+    }
+    LayerImage {
+        width,
+        height,
+        premultiplied,
+        depth,
+        translucent: true,
+        stats: frame.stats,
     }
 }
 
@@ -362,7 +409,7 @@ mod tests {
         // A half-transparent red in front (z 1) of an opaque green (z 2), given back to front.
         let green = image([0, 255, 0, 255], 2.0, false);
         let red = image([128, 0, 0, 128], 1.0, true);
-        let f = composite(&[(&green, 1.0), (&red, 1.0)], 1, 1, 0.5);
+        let f = composite(&[(&green, 1.0), (&red, 1.0)], 1, 1, 0.5, LayerOrder::Depth);
         assert!(f.translucent);
         // C = 128/255 red + (1 − 128/255)·green; A = 1.
         let a_red = 128.0 / 255.0;
@@ -374,13 +421,40 @@ mod tests {
         // A reached τ_d = 0.5 at the red fragment (A = 0.502).
         assert_eq!(f.depth[0], 1.0);
         // The input order does not matter.
-        assert_eq!(composite(&[(&red, 1.0), (&green, 1.0)], 1, 1, 0.5), f);
+        assert_eq!(
+            composite(&[(&red, 1.0), (&green, 1.0)], 1, 1, 0.5, LayerOrder::Depth),
+            f
+        );
         // Opacity 0 removes a layer; a half opacity halves its weight.
-        let only_green = composite(&[(&green, 1.0), (&red, 0.0)], 1, 1, 0.5);
+        let only_green = composite(&[(&green, 1.0), (&red, 0.0)], 1, 1, 0.5, LayerOrder::Depth);
         assert_eq!(&only_green.color, &[0, 255, 0, 255]);
-        let half = composite(&[(&red, 0.5)], 1, 1, 0.5);
+        let half = composite(&[(&red, 0.5)], 1, 1, 0.5, LayerOrder::Depth);
         assert_eq!(half.color, vec![255, 0, 0, 64]);
         assert!(half.depth[0].is_infinite(), "A = 0.25 stays below τ_d");
+    }
+
+    #[test]
+    fn depth_layers_composite_in_their_order_whatever_their_depths() {
+        // Segment 0 (red, half) reconstructed a little behind segment 1 (green, opaque): in ray
+        // order red still goes first; by depth green would hide it.
+        let red = image([128, 0, 0, 128], 2.0, true);
+        let green = image([0, 255, 0, 255], 1.9, true);
+        let ray = composite(&[(&red, 1.0), (&green, 1.0)], 1, 1, 0.5, LayerOrder::Ray);
+        assert!(ray.color[0] > 120 && ray.color[1] > 120, "{:?}", ray.color);
+        assert_eq!(ray.depth, vec![2.0], "A reached τ_d at segment 0");
+        let sorted = composite(&[(&red, 1.0), (&green, 1.0)], 1, 1, 0.5, LayerOrder::Depth);
+        assert_eq!(sorted.color, vec![0, 255, 0, 255]);
+        // Flattened for a scene: the same colour premultiplied, sorted at the nearest depth.
+        let flat = flatten_in_ray_order(&[(&red, 1.0), (&green, 1.0)], 1, 1, 0.5);
+        assert_eq!(flat.depth, vec![1.9]);
+        assert_eq!(flat.premultiplied[3], 255);
+        for k in 0..3 {
+            assert!(flat.premultiplied[k].abs_diff(ray.color[k]) <= 1);
+        }
+        // A layer at opacity 0 does not place the flattened fragment.
+        let flat = flatten_in_ray_order(&[(&red, 1.0), (&green, 0.0)], 1, 1, 0.5);
+        assert_eq!(flat.depth, vec![2.0]);
+        assert_eq!(flat.premultiplied, vec![128, 0, 0, 128]);
     }
 
     #[test]
@@ -388,12 +462,18 @@ mod tests {
         let near = image([10, 20, 30, 255], 1.0, false);
         let far = image([200, 200, 200, 255], 3.0, false);
         let empty = image([0; 4], f32::INFINITY, false);
-        let f = composite(&[(&far, 1.0), (&near, 1.0), (&empty, 1.0)], 1, 1, 0.5);
+        let f = composite(
+            &[(&far, 1.0), (&near, 1.0), (&empty, 1.0)],
+            1,
+            1,
+            0.5,
+            LayerOrder::Depth,
+        );
         assert!(!f.translucent);
         assert_eq!(f.color, vec![10, 20, 30, 255]);
         assert_eq!(f.depth, vec![1.0]);
         // Fading the near one lets the far one through: a translucent result.
-        let faded = composite(&[(&far, 1.0), (&near, 0.5)], 1, 1, 0.5);
+        let faded = composite(&[(&far, 1.0), (&near, 0.5)], 1, 1, 0.5, LayerOrder::Depth);
         assert!(faded.translucent);
         assert_eq!(faded.color[3], 255);
         assert!(
@@ -402,7 +482,7 @@ mod tests {
             faded.color
         );
         assert_eq!(faded.depth, vec![1.0]);
-        let none = composite(&[(&empty, 1.0)], 1, 1, 0.5);
+        let none = composite(&[(&empty, 1.0)], 1, 1, 0.5, LayerOrder::Depth);
         assert!(none.depth[0].is_infinite() && none.color == vec![0; 4]);
     }
 }

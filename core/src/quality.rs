@@ -179,7 +179,8 @@ pub struct Quality {
     pub refine: Option<u32>,
     /// Runtime opacity per named layer of a multi light field, each in [0, 1]
     /// (`skin=0.3,bone=1`; JSON: `{"skin": 0.3, "bone": 1}`); layers not named keep the
-    /// asset's default. Layers composite per pixel in depth order (DESIGN §9).
+    /// asset's default. Layers composite per pixel in depth order (DESIGN §9); depth layers in
+    /// their order along the ray.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[cfg_attr(
         feature = "clap",

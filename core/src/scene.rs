@@ -495,9 +495,28 @@ impl Scene {
                             path: path.clone(),
                             source,
                         })?;
-                    for (mut image, &o) in layers.into_iter().zip(plan.opacities()) {
+                    if self.fields[*field].layer_order == crate::asset::LayerOrder::Ray {
+                        // Depth layers keep their order along the ray: one fragment for the
+                        // object, sorted among the others.
+                        let pairs: Vec<(&LayerImage, f32)> = layers
+                            .iter()
+                            .zip(plan.opacities().iter().copied())
+                            .collect();
+                        let mut image = crate::layers::flatten_in_ray_order(
+                            &pairs,
+                            view.width,
+                            view.height,
+                            self.fields[*field]
+                                .translucent
+                                .unwrap_or(crate::volume::raycast::DEFAULT_DEPTH_THRESHOLD as f32),
+                        );
                         image.scale_depth(placement.scale());
-                        images.push((image, o));
+                        images.push((image, 1.0));
+                    } else {
+                        for (mut image, &o) in layers.into_iter().zip(plan.opacities()) {
+                            image.scale_depth(placement.scale());
+                            images.push((image, o));
+                        }
                     }
                 }
                 Layer::Mesh {
@@ -521,6 +540,7 @@ impl Scene {
             view.width,
             view.height,
             crate::volume::raycast::DEFAULT_DEPTH_THRESHOLD as f32,
+            crate::asset::LayerOrder::Depth,
         ))
     }
 }

@@ -693,11 +693,13 @@ fn blob_layers() -> Vec<VolumeLayer> {
             name: "shell".to_owned(),
             tf: shell,
             opacity: 0.6,
+            segment: None,
         },
         VolumeLayer {
             name: "core".to_owned(),
             tf: core,
             opacity: 1.0,
+            segment: None,
         },
     ]
 }
@@ -819,6 +821,162 @@ fn a_multi_light_field_composites_its_layers_like_their_direct_ray_casts() {
                 .render_layered(&field, &views[0], (&a, &b, 0.0), [0.0; 2], bad)
                 .is_err(),
             "{bad:?}"
+        );
+    }
+}
+
+/// Mean masked PSNR (dB) three depth layers of the blob (162 cameras, 96-px maps) keep against
+/// their composited direct ray casts over four views: measured 33.0 dB at opacities (1, 1, 1),
+/// above the 31.4 dB of the one-layer blob at the same settings (each segment has a depth of
+/// its own, so the shell's haze is reprojected from where it lies), and 30.1 dB at
+/// (1, 0.4, 1). 1.5 dB below the lower; a layer in the wrong order, lost or counted twice
+/// costs far more.
+const DEPTH_LAYERS_MIN_MASKED_PSNR: f64 = 28.6;
+
+#[test]
+fn depth_layers_split_every_ray_and_composite_in_ray_order() {
+    use lumigraph_core::asset::LayerOrder;
+    let volume = blob([36, 32, 28]);
+    let tf = blob_tf();
+    let text = format!(
+        r#"{{"tf": {}, "split": {{"opacity": [0.25, 0.7]}},
+            "layers": [{{"name": "front"}}, {{"name": "middle", "opacity": 0.4}}, {{"name": "back"}}]}}"#,
+        tf.to_json()
+    );
+    let layers = VolumeLayer::parse(&text, std::path::Path::new(".")).expect("depth layers");
+    let options = VolumeBakeOptions {
+        cameras: 162,
+        resolution: 96,
+        ..VolumeBakeOptions::default()
+    };
+    let (bytes, _) = baker()
+        .bake_layers_to_bytes(
+            &volume,
+            &layers,
+            &options,
+            &Provenance::default(),
+            &mut |_, _| {},
+        )
+        .expect("depth-layer bake");
+    let asset = AssetFile::from_bytes(bytes).expect("reads back");
+    // Ray order needs format version 3; the frame is the TF's own.
+    assert_eq!(asset.header().format_version, 3);
+    assert_eq!(asset.header().layer_order, LayerOrder::Ray);
+    assert_eq!(
+        asset.header().frame,
+        volume_frame(&volume, &tf).expect("frame")
+    );
+    // Every texel of each segment against the CPU ray caster's segment of the same ray, on a
+    // few cameras (the single-layer test covers the integration itself).
+    let n = options.resolution;
+    let mut covered = [0usize; 3];
+    for (index, layer) in layers.iter().enumerate() {
+        let rays = layer.rays(&volume, &options.raycast).expect("rays");
+        let mut stats = TexelStats {
+            texels: 0,
+            colour_off: 0,
+            max_code_diff: 0,
+            coverage_off: 0,
+            depth_off: 0,
+            depth_pairs: 0,
+        };
+        for camera in [0u32, 57, 161] {
+            let key = |channel| ImageKey::new(index as u16, 0, camera, channel);
+            let color = asset.read_image(key(Channel::Color)).expect("colour");
+            let depth = asset.read_image(key(Channel::Depth)).expect("depth");
+            for a in 0..n {
+                for b in 0..n {
+                    let t = (a * n + b) as usize;
+                    stats.texels += 1;
+                    let (eye, dir, chord) = texel_ray(&volume, &tf, camera as usize, a, b, n);
+                    let cpu = rays.cast(eye, dir);
+                    let codes = cpu
+                        .rgba
+                        .map(|c| (255.0 * c).round().clamp(0.0, 255.0) as u8);
+                    let texel = &color[4 * t..4 * t + 4];
+                    covered[index] += usize::from(texel[3] > 0);
+                    stats.coverage_off += usize::from((codes[3] >= 1) != (texel[3] >= 1));
+                    let diff = (0..4)
+                        .map(|c| codes[c].abs_diff(texel[c]))
+                        .max()
+                        .unwrap_or(0);
+                    stats.max_code_diff = stats.max_code_diff.max(diff);
+                    stats.colour_off += usize::from(diff > 1);
+                    let code = u16::from_le_bytes([depth[2 * t], depth[2 * t + 1]]);
+                    if codes[3] >= 1 && texel[3] >= 1 && code != geometry::NO_HIT_U16 {
+                        let gpu_t = f64::from(geometry::decode_depth_u16(code)) * chord;
+                        let cpu_t = if cpu.t_cross.is_finite() {
+                            cpu.t_cross
+                        } else {
+                            cpu.t_mean
+                        };
+                        stats.depth_pairs += 1;
+                        stats.depth_off += usize::from(
+                            (gpu_t - cpu_t).abs() > rays.step() * 1.01 + chord / 65535.0,
+                        );
+                    }
+                }
+            }
+        }
+        assert_close(&stats, &format!("depth layer {index}"));
+    }
+    assert!(
+        covered.iter().all(|&c| c > 100),
+        "every segment holds something: {covered:?} texels"
+    );
+    let renderer = Renderer::new(gpu());
+    let field = renderer.upload(&asset).expect("upload");
+    assert_eq!(field.layer_order, LayerOrder::Ray);
+    let views = views_around(&volume, 4, 96);
+    let (a, b) = (RenderOptions::default(), RenderOptions::default());
+    for opacities in [[1.0, 1.0, 1.0], [1.0, 0.4, 1.0]] {
+        let mut masked = 0.0;
+        for view in &views {
+            let frame = renderer
+                .render_layered(&field, view, (&a, &b, 0.0), [0.0; 2], &opacities)
+                .expect("render");
+            let reference = reference_layers(&volume, &layers, view, &options.raycast, &opacities)
+                .expect("reference");
+            if opacities == [1.0; 3] {
+                // At full opacity the segments add up to the one-layer ray cast. Each segment
+                // is quantized to 8-bit premultiplied codes before compositing: compared
+                // premultiplied (straight colour divides those rounding errors by a faint
+                // pixel's alpha), within 2 codes for three segments' half-code roundings.
+                let whole = raycast(&volume, &tf, view, &options.raycast)
+                    .expect("ray cast")
+                    .to_frame();
+                let premultiplied = |px: &[u8]| {
+                    let a = f64::from(px[3]);
+                    [
+                        f64::from(px[0]) * a / 255.0,
+                        f64::from(px[1]) * a / 255.0,
+                        f64::from(px[2]) * a / 255.0,
+                        a,
+                    ]
+                };
+                let worst = reference
+                    .color
+                    .chunks_exact(4)
+                    .zip(whole.color.chunks_exact(4))
+                    .flat_map(|(x, y)| {
+                        let (p, q) = (premultiplied(x), premultiplied(y));
+                        (0..4).map(move |k| (p[k] - q[k]).abs())
+                    })
+                    .fold(0.0, f64::max);
+                assert!(
+                    worst <= 2.0,
+                    "segments composite to the whole ray: {worst:.2} codes"
+                );
+            }
+            masked += metrics::compare(&frame, &reference)
+                .expect("compare")
+                .masked_psnr;
+        }
+        masked /= views.len() as f64;
+        eprintln!("depth layers {opacities:?}: masked {masked:.2} dB");
+        assert!(
+            masked > DEPTH_LAYERS_MIN_MASKED_PSNR,
+            "{opacities:?}: masked {masked:.2} dB"
         );
     }
 }

@@ -71,6 +71,8 @@ pub struct GpuLightField {
     pub visible_box: [[f32; 3]; 2],
     /// The asset's layers (names and default opacities), in the order of its maps.
     pub layers: Vec<crate::asset::LayerDesc>,
+    /// How its layers composite: by depth, or in their order (depth layers).
+    pub layer_order: crate::asset::LayerOrder,
     /// `Some(τ_d)` for a translucent light field (premultiplied RGBA maps, a volume): frames are
     /// [translucent](Frame::translucent) and report depth where their alpha reaches `τ_d`;
     /// `None`: opaque.
@@ -453,7 +455,8 @@ impl Renderer {
 
     /// [`Renderer::render_jittered`] with a runtime opacity per layer (`opacities`, one per
     /// layer of the field, in its order): every layer is rendered and the layers are
-    /// composited per pixel in depth order ([`crate::layers::composite`]). A single layer at
+    /// composited per pixel in depth order, or in their order for depth layers
+    /// ([`crate::layers::composite`], [`GpuLightField::layer_order`]). A single layer at
     /// opacity 1 is one pass with no compositing.
     ///
     /// # Errors
@@ -494,7 +497,8 @@ impl Renderer {
         let tau = field
             .translucent
             .unwrap_or(crate::volume::raycast::DEFAULT_DEPTH_THRESHOLD as f32);
-        let mut frame = crate::layers::composite(&pairs, view.width, view.height, tau);
+        let mut frame =
+            crate::layers::composite(&pairs, view.width, view.height, tau, field.layer_order);
         frame.stats.render_ms += start.elapsed().as_secs_f64() * 1e3;
         Ok(frame)
     }

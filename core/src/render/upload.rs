@@ -229,6 +229,7 @@ impl Renderer {
                 maps[0].visible_box
             },
             layers: header.layers.clone(),
+            layer_order: header.layer_order,
             translucent,
             maps,
             gpu: Arc::clone(&self.gpu),

@@ -27,12 +27,12 @@ use glam::DVec3;
 use serde::Serialize;
 
 use super::layers::{LayersError, VolumeLayer, validate as validate_layers};
-use super::raycast::{RaycastError, RaycastOptions, VolumeRays};
+use super::raycast::{RaycastError, RaycastOptions, Segment, SplitRule, VolumeRays};
 use super::tf::TransferFunction;
 use super::{Volume, Voxels};
 use crate::asset::{
-    AssetError, AssetHeader, AssetWriter, Channel, Encoding, ImageKey, LfFrame, Provenance,
-    encode_asset,
+    AssetError, AssetHeader, AssetWriter, Channel, Encoding, ImageKey, LayerOrder, LfFrame,
+    Provenance, encode_asset,
 };
 use crate::bake::{BakeError, encode_depth, gpu_cameras};
 use crate::geometry;
@@ -132,9 +132,43 @@ struct VolumeBakeParams {
     depth_threshold: f32,
     shade: u32,
     tf_count: u32,
-    pad: u32,
+    /// 0: whole rays; 1: split by accumulated opacity; 2: split by value (depth layers).
+    split_mode: u32,
+    /// The segment a depth layer keeps.
+    segment: u32,
+    /// Boundaries in `splits`.
+    split_count: u32,
+    pad: [u32; 2],
+    /// The boundaries, four to a vector.
+    splits: [[f32; 4]; 4],
 }
-const _: () = assert!(std::mem::size_of::<VolumeBakeParams>() == 160);
+const _: () = assert!(std::mem::size_of::<VolumeBakeParams>() == 240);
+
+/// Most boundaries the shader's uniform holds.
+const MAX_SPLITS: usize = 16;
+const _: () = assert!(super::layers::MAX_VOLUME_LAYERS - 1 <= MAX_SPLITS);
+
+impl VolumeBakeParams {
+    /// Restricts the rays to a depth layer's segment (whole rays for `None`).
+    fn set_segment(&mut self, segment: Option<&Segment>) {
+        self.split_mode = 0;
+        self.segment = 0;
+        self.split_count = 0;
+        self.splits = [[0.0; 4]; 4];
+        if let Some(s) = segment {
+            self.split_mode = match s.split {
+                SplitRule::Opacity(_) => 1,
+                SplitRule::Value(_) => 2,
+            };
+            self.segment = u32::try_from(s.index).unwrap_or(u32::MAX);
+            let boundaries = s.split.boundaries();
+            self.split_count = boundaries.len().min(MAX_SPLITS) as u32;
+            for (k, &b) in boundaries.iter().take(MAX_SPLITS).enumerate() {
+                self.splits[k / 4][k % 4] = b as f32;
+            }
+        }
+    }
+}
 
 /// A transfer-function entry as `volume_bake.wgsl` reads it.
 #[repr(C)]
@@ -724,7 +758,7 @@ impl VolumeBaker {
         for (layer_index, layer) in layers.iter().enumerate() {
             if layer_index > 0 {
                 // The next layer's TF on the resident volume (the texture is uploaded once).
-                let rays = VolumeRays::new(volume, &layer.tf, &options.raycast)?;
+                let rays = layer.rays(volume, &options.raycast)?;
                 let entries = tf_entries(&layer.tf);
                 resident.tf_buffer = storage_buffer(
                     gpu,
@@ -737,6 +771,7 @@ impl VolumeBaker {
             let layer_key = u16::try_from(layer_index).unwrap_or(u16::MAX);
             let done_before = total * layer_index as u32;
             let mut params = resident.params;
+            params.set_segment(layer.segment.as_ref());
             params.resolution = n;
             // Relative to the volume's origin, in f64 before the f32 cast (see `shared_params`).
             params.center = [0, 1, 2].map(|a| (frame.center[a] - volume.origin[a]) as f32);
@@ -901,7 +936,11 @@ fn shared_params(
         depth_threshold: options.depth_threshold as f32,
         shade: u32::from(options.shade),
         tf_count: u32::try_from(tf_count).unwrap_or(u32::MAX),
-        pad: 0,
+        split_mode: 0,
+        segment: 0,
+        split_count: 0,
+        pad: [0; 2],
+        splits: [[0.0; 4]; 4],
     }
 }
 
@@ -943,8 +982,8 @@ fn prepare(
         return Err(BakeError::BadDepthBits(options.depth_bits).into());
     }
     // The same checks the direct ray caster makes, before anything is uploaded.
-    for layer in &layers[1..] {
-        VolumeRays::new(volume, &layer.tf, &options.raycast)?;
+    for layer in layers {
+        layer.rays(volume, &options.raycast)?;
     }
     let rays = VolumeRays::new(volume, tf, &options.raycast)?;
     let r = &options.raycast;
@@ -980,9 +1019,15 @@ fn prepare(
     if (layers.len() > 1 || layers[0].name != "default")
         && let serde_json::Value::Object(map) = &mut provenance.bake_options
     {
+        // Depth layers record the whole split (TF, boundaries, names); TF layers their list.
+        let json = VolumeLayer::to_json(layers);
         map.insert(
             "layers".to_owned(),
-            VolumeLayer::to_json(layers)["layers"].clone(),
+            if VolumeLayer::are_depth_layers(layers) {
+                json
+            } else {
+                json["layers"].clone()
+            },
         );
     }
     let tfs: Vec<&TransferFunction> = layers.iter().map(|l| &l.tf).collect();
@@ -994,6 +1039,9 @@ fn prepare(
         provenance,
     )?;
     header.set_color_encoding(Encoding::Rgba8Premultiplied);
+    if VolumeLayer::are_depth_layers(layers) {
+        header.set_layer_order(LayerOrder::Ray);
+    }
     header.layers = layers
         .iter()
         .map(|l| crate::asset::LayerDesc {

@@ -1,6 +1,7 @@
 //! Multi light fields of a volume (seed 002 §6): one named layer per transfer function — per
 //! structure, or per label set of a label volume — baked into one asset on one camera set, and
-//! composited at render time in depth order with runtime opacities ([`crate::layers`]).
+//! composited at render time in depth order with runtime opacities ([`crate::layers`]); or
+//! depth layers, the consecutive segments of every ray of one TF (seed 002 §7).
 //!
 //! `LAYERS.json`:
 //!
@@ -16,14 +17,29 @@
 //! (DESIGN §9's transfer-function JSON, scalar or label); `opacity` (default 1) is the layer's
 //! default runtime opacity. Names are unique and non-empty; every layer uses the same
 //! ray-cast options (step, shading, depth threshold) and the same kind of TF.
+//!
+//! Depth layers (seed 002 §7) split every ray of one TF into consecutive segments, one layer
+//! each, at the first samples where the ray's accumulated opacity reaches each threshold
+//! (`"opacity"`, strictly increasing in (0, 1)) or its scalar value reaches each isovalue
+//! (`"value"`, scalar volumes), in order ([`SplitRule`]); one more layer than boundaries:
+//!
+//! ```json
+//! {"tf": "mri-brain", "split": {"opacity": [0.3, 0.8]},
+//!  "layers": [{"name": "outer"}, {"name": "middle", "opacity": 0.5}, {"name": "inner"}]}
+//! ```
+//!
+//! Their order along every ray is fixed, so they composite in layer order, not by depth
+//! ([`crate::asset::LayerOrder::Ray`]); at opacity 1 each, they add up to the one-layer ray
+//! cast exactly.
 
 use std::path::Path;
 
 use serde::Deserialize;
 
 use super::Volume;
-use super::raycast::{RaycastError, RaycastOptions, VolumeImage};
+use super::raycast::{RaycastError, RaycastOptions, Segment, SplitRule, VolumeImage, VolumeRays};
 use super::tf::{PRESETS, TfError, TransferFunction};
+use crate::asset::LayerOrder;
 use crate::frame::Frame;
 use crate::layers::{LayerImage, composite};
 use crate::view::View;
@@ -40,6 +56,8 @@ pub struct VolumeLayer {
     pub tf: TransferFunction,
     /// Default runtime opacity in [0, 1].
     pub opacity: f32,
+    /// For a depth layer, the segment of the split rays it holds; `None`: the whole ray.
+    pub segment: Option<Segment>,
 }
 
 /// Why a layers file is refused.
@@ -78,15 +96,81 @@ pub enum LayersError {
 #[serde(deny_unknown_fields)]
 struct LayersFile {
     layers: Vec<LayerSpec>,
+    /// Depth layers: the one TF whose rays are split.
+    tf: Option<serde_json::Value>,
+    /// Depth layers: where.
+    split: Option<SplitSpec>,
 }
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct LayerSpec {
     name: String,
-    tf: serde_json::Value,
+    tf: Option<serde_json::Value>,
     #[serde(default = "full")]
     opacity: f32,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SplitSpec {
+    opacity: Option<Vec<f64>>,
+    value: Option<Vec<f64>>,
+}
+
+impl SplitSpec {
+    fn rule(self) -> Result<SplitRule, LayersError> {
+        let bad = |m: &str| Err(LayersError::Invalid(format!("split: {m}")));
+        let rule = match (self.opacity, self.value) {
+            (Some(b), None) => {
+                if !b.iter().all(|&x| x > 0.0 && x < 1.0) || !b.windows(2).all(|w| w[0] < w[1]) {
+                    return bad("opacity thresholds must increase strictly within (0, 1)");
+                }
+                SplitRule::Opacity(b)
+            }
+            (None, Some(b)) => {
+                if !b.iter().all(|x| x.is_finite()) {
+                    return bad("isovalues must be finite");
+                }
+                SplitRule::Value(b)
+            }
+            _ => return bad("give exactly one of \"opacity\" and \"value\""),
+        };
+        if rule.boundaries().is_empty() || rule.boundaries().len() >= MAX_VOLUME_LAYERS {
+            return bad(&format!(
+                "1 to {} boundaries (at most {MAX_VOLUME_LAYERS} layers)",
+                MAX_VOLUME_LAYERS - 1
+            ));
+        }
+        Ok(rule)
+    }
+}
+
+/// A layer's TF: a preset name, a TF file relative to `base`, or the TF object.
+fn resolve_tf(
+    value: &serde_json::Value,
+    layer: &str,
+    base: &Path,
+) -> Result<TransferFunction, LayersError> {
+    match value {
+        serde_json::Value::String(name) if PRESETS.contains(&name.as_str()) => {
+            TransferFunction::preset(name)
+        }
+        serde_json::Value::String(name) => {
+            let path = base.join(name);
+            let text = std::fs::read_to_string(&path).map_err(|source| LayersError::Io {
+                layer: layer.to_owned(),
+                path: path.display().to_string(),
+                source,
+            })?;
+            TransferFunction::from_json(&text)
+        }
+        object => TransferFunction::from_json(&object.to_string()),
+    }
+    .map_err(|source| LayersError::Tf {
+        layer: layer.to_owned(),
+        source,
+    })
 }
 
 fn full() -> f32 {
@@ -100,7 +184,20 @@ impl VolumeLayer {
             name: "default".to_owned(),
             tf: tf.clone(),
             opacity: 1.0,
+            segment: None,
         }
+    }
+
+    /// The rays of this layer: its TF's, restricted to its segment for a depth layer.
+    ///
+    /// # Errors
+    /// [`RaycastError`] as [`VolumeRays::new`] and [`VolumeRays::with_segment`].
+    pub fn rays<'a>(
+        &'a self,
+        volume: &'a Volume,
+        options: &RaycastOptions,
+    ) -> Result<VolumeRays<'a>, RaycastError> {
+        VolumeRays::new(volume, &self.tf, options)?.with_segment(self.segment.clone())
     }
 
     /// The layers of a `LAYERS.json` text; TF file names resolve against `base`.
@@ -110,37 +207,67 @@ impl VolumeLayer {
     pub fn parse(text: &str, base: &Path) -> Result<Vec<VolumeLayer>, LayersError> {
         let file: LayersFile =
             serde_json::from_str(text).map_err(|e| LayersError::Json(e.to_string()))?;
-        let layers = file
-            .layers
-            .into_iter()
-            .map(|spec| {
-                let tf = match &spec.tf {
-                    serde_json::Value::String(name) if PRESETS.contains(&name.as_str()) => {
-                        TransferFunction::preset(name)
-                    }
-                    serde_json::Value::String(name) => {
-                        let path = base.join(name);
-                        let text =
-                            std::fs::read_to_string(&path).map_err(|source| LayersError::Io {
-                                layer: spec.name.clone(),
-                                path: path.display().to_string(),
-                                source,
-                            })?;
-                        TransferFunction::from_json(&text)
-                    }
-                    object => TransferFunction::from_json(&object.to_string()),
-                }
-                .map_err(|source| LayersError::Tf {
-                    layer: spec.name.clone(),
-                    source,
-                })?;
-                Ok(VolumeLayer {
-                    name: spec.name,
-                    tf,
-                    opacity: spec.opacity,
+        let layers = match (file.split, file.tf) {
+            (None, None) => file
+                .layers
+                .into_iter()
+                .map(|spec| {
+                    let Some(tf) = &spec.tf else {
+                        return Err(LayersError::Invalid(format!(
+                            "layer {:?} has no \"tf\"",
+                            spec.name
+                        )));
+                    };
+                    Ok(VolumeLayer {
+                        tf: resolve_tf(tf, &spec.name, base)?,
+                        name: spec.name,
+                        opacity: spec.opacity,
+                        segment: None,
+                    })
                 })
-            })
-            .collect::<Result<Vec<_>, LayersError>>()?;
+                .collect::<Result<Vec<_>, LayersError>>()?,
+            (Some(split), Some(tf)) => {
+                let split = split.rule()?;
+                if file.layers.len() != split.boundaries().len() + 1 {
+                    return Err(LayersError::Invalid(format!(
+                        "{} boundaries split each ray into {} depth layers; {} are named",
+                        split.boundaries().len(),
+                        split.boundaries().len() + 1,
+                        file.layers.len()
+                    )));
+                }
+                if let Some(spec) = file.layers.iter().find(|l| l.tf.is_some()) {
+                    return Err(LayersError::Invalid(format!(
+                        "depth layer {:?}: depth layers share the top-level \"tf\"",
+                        spec.name
+                    )));
+                }
+                let tf = resolve_tf(&tf, "split", base)?;
+                if tf.is_labels() && matches!(split, SplitRule::Value(_)) {
+                    return Err(LayersError::Invalid(
+                        "split: a label volume splits its rays by opacity, not by value".into(),
+                    ));
+                }
+                file.layers
+                    .into_iter()
+                    .enumerate()
+                    .map(|(index, spec)| VolumeLayer {
+                        name: spec.name,
+                        tf: tf.clone(),
+                        opacity: spec.opacity,
+                        segment: Some(Segment {
+                            split: split.clone(),
+                            index,
+                        }),
+                    })
+                    .collect()
+            }
+            _ => {
+                return Err(LayersError::Invalid(
+                    "depth layers need both a top-level \"tf\" and \"split\"".into(),
+                ));
+            }
+        };
         validate(&layers)?;
         Ok(layers)
     }
@@ -148,6 +275,20 @@ impl VolumeLayer {
     /// The layers as JSON (TFs inline): what an asset records in its provenance, readable
     /// back by [`VolumeLayer::parse`].
     pub fn to_json(layers: &[VolumeLayer]) -> serde_json::Value {
+        if let Some(Segment { split, .. }) = layers.first().and_then(|l| l.segment.as_ref()) {
+            let (key, boundaries) = match split {
+                SplitRule::Opacity(b) => ("opacity", b),
+                SplitRule::Value(b) => ("value", b),
+            };
+            return serde_json::json!({
+                "tf": layers[0].tf.to_json(),
+                "split": { key: boundaries },
+                "layers": layers
+                    .iter()
+                    .map(|l| serde_json::json!({"name": l.name, "opacity": l.opacity}))
+                    .collect::<Vec<_>>()
+            });
+        }
         serde_json::json!({
             "layers": layers
                 .iter()
@@ -159,9 +300,16 @@ impl VolumeLayer {
                 .collect::<Vec<_>>()
         })
     }
+
+    /// Whether `layers` are the depth layers of split rays, composited in their order along
+    /// the ray rather than by depth.
+    pub fn are_depth_layers(layers: &[VolumeLayer]) -> bool {
+        layers.iter().any(|l| l.segment.is_some())
+    }
 }
 
-/// Checks the count, names, opacities and that every TF is of one kind.
+/// Checks the count, names, opacities, that every TF is of one kind and that depth layers are
+/// the segments of one split, in order, all of them.
 ///
 /// # Errors
 /// [`LayersError::Invalid`].
@@ -191,11 +339,33 @@ pub fn validate(layers: &[VolumeLayer]) -> Result<(), LayersError> {
                 layer.name, layer.opacity
             )));
         }
+        let expected = layers[0].segment.as_ref().map(|s| (&s.split, i));
+        if layer.segment.as_ref().map(|s| (&s.split, s.index)) != expected {
+            return Err(LayersError::Invalid(
+                "depth layers are the segments 0, 1, … of one split, none mixed with TF layers"
+                    .to_owned(),
+            ));
+        }
+        if layer.segment.is_some() && layer.tf != layers[0].tf {
+            return Err(LayersError::Invalid(
+                "depth layers split the rays of one TF".to_owned(),
+            ));
+        }
         if layer.tf.is_labels() != layers[0].tf.is_labels() {
             return Err(LayersError::Invalid(
                 "every layer's TF must be of one kind: all scalar or all label TFs".to_owned(),
             ));
         }
+    }
+    if let Some(s) = &layers[0].segment
+        && layers.len() != s.split.boundaries().len() + 1
+    {
+        return Err(LayersError::Invalid(format!(
+            "{} boundaries make {} depth layers, not {}",
+            s.split.boundaries().len(),
+            s.split.boundaries().len() + 1,
+            layers.len()
+        )));
     }
     Ok(())
 }
@@ -224,8 +394,9 @@ fn layer_image(image: &VolumeImage, sort_depth: &[f64]) -> LayerImage {
     }
 }
 
-/// The direct (CPU) reference of a multi light field: every layer ray-cast with its TF along
-/// each pixel's ray, then composited exactly as the renderer composites the baked layers, with
+/// The direct (CPU) reference of a multi light field: every layer ray-cast with its TF (and,
+/// for depth layers, its segment) along each pixel's ray, then composited exactly as the
+/// renderer composites the baked layers — by depth, or in ray order for depth layers — with
 /// `opacities` (one per layer).
 ///
 /// # Errors
@@ -246,16 +417,21 @@ pub fn reference_layers(
     }
     let mut images = Vec::with_capacity(layers.len());
     for layer in layers {
-        let (image, sort) =
-            super::raycast::raycast_with_sort_depth(volume, &layer.tf, view, options)?;
+        let (image, sort) = super::raycast::raycast_rays(&layer.rays(volume, options)?, view)?;
         images.push(layer_image(&image, &sort));
     }
     let pairs: Vec<(&LayerImage, f32)> = images.iter().zip(opacities.iter().copied()).collect();
+    let order = if VolumeLayer::are_depth_layers(layers) {
+        LayerOrder::Ray
+    } else {
+        LayerOrder::Depth
+    };
     Ok(composite(
         &pairs,
         view.width,
         view.height,
         options.depth_threshold as f32,
+        order,
     ))
 }
 
@@ -298,5 +474,62 @@ mod tests {
         ] {
             assert!(VolumeLayer::parse(bad, dir.path()).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn depth_layer_files_parse_and_bad_ones_are_refused() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let text = r#"{"tf": "mri-brain", "split": {"opacity": [0.3, 0.8]},
+            "layers": [{"name": "outer"}, {"name": "middle", "opacity": 0.5}, {"name": "inner"}]}"#;
+        let layers = VolumeLayer::parse(text, dir.path()).expect("valid");
+        assert!(VolumeLayer::are_depth_layers(&layers));
+        assert_eq!(layers.len(), 3);
+        for (i, l) in layers.iter().enumerate() {
+            let s = l.segment.as_ref().expect("a segment");
+            assert_eq!(
+                (s.index, &s.split),
+                (i, &SplitRule::Opacity(vec![0.3, 0.8]))
+            );
+            assert_eq!(l.tf, layers[0].tf);
+        }
+        assert_eq!(layers[1].opacity, 0.5);
+        // The provenance form (the whole object) reads back as the same layers.
+        let again = VolumeLayer::parse(&VolumeLayer::to_json(&layers).to_string(), dir.path())
+            .expect("round trip");
+        assert_eq!(again, layers);
+        let by_value = VolumeLayer::parse(
+            r#"{"tf": "ct-bone", "split": {"value": [300]}, "layers": [{"name": "a"}, {"name": "b"}]}"#,
+            dir.path(),
+        )
+        .expect("isovalue split");
+        assert_eq!(
+            by_value[1].segment.as_ref().map(|s| &s.split),
+            Some(&SplitRule::Value(vec![300.0]))
+        );
+        for bad in [
+            // Count of layers against boundaries.
+            r#"{"tf": "ct-bone", "split": {"opacity": [0.5]}, "layers": [{"name": "a"}]}"#,
+            // Thresholds not increasing, outside (0, 1), none, both rules, neither.
+            r#"{"tf": "ct-bone", "split": {"opacity": [0.6, 0.5]}, "layers": [{"name": "a"}, {"name": "b"}, {"name": "c"}]}"#,
+            r#"{"tf": "ct-bone", "split": {"opacity": [1.0]}, "layers": [{"name": "a"}, {"name": "b"}]}"#,
+            r#"{"tf": "ct-bone", "split": {"opacity": []}, "layers": [{"name": "a"}]}"#,
+            r#"{"tf": "ct-bone", "split": {"opacity": [0.5], "value": [1]}, "layers": [{"name": "a"}, {"name": "b"}]}"#,
+            r#"{"tf": "ct-bone", "split": {}, "layers": [{"name": "a"}, {"name": "b"}]}"#,
+            // A TF per depth layer, a split without a TF, a TF without a split.
+            r#"{"tf": "ct-bone", "split": {"opacity": [0.5]}, "layers": [{"name": "a", "tf": "ct-skin"}, {"name": "b"}]}"#,
+            r#"{"split": {"opacity": [0.5]}, "layers": [{"name": "a"}, {"name": "b"}]}"#,
+            r#"{"tf": "ct-bone", "layers": [{"name": "a"}]}"#,
+            // Isovalues of labels.
+            r#"{"tf": {"labels": {"1": [1, 0, 0, 1]}}, "split": {"value": [1]}, "layers": [{"name": "a"}, {"name": "b"}]}"#,
+            // A layer with no TF outside a split.
+            r#"{"layers": [{"name": "a"}]}"#,
+        ] {
+            assert!(VolumeLayer::parse(bad, dir.path()).is_err(), "{bad}");
+        }
+        // Depth layers are all the segments of one split, in order.
+        let mut shuffled = layers.clone();
+        shuffled.swap(0, 1);
+        assert!(validate(&shuffled).is_err());
+        assert!(validate(&layers[..2]).is_err());
     }
 }

@@ -18,6 +18,14 @@
 //!   writes it, and the same world offsets whatever order the file stores the axes in;
 //! - depth: the z-depth (`t · d·forward`) of the first sample after whose compositing
 //!   `A ≥ τ_d`, `+inf` where `A` never reaches it.
+//!
+//! Depth layers (seed 002 §7) cut each ray into consecutive segments ([`SplitRule`]): a
+//! segment ends after the sample at which the next split event first holds (the ray's
+//! accumulated opacity reaches a threshold, or its scalar value reaches an isovalue), the
+//! events taken in order. A segment is integrated like a whole ray that starts empty at its
+//! first sample (its own `C`, `A`, `τ_d` crossing and mean depth), while the split events and
+//! the early stop follow the whole ray's `A`; so compositing the segments front to back in
+//! their order gives the whole ray's `C` and `A` exactly.
 
 use glam::DVec3;
 
@@ -75,6 +83,45 @@ impl Default for RaycastOptions {
             depth_threshold: DEFAULT_DEPTH_THRESHOLD,
         }
     }
+}
+
+/// Where depth layers split a ray (seed 002 §7): the boundaries, in the order the ray meets
+/// them. A segment ends after the sample at which the next boundary's event first holds.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SplitRule {
+    /// The whole ray's accumulated opacity `A` reaches each threshold (strictly increasing, in
+    /// (0, 1)): opacity peeling.
+    Opacity(Vec<f64>),
+    /// The sampled scalar value reaches each value (`S ≥ v`), the first hit of each isosurface
+    /// in turn (scalar volumes).
+    Value(Vec<f64>),
+}
+
+impl SplitRule {
+    /// The boundaries (one fewer than the segments).
+    pub fn boundaries(&self) -> &[f64] {
+        match self {
+            SplitRule::Opacity(b) | SplitRule::Value(b) => b,
+        }
+    }
+
+    /// Whether boundary `k`'s event holds after a sample of value `value` that left the whole
+    /// ray's opacity at `a`.
+    fn fires(&self, k: usize, value: f64, a: f64) -> bool {
+        match self {
+            SplitRule::Opacity(b) => a >= b[k],
+            SplitRule::Value(b) => value >= b[k],
+        }
+    }
+}
+
+/// One segment of a split ray: the rule and which segment (0 = nearest the eye).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Segment {
+    /// Where the ray is split.
+    pub split: SplitRule,
+    /// This segment's index, `0..=boundaries`.
+    pub index: usize,
 }
 
 /// A ray-cast image: premultiplied RGBA and depth per pixel, row-major from the top.
@@ -142,6 +189,7 @@ pub struct VolumeRays<'a> {
     ref_step: f64,
     tau: f64,
     shading: Option<Shading>,
+    segment: Option<Segment>,
 }
 
 /// What one ray gathered.
@@ -234,7 +282,35 @@ impl<'a> VolumeRays<'a> {
             ref_step,
             tau,
             shading,
+            segment: None,
         })
+    }
+
+    /// These rays restricted to one segment of a split ray (see the module documentation):
+    /// what they gather is that segment's alone.
+    ///
+    /// # Errors
+    /// [`RaycastError::Options`] for a segment index beyond the rule's boundaries or a value
+    /// split on a label volume.
+    pub fn with_segment(mut self, segment: Option<Segment>) -> Result<Self, RaycastError> {
+        if let Some(s) = &segment {
+            if s.index > s.split.boundaries().len() {
+                return Err(RaycastError::Options(format!(
+                    "segment {} of a ray split at {} boundaries",
+                    s.index,
+                    s.split.boundaries().len()
+                )));
+            }
+            if matches!(s.split, SplitRule::Value(_))
+                && matches!(self.sampler.volume.voxels, Voxels::Labels(_))
+            {
+                return Err(RaycastError::Options(
+                    "a label volume splits its rays by opacity, not by value".into(),
+                ));
+            }
+        }
+        self.segment = segment;
+        Ok(self)
     }
 
     /// The sample spacing Δ in world units.
@@ -273,6 +349,7 @@ impl<'a> VolumeRays<'a> {
             self.ref_step,
             self.tau,
             self.shading.as_ref(),
+            self.segment.as_ref(),
         );
         RaySample {
             rgba: ray.rgba,
@@ -310,7 +387,17 @@ pub fn raycast_with_sort_depth(
     view: &View,
     options: &RaycastOptions,
 ) -> Result<(VolumeImage, Vec<f64>), RaycastError> {
-    let rays = VolumeRays::new(volume, tf, options)?;
+    raycast_rays(&VolumeRays::new(volume, tf, options)?, view)
+}
+
+/// [`raycast_with_sort_depth`] through prepared rays (a segment of split rays, for one).
+///
+/// # Errors
+/// [`RaycastError::View`] for a bad view.
+pub fn raycast_rays(
+    rays: &VolumeRays<'_>,
+    view: &View,
+) -> Result<(VolumeImage, Vec<f64>), RaycastError> {
     let basis = view
         .basis(crate::view::DEFAULT_MAX_VIEW_PX)
         .map_err(|e| RaycastError::View(e.to_string()))?;
@@ -330,7 +417,7 @@ pub fn raycast_with_sort_depth(
             .zip(sort.chunks_mut(rows_per * width))
             .enumerate()
         {
-            let (rays, basis) = (&rays, &basis);
+            let basis = &basis;
             handles.push(scope.spawn(move || {
                 let mut samples = 0u64;
                 for (n, ((out, z), s)) in rgba
@@ -496,6 +583,7 @@ impl<'a> Sampler<'a> {
         ref_step: f64,
         tau: f64,
         shading: Option<&Shading>,
+        segment: Option<&Segment>,
     ) -> Ray {
         let mut ray = Ray {
             rgba: [0.0; 4],
@@ -526,7 +614,12 @@ impl<'a> Sampler<'a> {
             return ray;
         }
         let labels = matches!(self.volume.voxels, Voxels::Labels(_));
-        let (mut c, mut a) = (DVec3::ZERO, 0.0);
+        // This segment's C and A (the whole ray's when it is not split), and the whole ray's A,
+        // which drives the split events and the early stop.
+        let (mut c, mut a, mut whole) = (DVec3::ZERO, 0.0, 0.0);
+        let (want, boundaries) = segment.map_or((0, 0), |s| (s.index, s.split.boundaries().len()));
+        // The segment the next sample belongs to.
+        let mut current = 0;
         // Σ (1 − A)·α_k·t_k: with A itself, the opacity-weighted mean t.
         let mut weighted_t = 0.0;
         let mut k = 0u64;
@@ -545,20 +638,31 @@ impl<'a> Sampler<'a> {
             let [r, g, b, opacity] = tf.eval(value);
             let alpha = opacity_for_step(opacity, step, ref_step);
             if alpha > 0.0 {
-                let mut rgb = DVec3::new(r, g, b);
-                if let Some(s) = shading {
-                    rgb *= self.shade_factor(eye + dir * t, s);
+                if current == want {
+                    let mut rgb = DVec3::new(r, g, b);
+                    if let Some(s) = shading {
+                        rgb *= self.shade_factor(eye + dir * t, s);
+                    }
+                    c += (1.0 - a) * alpha * rgb;
+                    weighted_t += (1.0 - a) * alpha * t;
+                    let before = a;
+                    a += (1.0 - a) * alpha;
+                    if a >= tau && ray.t_depth.is_infinite() {
+                        ray.t_depth = t;
+                        ray.t_cross =
+                            t - 0.5 * step + step * ((tau - before) / (a - before)).clamp(0.0, 1.0);
+                    }
                 }
-                c += (1.0 - a) * alpha * rgb;
-                weighted_t += (1.0 - a) * alpha * t;
-                let before = a;
-                a += (1.0 - a) * alpha;
-                if a >= tau && ray.t_depth.is_infinite() {
-                    ray.t_depth = t;
-                    ray.t_cross =
-                        t - 0.5 * step + step * ((tau - before) / (a - before)).clamp(0.0, 1.0);
+                whole += (1.0 - whole) * alpha;
+                if whole >= EARLY_STOP_ALPHA {
+                    break;
                 }
-                if a >= EARLY_STOP_ALPHA {
+            }
+            if let Some(s) = segment {
+                while current < boundaries && s.split.fires(current, value, whole) {
+                    current += 1;
+                }
+                if current > want {
                     break;
                 }
             }

@@ -1033,4 +1033,118 @@ mod transfer_and_raycast {
         }
         assert_eq!(a.samples, b.samples);
     }
+
+    #[test]
+    fn depth_layer_segments_composite_to_the_whole_ray_exactly() {
+        use super::super::raycast::{Segment, SplitRule, VolumeRays};
+        // A ramp along z with a dense band: every split rule cuts the ray somewhere inside.
+        let v = Volume {
+            affine: diagonal([0.7, 0.7, 0.9]),
+            ..volume([6, 6, 24], |i, j, k| {
+                (k as f32) * 4.0 + if (10..14).contains(&k) { 40.0 } else { 0.0 } + (i + j) as f32
+            })
+        };
+        let tf = TransferFunction::Scalar {
+            points: vec![
+                [0.0, 0.2, 0.3, 0.9, 0.0],
+                [20.0, 0.9, 0.4, 0.2, 0.15],
+                [90.0, 1.0, 1.0, 0.6, 0.35],
+                [140.0, 0.5, 0.9, 0.5, 0.6],
+            ],
+            ref_step: Some(0.7),
+        };
+        let options = RaycastOptions {
+            shade: true,
+            ..RaycastOptions::default()
+        };
+        let whole = VolumeRays::new(&v, &tf, &options).expect("rays");
+        let eye = [2.0, 1.5, -6.0];
+        for split in [
+            SplitRule::Opacity(vec![0.2, 0.6]),
+            SplitRule::Opacity(vec![0.05, 0.1, 0.15, 0.9]),
+            SplitRule::Value(vec![30.0, 80.0]),
+            // Isovalues reached at one sample (the band): an empty segment in between.
+            SplitRule::Value(vec![60.0, 61.0]),
+        ] {
+            let n = split.boundaries().len() + 1;
+            for dir in [[0.0, 0.0, 1.0], [0.1, 0.05, 1.0], [-0.02, 0.2, 1.0]] {
+                let dir = glam::DVec3::from(dir).normalize().to_array();
+                let full = whole.cast(eye, dir);
+                let (mut c, mut a) = ([0.0; 3], 0.0);
+                let mut gathered = 0;
+                for index in 0..n {
+                    let seg = VolumeRays::new(&v, &tf, &options)
+                        .and_then(|r| {
+                            r.with_segment(Some(Segment {
+                                split: split.clone(),
+                                index,
+                            }))
+                        })
+                        .expect("segment");
+                    let s = seg.cast(eye, dir).rgba;
+                    gathered += usize::from(s[3] > 0.0);
+                    for k in 0..3 {
+                        c[k] += (1.0 - a) * s[k];
+                    }
+                    a += (1.0 - a) * s[3];
+                }
+                // f64 sums of a few hundred terms, regrouped: far below 1e-12.
+                for k in 0..3 {
+                    assert!(
+                        (c[k] - full.rgba[k]).abs() < EPS,
+                        "{split:?} {k}: {c:?} vs {full:?}"
+                    );
+                }
+                assert!(
+                    (a - full.rgba[3]).abs() < EPS,
+                    "{split:?}: A {a} vs {}",
+                    full.rgba[3]
+                );
+                // The last rule fires both events at one sample and may leave the rest of the
+                // ray to the early stop: only the first three must cut every ray.
+                if split != SplitRule::Value(vec![60.0, 61.0]) {
+                    assert!(
+                        gathered >= 2,
+                        "{split:?}: the split cuts the ray ({gathered} segments)"
+                    );
+                }
+            }
+        }
+        // The opacity rule places its cut where A reaches the threshold: segment 0 ends with the
+        // sample that crossed 0.4, so its A is at least 0.4 and less than 0.4 plus that sample.
+        let seg0 = VolumeRays::new(&v, &tf, &options)
+            .and_then(|r| {
+                r.with_segment(Some(Segment {
+                    split: SplitRule::Opacity(vec![0.4]),
+                    index: 0,
+                }))
+            })
+            .expect("segment")
+            .cast(eye, [0.0, 0.0, 1.0]);
+        assert!(
+            seg0.rgba[3] >= 0.4 && seg0.rgba[3] < 0.55,
+            "{:?}",
+            seg0.rgba
+        );
+        // A segment beyond the boundaries, and a value split of labels, are refused.
+        let beyond = VolumeRays::new(&v, &tf, &options)
+            .expect("rays")
+            .with_segment(Some(Segment {
+                split: SplitRule::Opacity(vec![0.5]),
+                index: 2,
+            }));
+        assert!(matches!(beyond, Err(RaycastError::Options(_))));
+        let labels = Volume {
+            voxels: Voxels::Labels(vec![1; 8]),
+            ..volume([2, 2, 2], |_, _, _| 0.0)
+        };
+        let ltf = TransferFunction::from_json(r#"{"labels": {"1": [1, 0, 0, 0.5]}}"#).expect("tf");
+        let by_value = VolumeRays::new(&labels, &ltf, &RaycastOptions::default())
+            .expect("rays")
+            .with_segment(Some(Segment {
+                split: SplitRule::Value(vec![1.0]),
+                index: 0,
+            }));
+        assert!(matches!(by_value, Err(RaycastError::Options(_))));
+    }
 }

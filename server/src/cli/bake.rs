@@ -74,9 +74,10 @@ pub struct BakeArgs {
     /// Volume ray casting.
     #[command(flatten)]
     pub volume: VolumeArgs,
-    /// A volume multi light field: one layer per transfer function of LAYERS.json (names,
-    /// TFs, default opacities; docs/volumes.md), instead of --tf. Render with
-    /// `--layers NAME=OPACITY,...`.
+    /// A volume multi light field, instead of --tf: one layer per transfer function of
+    /// LAYERS.json (names, TFs, default opacities), or depth layers that split every ray of one
+    /// TF where its opacity or value reaches given boundaries (docs/volumes.md, "Layers").
+    /// Render with `--layers NAME=OPACITY,...`.
     #[arg(long, value_name = "LAYERS.json")]
     pub layers: Option<PathBuf>,
 }

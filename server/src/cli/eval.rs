@@ -203,11 +203,14 @@ pub(super) fn eval(args: &EvalArgs) -> Result<()> {
         // opacities (lumigraph_core::volume::layers::reference_layers).
         let recorded_layers = header.provenance.bake_options.get("layers");
         if let (Some(layers), None) = (recorded_layers, &flags.tf) {
-            let layers = VolumeLayer::parse(
-                &serde_json::json!({ "layers": layers }).to_string(),
-                Path::new("."),
-            )
-            .context("the asset's recorded layers")?;
+            // TF layers record their list, depth layers the whole split (an object).
+            let text = if layers.is_object() {
+                layers.to_string()
+            } else {
+                serde_json::json!({ "layers": layers }).to_string()
+            };
+            let layers =
+                VolumeLayer::parse(&text, Path::new(".")).context("the asset's recorded layers")?;
             if args.floor {
                 bail!("--floor measures a single-layer volume asset; this one has layers");
             }

@@ -66,7 +66,8 @@ pub struct ReferenceArgs {
     #[command(flatten)]
     pub volume: VolumeArgs,
     /// A volume's layers (LAYERS.json, as `bake --layers` takes it) instead of --tf: each
-    /// layer is ray-cast with its TF and the layers are composited in depth order.
+    /// layer is ray-cast with its TF (and segment, for depth layers) and the layers are
+    /// composited in depth order (depth layers: in their order along the ray).
     #[arg(long, value_name = "LAYERS.json")]
     pub layers: Option<PathBuf>,
     /// With --layers: runtime opacities (the renderer's `--layers` values); layers not named
