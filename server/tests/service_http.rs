@@ -2599,6 +2599,7 @@ fn layered_volume_asset() -> Vec<u8> {
         name: name.to_owned(),
         tf: TransferFunction::from_json(tf).expect("tf"),
         opacity,
+        segment: None,
     };
     volume_asset_with(Some(vec![
         layer(
@@ -2740,6 +2741,57 @@ async fn layered_volumes_take_runtime_opacities_over_http() {
         assert_eq!(reply.status, StatusCode::UNPROCESSABLE_ENTITY, "{text}");
         assert!(text.contains(needle), "{needle}: {text}");
     }
+}
+
+/// Depth layers over HTTP: the ball's rays split where their opacity reaches 0.3 (format
+/// version 3, `layer_order: "ray"` in the header the service reports); at full opacity the
+/// centre is opaque, and with the back segment hidden only the front one is left.
+#[tokio::test(flavor = "multi_thread")]
+async fn depth_layered_volumes_take_runtime_opacities_over_http() {
+    use lumigraph_core::volume::layers::VolumeLayer;
+    let (dir, state) = setup(None, |_| {}).await;
+    let layers = VolumeLayer::parse(
+        r#"{"tf": {"points": [[0, 0, 0, 0, 0], [5, 0.2, 0.5, 1, 0.1], [40, 0.2, 0.5, 1, 0.1], [60, 1, 0.6, 0.2, 1]]},
+            "split": {"opacity": [0.3]}, "layers": [{"name": "front"}, {"name": "back"}]}"#,
+        std::path::Path::new("."),
+    )
+    .expect("depth layers");
+    std::fs::write(
+        dir.path().join("split.lfa"),
+        volume_asset_with(Some(layers)),
+    )
+    .expect("write");
+    state.load_assets().await.expect("loading assets");
+    let detail = get(&state, "/v1/assets/split").await;
+    let detail: serde_json::Value = serde_json::from_slice(&detail.body).expect("json");
+    assert_eq!(detail["layers"], serde_json::json!(["front", "back"]));
+    assert_eq!(detail["header"]["format_version"], 3);
+    assert_eq!(detail["header"]["layer_order"], "ray");
+    let centre_alpha = |body: &[u8]| {
+        let (w, h, rgba) = lumigraph_core::image_io::decode_png_rgba8(body).expect("png");
+        rgba[4 * ((h as usize / 2) * w as usize + w as usize / 2) + 3]
+    };
+    let mut alphas = Vec::new();
+    for layers in [serde_json::json!({}), serde_json::json!({"back": 0})] {
+        let reply = post_json(
+            &state,
+            "/v1/assets/split/render",
+            serde_json::json!({"view": view_json(48, 48), "layers": layers}).to_string(),
+        )
+        .await;
+        assert_eq!(
+            reply.status,
+            StatusCode::OK,
+            "{}",
+            String::from_utf8_lossy(&reply.body)
+        );
+        alphas.push(centre_alpha(&reply.body));
+    }
+    assert!(alphas[0] >= 250, "the whole ray is opaque: {alphas:?}");
+    assert!(
+        alphas[1] < 200,
+        "the front segment alone is not: {alphas:?}"
+    );
 }
 
 /// A volume light field through the service: PNG frames carry the haze's partial alpha, an

@@ -357,9 +357,13 @@ def bake_volume(
             :func:`reference_volume`.
         layers: instead of ``tf``, a multi light field: a list of
             ``{"name": str, "tf": preset | dict, "opacity": float}`` (opacity, default 1, is the
-            layer's default runtime opacity), baked on one camera set. Render it with
-            ``LightField.render(view, layers={"skin": 0.3})``: the layers composite per pixel
-            in depth order (``docs/volumes.md``, "Layers").
+            layer's default runtime opacity), baked on one camera set; or depth layers, a dict
+            ``{"tf": ..., "split": {"opacity": [0.3, 0.7]} | {"value": [...]}, "layers":
+            [{"name": ...}, ...]}`` with one more layer than boundaries: the segments of every
+            ray, cut where its accumulated opacity (or scalar value) reaches each boundary.
+            Render it with ``LightField.render(view, layers={"skin": 0.3})``: the layers
+            composite per pixel in depth order, depth layers in their order along the ray
+            (``docs/volumes.md``, "Layers").
         cameras: 12, 42, 162 (default) or 642.
         resolution: side of each camera's parabolic map in pixels, 8..4096, default 256.
         depth_bits: depth precision, 16 (default) or 8.
@@ -433,8 +437,8 @@ def reference_volume(
         step: sample spacing along rays, world units (default half the tf's reference step).
         depth_threshold: accumulated opacity that places the depth, in (0, 1].
         layers: instead of ``tf``, layers as :func:`bake_volume` takes them: each is ray-cast
-            with its tf and the layers composite per pixel in depth order, as a baked multi
-            light field renders.
+            with its tf (depth layers: its segment) and the layers composite per pixel in depth
+            order (depth layers: in ray order), as a baked multi light field renders.
         opacities: with ``layers``, runtime opacities by layer name (others keep theirs).
 
     Returns:
