@@ -223,59 +223,28 @@ pub fn composite(
     let by_depth = order == LayerOrder::Depth;
     let mut color = vec![0u8; 4 * pixels];
     let mut depth = vec![f32::INFINITY; pixels];
-    let mut order: Vec<(f32, usize)> = Vec::with_capacity(layers.len());
-    for p in 0..pixels {
-        order.clear();
-        for (index, (layer, o)) in layers.iter().enumerate() {
-            if *o > 0.0 && layer.premultiplied[4 * p + 3] > 0 {
-                let z = layer.depth[p];
-                if by_depth {
-                    // Insertion sort by depth; equal depths keep the input order. A fragment
-                    // with no depth (NaN cannot occur: renderers write +inf) goes last.
-                    let at = order.partition_point(|&(d, _)| d <= z);
-                    order.insert(at, (z, index));
-                } else {
-                    order.push((z, index));
-                }
-            }
+    // Bands of rows on the CPU cores: the GPU is idle while a frame composites, and a band's
+    // pixels depend on nothing else.
+    let threads = std::thread::available_parallelism()
+        .map_or(1, usize::from)
+        .clamp(1, 8);
+    let band = pixels.div_ceil(threads).max(1);
+    let job = Composite {
+        layers: &layers,
+        depth_threshold,
+        opaque,
+        by_depth,
+    };
+    std::thread::scope(|scope| {
+        for (i, (color, depth)) in color
+            .chunks_mut(4 * band)
+            .zip(depth.chunks_mut(band))
+            .enumerate()
+        {
+            let job = &job;
+            scope.spawn(move || job.pixels(i * band, color, depth));
         }
-        if order.is_empty() {
-            continue;
-        }
-        if opaque && by_depth {
-            let (z, index) = order[0];
-            color[4 * p..4 * p + 4]
-                .copy_from_slice(&layers[index].0.premultiplied[4 * p..4 * p + 4]);
-            depth[p] = z;
-            continue;
-        }
-        let (mut c, mut a) = ([0.0f32; 3], 0.0f32);
-        let mut z_out = f32::INFINITY;
-        for &(z, index) in &order {
-            let (layer, o) = layers[index];
-            let px = &layer.premultiplied[4 * p..4 * p + 4];
-            let w = (1.0 - a) * o / 255.0;
-            for k in 0..3 {
-                c[k] += w * f32::from(px[k]);
-            }
-            a += w * f32::from(px[3]);
-            if a >= depth_threshold && z_out.is_infinite() {
-                z_out = z;
-            }
-            if a >= 1.0 - 0.5 / 255.0 {
-                break;
-            }
-        }
-        let alpha = (255.0 * a).round().clamp(0.0, 255.0);
-        if alpha < 1.0 {
-            continue;
-        }
-        for k in 0..3 {
-            color[4 * p + k] = (255.0 * c[k] / a).round().clamp(0.0, 255.0) as u8;
-        }
-        color[4 * p + 3] = alpha as u8;
-        depth[p] = z_out;
-    }
+    });
     let mut stats = FrameStats::default();
     for (layer, _) in &layers {
         stats.render_ms += layer.stats.render_ms;
@@ -290,6 +259,117 @@ pub fn composite(
         depth,
         translucent: !opaque,
         stats,
+    }
+}
+
+/// The per-pixel work of [`composite`].
+struct Composite<'a> {
+    layers: &'a [(&'a LayerImage, f32)],
+    depth_threshold: f32,
+    opaque: bool,
+    by_depth: bool,
+}
+
+impl Composite<'_> {
+    /// Composites the pixels `first..first + depth.len()` into `color` and `depth`.
+    fn pixels(&self, first: usize, color: &mut [u8], depth: &mut [f32]) {
+        let layers = self.layers;
+        if !self.by_depth {
+            self.in_ray_order(first, color, depth);
+            return;
+        }
+        let mut order: Vec<(f32, usize)> = Vec::with_capacity(layers.len());
+        for (q, (out, z_px)) in color.chunks_exact_mut(4).zip(depth.iter_mut()).enumerate() {
+            let p = first + q;
+            order.clear();
+            for (index, (layer, o)) in layers.iter().enumerate() {
+                if *o > 0.0 && layer.premultiplied[4 * p + 3] > 0 {
+                    let z = layer.depth[p];
+                    if self.by_depth {
+                        // Insertion sort by depth; equal depths keep the input order. A
+                        // fragment with no depth (NaN cannot occur: renderers write +inf) goes
+                        // last.
+                        let at = order.partition_point(|&(d, _)| d <= z);
+                        order.insert(at, (z, index));
+                    } else {
+                        order.push((z, index));
+                    }
+                }
+            }
+            if order.is_empty() {
+                continue;
+            }
+            if self.opaque && self.by_depth {
+                let (z, index) = order[0];
+                out.copy_from_slice(&layers[index].0.premultiplied[4 * p..4 * p + 4]);
+                *z_px = z;
+                continue;
+            }
+            let (mut c, mut a) = ([0.0f32; 3], 0.0f32);
+            let mut z_out = f32::INFINITY;
+            for &(z, index) in &order {
+                let (layer, o) = layers[index];
+                let px = &layer.premultiplied[4 * p..4 * p + 4];
+                let w = (1.0 - a) * o / 255.0;
+                for k in 0..3 {
+                    c[k] += w * f32::from(px[k]);
+                }
+                a += w * f32::from(px[3]);
+                if a >= self.depth_threshold && z_out.is_infinite() {
+                    z_out = z;
+                }
+                if a >= 1.0 - 0.5 / 255.0 {
+                    break;
+                }
+            }
+            let alpha = (255.0 * a).round().clamp(0.0, 255.0);
+            if alpha < 1.0 {
+                continue;
+            }
+            let scale = 255.0 / a;
+            for k in 0..3 {
+                out[k] = (c[k] * scale).round().clamp(0.0, 255.0) as u8;
+            }
+            out[3] = alpha as u8;
+            *z_px = z_out;
+        }
+    }
+
+    /// [`Self::pixels`] for layers in their given order: no per-pixel list, each layer blended
+    /// as it comes.
+    fn in_ray_order(&self, first: usize, color: &mut [u8], depth: &mut [f32]) {
+        for (q, (out, z_px)) in color.chunks_exact_mut(4).zip(depth.iter_mut()).enumerate() {
+            let p = first + q;
+            let (mut c, mut a) = ([0.0f32; 3], 0.0f32);
+            let mut z_out = f32::INFINITY;
+            for &(layer, o) in self.layers {
+                let px = &layer.premultiplied[4 * p..4 * p + 4];
+                if px[3] == 0 || o <= 0.0 {
+                    continue;
+                }
+                let w = (1.0 - a) * o * (1.0 / 255.0);
+                c[0] += w * f32::from(px[0]);
+                c[1] += w * f32::from(px[1]);
+                c[2] += w * f32::from(px[2]);
+                a += w * f32::from(px[3]);
+                if a >= self.depth_threshold && z_out.is_infinite() {
+                    z_out = layer.depth[p];
+                }
+                if a >= 1.0 - 0.5 / 255.0 {
+                    break;
+                }
+            }
+            let alpha = (255.0 * a).round().clamp(0.0, 255.0);
+            if alpha < 1.0 {
+                continue;
+            }
+            let scale = 255.0 / a;
+            for k in 0..3 {
+                out[k] = (c[k] * scale).round().clamp(0.0, 255.0) as u8;
+            }
+            out[3] = alpha as u8;
+            *z_px = z_out;
+        }
     }
 }
 

@@ -606,7 +606,13 @@ impl Plan {
             Job::Single(options) => (options, options, 0.0),
             Job::Blend(a, b, weight) => (a, b, weight),
         };
-        let images = renderer.render_layer_images(field, view, (&a, &b, weight), [0.0; 2])?;
+        let images = renderer.render_layer_images(
+            field,
+            view,
+            (&a, &b, weight),
+            [0.0; 2],
+            &self.opacities,
+        )?;
         Ok((images, decision))
     }
 }

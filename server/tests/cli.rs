@@ -1364,6 +1364,67 @@ fn bakes_renders_and_scores_a_volume_light_field() {
 /// a lost or misordered layer costs far more.
 const LAYERED_BALL_MIN_PSNR: f64 = 17.7;
 
+/// `bake VOLUME --layers LAYERS` of the ball at 0.5 spacing, 42 cameras × 64 px, into `asset`;
+/// the run must succeed.
+fn bake_ball_layers(volume: &str, layers: &Path, asset: &str) -> Output {
+    let o = lumigraph(&[
+        "bake",
+        volume,
+        "--spacing",
+        "0.5,0.5,0.5",
+        "--layers",
+        s(layers),
+        "--cameras",
+        "42",
+        "--resolution",
+        "64",
+        "-o",
+        asset,
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    o
+}
+
+/// Runs `args --view VIEW -o OUT` (a 48² view) and returns the RGBA of the PNG's centre.
+fn centre_rgba(args: &[&str], view: &Path, out: &str) -> [u8; 4] {
+    let png = path(out);
+    let mut all = args.to_vec();
+    all.extend(["--view", s(view), "-o", s(&png)]);
+    let o = lumigraph(&all);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (_, _, rgba) = lumigraph_core::image_io::read_png_rgba8(&png).expect("png");
+    let p = 4 * (24 * 48 + 24);
+    [rgba[p], rgba[p + 1], rgba[p + 2], rgba[p + 3]]
+}
+
+/// `eval ASSET --volume VOLUME --layers OPACITIES` of a ball asset on two 48² views: each view's
+/// masked PSNR against the composited reference.
+fn eval_ball_layers(asset: &str, volume: &str, opacities: &str) -> Vec<f64> {
+    let o = lumigraph(&[
+        "eval",
+        asset,
+        "--volume",
+        volume,
+        "--spacing",
+        "0.5,0.5,0.5",
+        "--views",
+        "2",
+        "--size",
+        "48",
+        "--layers",
+        opacities,
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("eval JSON");
+    report["views"]
+        .as_array()
+        .expect("views")
+        .iter()
+        .map(|view| view["masked_psnr"].as_f64().expect("masked PSNR"))
+        .collect()
+}
+
 #[test]
 fn bakes_and_renders_a_layered_volume() {
     let volume = write("layers-ball.npy", &ball_npy(24));
@@ -1377,21 +1438,7 @@ fn bakes_and_renders_a_layered_volume() {
     let asset = path("layers-ball.lfa");
     let v = s(&volume);
     let a = s(&asset);
-    let o = lumigraph(&[
-        "bake",
-        v,
-        "--spacing",
-        "0.5,0.5,0.5",
-        "--layers",
-        s(&layers),
-        "--cameras",
-        "42",
-        "--resolution",
-        "64",
-        "-o",
-        a,
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = bake_ball_layers(v, &layers, a);
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(
         stdout.contains("42 cameras × 2 layers at 64 px"),
@@ -1401,15 +1448,7 @@ fn bakes_and_renders_a_layered_volume() {
         "layers-ball-view.json",
         br#"{"eye": [5.75, 9, -14], "target": [5.75, 5.75, 5.75], "up": [0, 1, 0], "yfov_deg": 40, "width": 48, "height": 48}"#,
     );
-    let alpha_at_centre = |args: &[&str], out: &str| {
-        let png = path(out);
-        let mut all = args.to_vec();
-        all.extend(["--view", s(&view), "-o", s(&png)]);
-        let o = lumigraph(&all);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let (_, _, rgba) = lumigraph_core::image_io::read_png_rgba8(&png).expect("png");
-        rgba[4 * (24 * 48 + 24) + 3]
-    };
+    let alpha_at_centre = |args: &[&str], out: &str| centre_rgba(args, &view, out)[3];
     // The core is opaque at its default opacity, half transparent at 0.5, gone at 0.
     assert!(alpha_at_centre(&["render", a], "layers-full.png") >= 250);
     let half = alpha_at_centre(&["render", a, "--layers", "core=0.5"], "layers-half.png");
@@ -1437,29 +1476,8 @@ fn bakes_and_renders_a_layered_volume() {
         half.abs_diff(reference) <= 12,
         "render {half} against the reference {reference}"
     );
-    let o = lumigraph(&[
-        "eval",
-        a,
-        "--volume",
-        v,
-        "--spacing",
-        "0.5,0.5,0.5",
-        "--views",
-        "2",
-        "--size",
-        "48",
-        "--layers",
-        "halo=0.5",
-        "--json",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("eval JSON");
-    for view in report["views"].as_array().expect("views") {
-        let masked = view["masked_psnr"].as_f64().expect("masked PSNR");
-        assert!(
-            masked > LAYERED_BALL_MIN_PSNR,
-            "masked PSNR {masked}: {view}"
-        );
+    for masked in eval_ball_layers(a, v, "halo=0.5") {
+        assert!(masked > LAYERED_BALL_MIN_PSNR, "masked PSNR {masked}");
     }
     assert_fails(
         &[
@@ -1540,21 +1558,7 @@ fn bakes_and_renders_depth_layers_of_a_volume() {
     );
     let asset = path("depth-ball.lfa");
     let (v, a) = (s(&volume), s(&asset));
-    let o = lumigraph(&[
-        "bake",
-        v,
-        "--spacing",
-        "0.5,0.5,0.5",
-        "--layers",
-        s(&layers),
-        "--cameras",
-        "42",
-        "--resolution",
-        "64",
-        "-o",
-        a,
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    bake_ball_layers(v, &layers, a);
     let o = lumigraph(&["info", a]);
     let info = String::from_utf8_lossy(&o.stdout);
     assert!(info.contains("asset v3"), "{info}");
@@ -1563,16 +1567,7 @@ fn bakes_and_renders_depth_layers_of_a_volume() {
         "depth-ball-view.json",
         br#"{"eye": [5.75, 9, -14], "target": [5.75, 5.75, 5.75], "up": [0, 1, 0], "yfov_deg": 40, "width": 48, "height": 48}"#,
     );
-    let centre = |args: &[&str], out: &str| {
-        let png = path(out);
-        let mut all = args.to_vec();
-        all.extend(["--view", s(&view), "-o", s(&png)]);
-        let o = lumigraph(&all);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let (_, _, rgba) = lumigraph_core::image_io::read_png_rgba8(&png).expect("png");
-        let p = 4 * (24 * 48 + 24);
-        [rgba[p], rgba[p + 1], rgba[p + 2], rgba[p + 3]]
-    };
+    let centre = |args: &[&str], out: &str| centre_rgba(args, &view, out);
     let full = centre(&["render", a], "depth-full.png");
     assert!(full[3] >= 250, "{full:?}");
     // The outer segment alone holds the ray up to A = 0.4: faint, and bluer than the whole.
@@ -1604,29 +1599,8 @@ fn bakes_and_renders_depth_layers_of_a_volume() {
             "segments {layered:?} against the whole ray {whole:?}"
         );
     }
-    let o = lumigraph(&[
-        "eval",
-        a,
-        "--volume",
-        v,
-        "--spacing",
-        "0.5,0.5,0.5",
-        "--views",
-        "2",
-        "--size",
-        "48",
-        "--layers",
-        "inner=0.5",
-        "--json",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("eval JSON");
-    for view in report["views"].as_array().expect("views") {
-        let masked = view["masked_psnr"].as_f64().expect("masked PSNR");
-        assert!(
-            masked > DEPTH_LAYERED_BALL_MIN_PSNR,
-            "masked PSNR {masked}: {view}"
-        );
+    for masked in eval_ball_layers(a, v, "inner=0.5") {
+        assert!(masked > DEPTH_LAYERED_BALL_MIN_PSNR, "masked PSNR {masked}");
     }
     // In a scene the depth layers composite in their order into one fragment, sorted with an
     // opaque light field behind: the ball's centre stays as it renders alone (the flattened

@@ -2772,6 +2772,7 @@ async fn depth_layered_volumes_take_runtime_opacities_over_http() {
         rgba[4 * ((h as usize / 2) * w as usize + w as usize / 2) + 3]
     };
     let mut alphas = Vec::new();
+    let mut front_only = Vec::new();
     for layers in [serde_json::json!({}), serde_json::json!({"back": 0})] {
         let reply = post_json(
             &state,
@@ -2786,12 +2787,51 @@ async fn depth_layered_volumes_take_runtime_opacities_over_http() {
             String::from_utf8_lossy(&reply.body)
         );
         alphas.push(centre_alpha(&reply.body));
+        front_only = reply.body;
     }
     assert!(alphas[0] >= 250, "the whole ray is opaque: {alphas:?}");
     assert!(
         alphas[1] < 200,
         "the front segment alone is not: {alphas:?}"
     );
+    // The stream's `layers` setting gives the same lossless frame.
+    let (addr, stop_tx, server) = serve_on_loopback(state).await;
+    let (mut ws, _) =
+        tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset=split"))
+            .await
+            .expect("connect");
+    let hello = next_json(&mut ws).await;
+    assert_eq!(hello["asset"]["id"], "split");
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "settings", "interactive": false, "still_codec": "png"}),
+    )
+    .await;
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "settings", "layers": {"back": 0}}),
+    )
+    .await;
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "view", "id": 1, "view": view_json(48, 48)}),
+    )
+    .await;
+    let (header, image) = next_frame(&mut ws).await;
+    assert_eq!(header.request_id, 1);
+    let decode = |png: &[u8]| {
+        lumigraph_core::image_io::decode_png_rgba8(png)
+            .expect("png")
+            .2
+    };
+    assert_eq!(
+        decode(&image),
+        decode(&front_only),
+        "the stream's frame with the back hidden is the HTTP one"
+    );
+    drop(ws);
+    let _ = stop_tx.send(());
+    let _ = server.await;
 }
 
 /// A volume light field through the service: PNG frames carry the haze's partial alpha, an

@@ -456,8 +456,8 @@ impl Renderer {
     /// [`Renderer::render_jittered`] with a runtime opacity per layer (`opacities`, one per
     /// layer of the field, in its order): every layer is rendered and the layers are
     /// composited per pixel in depth order, or in their order for depth layers
-    /// ([`crate::layers::composite`], [`GpuLightField::layer_order`]). A single layer at
-    /// opacity 1 is one pass with no compositing.
+    /// ([`crate::layers::composite`], [`GpuLightField::layer_order`]). Layers at opacity 0 are
+    /// not rendered, and a single visible layer at opacity 1 is one pass with no compositing.
     ///
     /// # Errors
     /// As [`Renderer::render_jittered`]; [`RenderError::Option`] for an opacity count that is
@@ -481,16 +481,19 @@ impl Renderer {
                 field.maps.len()
             )));
         }
-        if let ([maps], [o]) = (field.maps.as_slice(), opacities)
+        // One visible layer at full opacity (every other at 0) is one pass, no compositing.
+        let mut visible = opacities.iter().enumerate().filter(|(_, o)| **o > 0.0);
+        if let (Some((only, o)), None) = (visible.next(), visible.next())
             && *o >= 1.0
         {
+            let maps = &field.maps[only];
             let mut frame = self.render_maps(field, maps, view, a, b, weight, jitter)?;
             if let Some(tau) = field.translucent {
                 straighten(&mut frame.color, &mut frame.depth, tau);
             }
             return Ok(frame);
         }
-        let images = self.render_layer_images(field, view, (a, b, weight), jitter)?;
+        let images = self.render_layer_images(field, view, (a, b, weight), jitter, opacities)?;
         let start = Instant::now();
         let pairs: Vec<(&crate::layers::LayerImage, f32)> =
             images.iter().zip(opacities.iter().copied()).collect();
@@ -505,7 +508,8 @@ impl Renderer {
 
     /// Every layer of `field` rendered for `view`, uncomposited: premultiplied colour and the
     /// depth of the maps' surface each pixel met (its sort depth, also where a translucent
-    /// layer's alpha stays below `τ_d`).
+    /// layer's alpha stays below `τ_d`). A layer whose opacity in `opacities` (one per layer,
+    /// in order) is 0 is not rendered: its image is empty, as compositing would leave it.
     ///
     /// # Errors
     /// As [`Renderer::render_jittered`].
@@ -515,9 +519,22 @@ impl Renderer {
         view: &View,
         (a, b, weight): (&RenderOptions, &RenderOptions, f32),
         jitter: [f32; 2],
+        opacities: &[f32],
     ) -> Result<Vec<crate::layers::LayerImage>, RenderError> {
         let mut out = Vec::with_capacity(field.maps.len());
-        for maps in &field.maps {
+        for (i, maps) in field.maps.iter().enumerate() {
+            if opacities.get(i).is_some_and(|&o| o <= 0.0) {
+                let pixels = view.width as usize * view.height as usize;
+                out.push(crate::layers::LayerImage {
+                    width: view.width,
+                    height: view.height,
+                    premultiplied: vec![0; 4 * pixels],
+                    depth: vec![f32::INFINITY; pixels],
+                    translucent: field.translucent.is_some(),
+                    stats: crate::frame::FrameStats::default(),
+                });
+                continue;
+            }
             let frame = self.render_maps(field, maps, view, a, b, weight, jitter)?;
             out.push(if frame.translucent {
                 let mut premultiplied = frame.color;
