@@ -122,7 +122,38 @@ fn bake_against_cpu(
         Some(Encoding::Rgba8Premultiplied)
     );
     let rays = VolumeRays::new(volume, tf, &options.raycast).expect("options");
-    let n = options.resolution;
+    let cameras: Vec<u32> = (0..options.cameras).collect();
+    let (stats, covered) =
+        compare_texels(&asset, 0, &rays, volume, tf, &cameras, options.resolution);
+    let fraction = covered as f64 / stats.texels as f64;
+    assert!(
+        (fraction - report.covered_fraction).abs() < 1e-12,
+        "report's covered fraction {} vs counted {fraction}",
+        report.covered_fraction
+    );
+    // From a camera on the bounding sphere, an object of half the sphere's radius spans about
+    // 30° and covers about 5 % of the square map (parabolic radius tan 15°); the blob's visible
+    // part covers 2.6–3 % (measured). Far less means the rays miss the volume.
+    assert!(
+        fraction > 0.015,
+        "the volume shows in the maps ({fraction})"
+    );
+    stats
+}
+
+/// Holds every texel of `layer` of `asset` on `cameras` against [`VolumeRays::cast`] of the same
+/// ray (`tf` places the frame): colour as `round(255·C)`, alpha as `round(255·A)`, depth at τ_d
+/// (or the opacity-weighted mean); empty texels must be `(0, 0, 0, 0)` with no depth. Returns the
+/// statistics and the count of covered texels.
+fn compare_texels(
+    asset: &AssetFile,
+    layer: u16,
+    rays: &VolumeRays<'_>,
+    volume: &Volume,
+    tf: &TransferFunction,
+    cameras: &[u32],
+    n: u32,
+) -> (TexelStats, usize) {
     let mut stats = TexelStats {
         texels: 0,
         colour_off: 0,
@@ -132,18 +163,18 @@ fn bake_against_cpu(
         depth_pairs: 0,
     };
     let mut covered = 0usize;
-    for k in 0..options.cameras as usize {
+    for &k in cameras {
         let color = asset
-            .read_image(ImageKey::new(0, 0, k as u32, Channel::Color))
+            .read_image(ImageKey::new(layer, 0, k, Channel::Color))
             .expect("colour");
         let depth = asset
-            .read_image(ImageKey::new(0, 0, k as u32, Channel::Depth))
+            .read_image(ImageKey::new(layer, 0, k, Channel::Depth))
             .expect("depth");
         for a in 0..n {
             for b in 0..n {
                 let t = (a * n + b) as usize;
                 stats.texels += 1;
-                let (eye, dir, chord) = texel_ray(volume, tf, k, a, b, n);
+                let (eye, dir, chord) = texel_ray(volume, tf, k as usize, a, b, n);
                 let cpu = rays.cast(eye, dir);
                 let cpu_alpha = (255.0 * cpu.rgba[3]).round();
                 let cpu_covered = cpu_alpha >= 1.0;
@@ -184,20 +215,7 @@ fn bake_against_cpu(
             }
         }
     }
-    let fraction = covered as f64 / stats.texels as f64;
-    assert!(
-        (fraction - report.covered_fraction).abs() < 1e-12,
-        "report's covered fraction {} vs counted {fraction}",
-        report.covered_fraction
-    );
-    // From a camera on the bounding sphere, an object of half the sphere's radius spans about
-    // 30° and covers about 5 % of the square map (parabolic radius tan 15°); the blob's visible
-    // part covers 2.6–3 % (measured). Far less means the rays miss the volume.
-    assert!(
-        fraction > 0.015,
-        "the volume shows in the maps ({fraction})"
-    );
-    stats
+    (stats, covered)
 }
 
 /// Where f32 on the GPU and f64 on the CPU may round a code differently, or place a sample on
@@ -676,6 +694,26 @@ fn tiny_and_huge_scales_bake_like_the_cpu() {
     }
 }
 
+/// A multi light field of `layers` at 162 cameras × 96-px maps, read back, with its options.
+fn bake_layers_162(volume: &Volume, layers: &[VolumeLayer]) -> (AssetFile, VolumeBakeOptions) {
+    let options = VolumeBakeOptions {
+        cameras: 162,
+        resolution: 96,
+        ..VolumeBakeOptions::default()
+    };
+    let (bytes, report) = baker()
+        .bake_layers_to_bytes(
+            volume,
+            layers,
+            &options,
+            &Provenance::default(),
+            &mut |_, _| {},
+        )
+        .expect("layered bake");
+    assert!(report.covered_fraction > 0.0);
+    (AssetFile::from_bytes(bytes).expect("reads back"), options)
+}
+
 /// The blob's layers: its translucent shell and its dense core, each through its own TF
 /// (seed 002 §6: one light field per structure).
 fn blob_layers() -> Vec<VolumeLayer> {
@@ -708,22 +746,7 @@ fn blob_layers() -> Vec<VolumeLayer> {
 fn a_multi_light_field_composites_its_layers_like_their_direct_ray_casts() {
     let volume = blob([36, 32, 28]);
     let layers = blob_layers();
-    let options = VolumeBakeOptions {
-        cameras: 162,
-        resolution: 96,
-        ..VolumeBakeOptions::default()
-    };
-    let (bytes, report) = baker()
-        .bake_layers_to_bytes(
-            &volume,
-            &layers,
-            &options,
-            &Provenance::default(),
-            &mut |_, _| {},
-        )
-        .expect("layered bake");
-    assert!(report.covered_fraction > 0.0);
-    let asset = AssetFile::from_bytes(bytes).expect("reads back");
+    let (asset, options) = bake_layers_162(&volume, &layers);
     let names: Vec<(&str, f32)> = asset
         .header()
         .layers
@@ -844,21 +867,7 @@ fn depth_layers_split_every_ray_and_composite_in_ray_order() {
         tf.to_json()
     );
     let layers = VolumeLayer::parse(&text, std::path::Path::new(".")).expect("depth layers");
-    let options = VolumeBakeOptions {
-        cameras: 162,
-        resolution: 96,
-        ..VolumeBakeOptions::default()
-    };
-    let (bytes, _) = baker()
-        .bake_layers_to_bytes(
-            &volume,
-            &layers,
-            &options,
-            &Provenance::default(),
-            &mut |_, _| {},
-        )
-        .expect("depth-layer bake");
-    let asset = AssetFile::from_bytes(bytes).expect("reads back");
+    let (asset, options) = bake_layers_162(&volume, &layers);
     // Ray order needs format version 3; the frame is the TF's own.
     assert_eq!(asset.header().format_version, 3);
     assert_eq!(asset.header().layer_order, LayerOrder::Ray);
@@ -868,56 +877,19 @@ fn depth_layers_split_every_ray_and_composite_in_ray_order() {
     );
     // Every texel of each segment against the CPU ray caster's segment of the same ray, on a
     // few cameras (the single-layer test covers the integration itself).
-    let n = options.resolution;
     let mut covered = [0usize; 3];
     for (index, layer) in layers.iter().enumerate() {
         let rays = layer.rays(&volume, &options.raycast).expect("rays");
-        let mut stats = TexelStats {
-            texels: 0,
-            colour_off: 0,
-            max_code_diff: 0,
-            coverage_off: 0,
-            depth_off: 0,
-            depth_pairs: 0,
-        };
-        for camera in [0u32, 57, 161] {
-            let key = |channel| ImageKey::new(index as u16, 0, camera, channel);
-            let color = asset.read_image(key(Channel::Color)).expect("colour");
-            let depth = asset.read_image(key(Channel::Depth)).expect("depth");
-            for a in 0..n {
-                for b in 0..n {
-                    let t = (a * n + b) as usize;
-                    stats.texels += 1;
-                    let (eye, dir, chord) = texel_ray(&volume, &tf, camera as usize, a, b, n);
-                    let cpu = rays.cast(eye, dir);
-                    let codes = cpu
-                        .rgba
-                        .map(|c| (255.0 * c).round().clamp(0.0, 255.0) as u8);
-                    let texel = &color[4 * t..4 * t + 4];
-                    covered[index] += usize::from(texel[3] > 0);
-                    stats.coverage_off += usize::from((codes[3] >= 1) != (texel[3] >= 1));
-                    let diff = (0..4)
-                        .map(|c| codes[c].abs_diff(texel[c]))
-                        .max()
-                        .unwrap_or(0);
-                    stats.max_code_diff = stats.max_code_diff.max(diff);
-                    stats.colour_off += usize::from(diff > 1);
-                    let code = u16::from_le_bytes([depth[2 * t], depth[2 * t + 1]]);
-                    if codes[3] >= 1 && texel[3] >= 1 && code != geometry::NO_HIT_U16 {
-                        let gpu_t = f64::from(geometry::decode_depth_u16(code)) * chord;
-                        let cpu_t = if cpu.t_cross.is_finite() {
-                            cpu.t_cross
-                        } else {
-                            cpu.t_mean
-                        };
-                        stats.depth_pairs += 1;
-                        stats.depth_off += usize::from(
-                            (gpu_t - cpu_t).abs() > rays.step() * 1.01 + chord / 65535.0,
-                        );
-                    }
-                }
-            }
-        }
+        let (stats, count) = compare_texels(
+            &asset,
+            index as u16,
+            &rays,
+            &volume,
+            &tf,
+            &[0, 57, 161],
+            options.resolution,
+        );
+        covered[index] = count;
         assert_close(&stats, &format!("depth layer {index}"));
     }
     assert!(
