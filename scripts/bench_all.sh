@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Regenerates every table of BENCHMARKS.md (release build, real-mesh fixtures + the demo), one
 # script after another, each into its own folder under OUT_DIR:
-#   bash scripts/bench_all.sh [OUT_DIR]   (default out/bench; about 55 min on 2-core lavapipe)
+#   bash scripts/bench_all.sh [OUT_DIR]   (default out/bench; about 90 min on 2-core lavapipe)
 # Run it on an otherwise idle machine: the timings are only as steady as the host.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -23,6 +23,8 @@ mkdir -p "$OUT/scene"
 bash scripts/bench_scene.sh "$OUT/scene" 2>&1 | tee "$OUT/scene/times.txt"
 step "volume light fields (scripts/bench_volume.sh)" "$OUT/volume/table.md: 'Volume light fields'"
 bash scripts/bench_volume.sh "$OUT/volume"
+step "volume multi light fields (scripts/bench_volume_layers.sh)" "$OUT/volume-layers/table.md: 'Volume light fields', 3-layer rows"
+bash scripts/bench_volume_layers.sh "$OUT/volume-layers"
 step "still refinement (scripts/bench_refine.sh)" "$OUT/refine/tables.md: 'Still-frame refinement'"
 bash scripts/bench_refine.sh "$OUT/refine"
 step "render service (scripts/bench_service.py)" "$OUT/service.md: 'Render service streaming'"
