@@ -38,7 +38,8 @@ struct VolumeBakeParams {
     // Entries of `tf`.
     tf_count: u32,
     // Depth layers (raycast.rs SplitRule): 0 whole rays, 1 split where the whole ray's A
-    // reaches each boundary, 2 where the sampled value does; `segment` is the one kept.
+    // reaches each boundary, 2 where the sampled value does, 3 at the first `split_count`
+    // transitions between visible labels; `segment` is the one kept.
     split_mode: u32,
     segment: u32,
     split_count: u32,
@@ -222,6 +223,8 @@ fn march_ray(eye: vec3<f32>, dir: vec3<f32>) -> Cast {
     var whole = 0.0;
     var weighted_t = 0.0;
     var current = 0u;
+    // The last visible label met (split mode 3); −1: none yet.
+    var last_label = -1.0;
     let labels = params.labels != 0u;
     for (var k = 0u; ; k++) {
         let t = t0 + (f32(k) + 0.5) * params.step;
@@ -239,6 +242,16 @@ fn march_ray(eye: vec3<f32>, dir: vec3<f32>) -> Cast {
             rgba = tf_scalar(value);
         }
         let alpha = opacity_for_step(rgba.a);
+        if params.split_mode == 3u && alpha > 0.0 {
+            // A new label starts the next segment with this sample.
+            if last_label >= 0.0 && value != last_label && current < params.split_count {
+                current += 1u;
+            }
+            last_label = value;
+            if current > params.segment {
+                break;
+            }
+        }
         if alpha > 0.0 {
             if current == params.segment {
                 var rgb = rgba.rgb;
@@ -260,7 +273,7 @@ fn march_ray(eye: vec3<f32>, dir: vec3<f32>) -> Cast {
                 break;
             }
         }
-        if params.split_mode != 0u {
+        if params.split_mode == 1u || params.split_mode == 2u {
             loop {
                 if current >= params.split_count {
                     break;

@@ -326,6 +326,38 @@ fn a_label_volume_bakes_its_labels_by_nearest_voxel() {
         )
         .expect_err("refused");
     assert!(err.to_string().contains("shading"), "{err}");
+    // Depth layers at the first two label transitions (seed 002 §7's segmented regions): every
+    // texel of each segment against the CPU caster's segment of its ray.
+    let text = format!(
+        r#"{{"tf": {}, "split": {{"labels": 2}}, "layers": [{{"name": "outer"}}, {{"name": "shell"}}, {{"name": "rest"}}]}}"#,
+        tf.to_json()
+    );
+    let layers = VolumeLayer::parse(&text, std::path::Path::new(".")).expect("label split");
+    let (bytes, _) = baker()
+        .bake_layers_to_bytes(
+            &volume,
+            &layers,
+            &options,
+            &Provenance::default(),
+            &mut |_, _| {},
+        )
+        .expect("label-split bake");
+    let asset = AssetFile::from_bytes(bytes).expect("reads back");
+    let cameras: Vec<u32> = (0..options.cameras).collect();
+    for (index, layer) in layers.iter().enumerate() {
+        let rays = layer.rays(&volume, &options.raycast).expect("rays");
+        let (stats, covered) = compare_texels(
+            &asset,
+            index as u16,
+            &rays,
+            &volume,
+            &tf,
+            &cameras,
+            options.resolution,
+        );
+        assert!(covered > 50, "segment {index} holds something: {covered}");
+        assert_close(&stats, &format!("label segment {index}"));
+    }
 }
 
 #[test]

@@ -132,7 +132,8 @@ struct VolumeBakeParams {
     depth_threshold: f32,
     shade: u32,
     tf_count: u32,
-    /// 0: whole rays; 1: split by accumulated opacity; 2: split by value (depth layers).
+    /// 0: whole rays; 1: split by accumulated opacity; 2: by value; 3: at label transitions
+    /// (depth layers).
     split_mode: u32,
     /// The segment a depth layer keeps.
     segment: u32,
@@ -159,11 +160,11 @@ impl VolumeBakeParams {
             self.split_mode = match s.split {
                 SplitRule::Opacity(_) => 1,
                 SplitRule::Value(_) => 2,
+                SplitRule::Labels(_) => 3,
             };
             self.segment = u32::try_from(s.index).unwrap_or(u32::MAX);
-            let boundaries = s.split.boundaries();
-            self.split_count = boundaries.len().min(MAX_SPLITS) as u32;
-            for (k, &b) in boundaries.iter().take(MAX_SPLITS).enumerate() {
+            self.split_count = s.split.boundary_count().min(MAX_SPLITS) as u32;
+            for (k, &b) in s.split.thresholds().iter().take(MAX_SPLITS).enumerate() {
                 self.splits[k / 4][k % 4] = b as f32;
             }
         }

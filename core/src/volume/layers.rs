@@ -21,7 +21,8 @@
 //! Depth layers (seed 002 §7) split every ray of one TF into consecutive segments, one layer
 //! each, at the first samples where the ray's accumulated opacity reaches each threshold
 //! (`"opacity"`, strictly increasing in (0, 1)) or its scalar value reaches each isovalue
-//! (`"value"`, scalar volumes), in order ([`SplitRule`]); one more layer than boundaries:
+//! (`"value"`, scalar volumes), in order, or at the first `"labels": N` transitions between
+//! visible labels (label volumes) ([`SplitRule`]); one more layer than boundaries:
 //!
 //! ```json
 //! {"tf": "mri-brain", "split": {"opacity": [0.3, 0.8]},
@@ -116,27 +117,30 @@ struct LayerSpec {
 struct SplitSpec {
     opacity: Option<Vec<f64>>,
     value: Option<Vec<f64>>,
+    labels: Option<usize>,
 }
 
 impl SplitSpec {
     fn rule(self) -> Result<SplitRule, LayersError> {
         let bad = |m: &str| Err(LayersError::Invalid(format!("split: {m}")));
-        let rule = match (self.opacity, self.value) {
-            (Some(b), None) => {
+        let rule = match (self.opacity, self.value, self.labels) {
+            (Some(b), None, None) => {
                 if !b.iter().all(|&x| x > 0.0 && x < 1.0) || !b.windows(2).all(|w| w[0] < w[1]) {
                     return bad("opacity thresholds must increase strictly within (0, 1)");
                 }
                 SplitRule::Opacity(b)
             }
-            (None, Some(b)) => {
+            (None, Some(b), None) => {
                 if !b.iter().all(|x| x.is_finite()) {
                     return bad("isovalues must be finite");
                 }
                 SplitRule::Value(b)
             }
-            _ => return bad("give exactly one of \"opacity\" and \"value\""),
+            (None, None, Some(n)) => SplitRule::Labels(n),
+            _ => return bad("give exactly one of \"opacity\", \"value\" and \"labels\""),
         };
-        if rule.boundaries().is_empty() || rule.boundaries().len() >= MAX_VOLUME_LAYERS {
+        let n = rule.boundary_count();
+        if n == 0 || n >= MAX_VOLUME_LAYERS {
             return bad(&format!(
                 "1 to {} boundaries (at most {MAX_VOLUME_LAYERS} layers)",
                 MAX_VOLUME_LAYERS - 1
@@ -228,11 +232,11 @@ impl VolumeLayer {
                 .collect::<Result<Vec<_>, LayersError>>()?,
             (Some(split), Some(tf)) => {
                 let split = split.rule()?;
-                if file.layers.len() != split.boundaries().len() + 1 {
+                if file.layers.len() != split.boundary_count() + 1 {
                     return Err(LayersError::Invalid(format!(
                         "{} boundaries split each ray into {} depth layers; {} are named",
-                        split.boundaries().len(),
-                        split.boundaries().len() + 1,
+                        split.boundary_count(),
+                        split.boundary_count() + 1,
                         file.layers.len()
                     )));
                 }
@@ -245,7 +249,13 @@ impl VolumeLayer {
                 let tf = resolve_tf(&tf, "split", base)?;
                 if tf.is_labels() && matches!(split, SplitRule::Value(_)) {
                     return Err(LayersError::Invalid(
-                        "split: a label volume splits its rays by opacity, not by value".into(),
+                        "split: a label volume splits its rays by opacity or labels, not by value"
+                            .into(),
+                    ));
+                }
+                if !tf.is_labels() && matches!(split, SplitRule::Labels(_)) {
+                    return Err(LayersError::Invalid(
+                        "split: label transitions need a label TF ({\"labels\": {...}})".into(),
                     ));
                 }
                 file.layers
@@ -276,13 +286,14 @@ impl VolumeLayer {
     /// back by [`VolumeLayer::parse`].
     pub fn to_json(layers: &[VolumeLayer]) -> serde_json::Value {
         if let Some(Segment { split, .. }) = layers.first().and_then(|l| l.segment.as_ref()) {
-            let (key, boundaries) = match split {
-                SplitRule::Opacity(b) => ("opacity", b),
-                SplitRule::Value(b) => ("value", b),
+            let split = match split {
+                SplitRule::Opacity(b) => serde_json::json!({ "opacity": b }),
+                SplitRule::Value(b) => serde_json::json!({ "value": b }),
+                SplitRule::Labels(n) => serde_json::json!({ "labels": n }),
             };
             return serde_json::json!({
                 "tf": layers[0].tf.to_json(),
-                "split": { key: boundaries },
+                "split": split,
                 "layers": layers
                     .iter()
                     .map(|l| serde_json::json!({"name": l.name, "opacity": l.opacity}))
@@ -358,12 +369,12 @@ pub fn validate(layers: &[VolumeLayer]) -> Result<(), LayersError> {
         }
     }
     if let Some(s) = &layers[0].segment
-        && layers.len() != s.split.boundaries().len() + 1
+        && layers.len() != s.split.boundary_count() + 1
     {
         return Err(LayersError::Invalid(format!(
             "{} boundaries make {} depth layers, not {}",
-            s.split.boundaries().len(),
-            s.split.boundaries().len() + 1,
+            s.split.boundary_count(),
+            s.split.boundary_count() + 1,
             layers.len()
         )));
     }
@@ -521,11 +532,29 @@ mod tests {
             r#"{"tf": "ct-bone", "layers": [{"name": "a"}]}"#,
             // Isovalues of labels.
             r#"{"tf": {"labels": {"1": [1, 0, 0, 1]}}, "split": {"value": [1]}, "layers": [{"name": "a"}, {"name": "b"}]}"#,
+            // Label transitions of a scalar TF; none of them.
+            r#"{"tf": "ct-bone", "split": {"labels": 1}, "layers": [{"name": "a"}, {"name": "b"}]}"#,
+            r#"{"tf": {"labels": {"1": [1, 0, 0, 1]}}, "split": {"labels": 0}, "layers": [{"name": "a"}]}"#,
             // A layer with no TF outside a split.
             r#"{"layers": [{"name": "a"}]}"#,
         ] {
             assert!(VolumeLayer::parse(bad, dir.path()).is_err(), "{bad}");
         }
+        let by_label = VolumeLayer::parse(
+            r#"{"tf": {"labels": {"1": [1, 0, 0, 1]}}, "split": {"labels": 2},
+                "layers": [{"name": "a"}, {"name": "b"}, {"name": "c"}]}"#,
+            dir.path(),
+        )
+        .expect("label transitions");
+        assert_eq!(
+            by_label[2].segment.as_ref().map(|s| &s.split),
+            Some(&SplitRule::Labels(2))
+        );
+        assert_eq!(
+            VolumeLayer::parse(&VolumeLayer::to_json(&by_label).to_string(), dir.path())
+                .expect("round trip"),
+            by_label
+        );
         // Depth layers are all the segments of one split, in order.
         let mut shuffled = layers.clone();
         shuffled.swap(0, 1);

@@ -22,7 +22,8 @@
 //! Depth layers (seed 002 §7) cut each ray into consecutive segments ([`SplitRule`]): a
 //! segment ends after the sample at which the next split event first holds (the ray's
 //! accumulated opacity reaches a threshold, or its scalar value reaches an isovalue), the
-//! events taken in order. A segment is integrated like a whole ray that starts empty at its
+//! events taken in order; at a label transition the next segment starts with the first sample
+//! of the new label. A segment is integrated like a whole ray that starts empty at its
 //! first sample (its own `C`, `A`, `τ_d` crossing and mean depth), while the split events and
 //! the early stop follow the whole ray's `A`; so compositing the segments front to back in
 //! their order gives the whole ray's `C` and `A` exactly.
@@ -95,22 +96,36 @@ pub enum SplitRule {
     /// The sampled scalar value reaches each value (`S ≥ v`), the first hit of each isosurface
     /// in turn (scalar volumes).
     Value(Vec<f64>),
+    /// The first this many transitions between segmented regions (label volumes): a visible
+    /// sample (TF opacity above 0) whose label differs from the last visible label before it
+    /// starts the next segment, itself included.
+    Labels(usize),
 }
 
 impl SplitRule {
-    /// The boundaries (one fewer than the segments).
-    pub fn boundaries(&self) -> &[f64] {
+    /// The number of boundaries (one fewer than the segments).
+    pub fn boundary_count(&self) -> usize {
+        match self {
+            SplitRule::Opacity(b) | SplitRule::Value(b) => b.len(),
+            SplitRule::Labels(n) => *n,
+        }
+    }
+
+    /// The thresholds of an opacity or value split (empty for labels).
+    pub fn thresholds(&self) -> &[f64] {
         match self {
             SplitRule::Opacity(b) | SplitRule::Value(b) => b,
+            SplitRule::Labels(_) => &[],
         }
     }
 
     /// Whether boundary `k`'s event holds after a sample of value `value` that left the whole
-    /// ray's opacity at `a`.
+    /// ray's opacity at `a` (label transitions are found before their sample instead).
     fn fires(&self, k: usize, value: f64, a: f64) -> bool {
         match self {
             SplitRule::Opacity(b) => a >= b[k],
             SplitRule::Value(b) => value >= b[k],
+            SplitRule::Labels(_) => false,
         }
     }
 }
@@ -294,18 +309,22 @@ impl<'a> VolumeRays<'a> {
     /// split on a label volume.
     pub fn with_segment(mut self, segment: Option<Segment>) -> Result<Self, RaycastError> {
         if let Some(s) = &segment {
-            if s.index > s.split.boundaries().len() {
+            if s.index > s.split.boundary_count() {
                 return Err(RaycastError::Options(format!(
                     "segment {} of a ray split at {} boundaries",
                     s.index,
-                    s.split.boundaries().len()
+                    s.split.boundary_count()
                 )));
             }
-            if matches!(s.split, SplitRule::Value(_))
-                && matches!(self.sampler.volume.voxels, Voxels::Labels(_))
-            {
+            let labels = matches!(self.sampler.volume.voxels, Voxels::Labels(_));
+            if matches!(s.split, SplitRule::Value(_)) && labels {
                 return Err(RaycastError::Options(
-                    "a label volume splits its rays by opacity, not by value".into(),
+                    "a label volume splits its rays by opacity or label, not by value".into(),
+                ));
+            }
+            if matches!(s.split, SplitRule::Labels(_)) && !labels {
+                return Err(RaycastError::Options(
+                    "only a label volume splits its rays at label transitions".into(),
                 ));
             }
         }
@@ -617,7 +636,10 @@ impl<'a> Sampler<'a> {
         // This segment's C and A (the whole ray's when it is not split), and the whole ray's A,
         // which drives the split events and the early stop.
         let (mut c, mut a, mut whole) = (DVec3::ZERO, 0.0, 0.0);
-        let (want, boundaries) = segment.map_or((0, 0), |s| (s.index, s.split.boundaries().len()));
+        let (want, boundaries) = segment.map_or((0, 0), |s| (s.index, s.split.boundary_count()));
+        let by_label = segment.is_some_and(|s| matches!(s.split, SplitRule::Labels(_)));
+        // The last visible label met (label transitions).
+        let mut last_label: Option<f64> = None;
         // The segment the next sample belongs to.
         let mut current = 0;
         // Σ (1 − A)·α_k·t_k: with A itself, the opacity-weighted mean t.
@@ -637,6 +659,15 @@ impl<'a> Sampler<'a> {
             };
             let [r, g, b, opacity] = tf.eval(value);
             let alpha = opacity_for_step(opacity, step, ref_step);
+            if by_label && alpha > 0.0 {
+                if last_label.is_some_and(|l| l != value) && current < boundaries {
+                    current += 1;
+                }
+                last_label = Some(value);
+                if current > want {
+                    break;
+                }
+            }
             if alpha > 0.0 {
                 if current == want {
                     let mut rgb = DVec3::new(r, g, b);

@@ -1066,7 +1066,7 @@ mod transfer_and_raycast {
             // Isovalues reached at one sample (the band): an empty segment in between.
             SplitRule::Value(vec![60.0, 61.0]),
         ] {
-            let n = split.boundaries().len() + 1;
+            let n = split.boundary_count() + 1;
             for dir in [[0.0, 0.0, 1.0], [0.1, 0.05, 1.0], [-0.02, 0.2, 1.0]] {
                 let dir = glam::DVec3::from(dir).normalize().to_array();
                 let full = whole.cast(eye, dir);
@@ -1146,5 +1146,97 @@ mod transfer_and_raycast {
                 index: 0,
             }));
         assert!(matches!(by_value, Err(RaycastError::Options(_))));
+    }
+
+    #[test]
+    fn label_transitions_start_a_new_segment_with_the_new_label() {
+        use super::super::raycast::{Segment, SplitRule, VolumeRays};
+        // Nested shells: label 1 outside, 2, then 3 at the centre; a ray through the centre
+        // meets 1, 2, 3, 2, 1.
+        let n = 15u32;
+        let c = 7.0f64;
+        let mut labels = Vec::new();
+        for k in 0..n {
+            for j in 0..n {
+                for i in 0..n {
+                    let r = ((f64::from(i) - c).powi(2)
+                        + (f64::from(j) - c).powi(2)
+                        + (f64::from(k) - c).powi(2))
+                    .sqrt();
+                    // 3 inside r 2.5, 2 inside 4.5, 1 inside 6.5, 0 beyond.
+                    labels.push([2.5, 4.5, 6.5].iter().filter(|&&edge| r < edge).count() as u32);
+                }
+            }
+        }
+        let v = Volume {
+            voxels: Voxels::Labels(labels),
+            ..volume([n, n, n], |_, _, _| 0.0)
+        };
+        let tf = TransferFunction::from_json(
+            r#"{"labels": {"1": [1, 0, 0, 0.1], "2": [0, 1, 0, 0.15], "3": [0, 0, 1, 0.3]}}"#,
+        )
+        .expect("tf");
+        let options = RaycastOptions::default();
+        let (eye, dir) = ([7.0, 7.0, -10.0], [0.0, 0.0, 1.0]);
+        let whole = VolumeRays::new(&v, &tf, &options)
+            .expect("rays")
+            .cast(eye, dir);
+        let segment = |transitions: usize, index: usize| {
+            VolumeRays::new(&v, &tf, &options)
+                .and_then(|r| {
+                    r.with_segment(Some(Segment {
+                        split: SplitRule::Labels(transitions),
+                        index,
+                    }))
+                })
+                .expect("segment")
+                .cast(eye, dir)
+                .rgba
+        };
+        for transitions in [1, 2, 4, 6] {
+            let (mut c, mut a) = ([0.0; 3], 0.0);
+            for index in 0..=transitions {
+                let s = segment(transitions, index);
+                for k in 0..3 {
+                    c[k] += (1.0 - a) * s[k];
+                }
+                a += (1.0 - a) * s[3];
+            }
+            for k in 0..3 {
+                assert!(
+                    (c[k] - whole.rgba[k]).abs() < EPS,
+                    "{transitions}: {c:?} {whole:?}"
+                );
+            }
+            assert!((a - whole.rgba[3]).abs() < EPS);
+        }
+        // With four transitions each segment holds one shell crossing: its colour is that
+        // label's alone (red, green, blue, green, red); a fifth transition never comes.
+        let expect = [
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [0.0, 1.0, 0.0],
+            [1.0, 0.0, 0.0],
+        ];
+        for (index, rgb) in expect.iter().enumerate() {
+            let s = segment(4, index);
+            assert!(s[3] > 0.0, "segment {index} holds its shell");
+            for k in 0..3 {
+                assert!((s[k] / s[3] - rgb[k]).abs() < EPS, "segment {index}: {s:?}");
+            }
+        }
+        assert_eq!(segment(6, 5), [0.0; 4]);
+        assert_eq!(segment(6, 6), [0.0; 4]);
+        // Label transitions are for label volumes only.
+        let scalar = volume([2, 2, 2], |_, _, _| 1.0);
+        let stf = constant_tf([1.0, 1.0, 1.0], 0.5);
+        let refused = VolumeRays::new(&scalar, &stf, &options)
+            .expect("rays")
+            .with_segment(Some(Segment {
+                split: SplitRule::Labels(1),
+                index: 0,
+            }));
+        assert!(matches!(refused, Err(RaycastError::Options(_))));
     }
 }

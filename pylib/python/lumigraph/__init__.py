@@ -358,9 +358,10 @@ def bake_volume(
         layers: instead of ``tf``, a multi light field: a list of
             ``{"name": str, "tf": preset | dict, "opacity": float}`` (opacity, default 1, is the
             layer's default runtime opacity), baked on one camera set; or depth layers, a dict
-            ``{"tf": ..., "split": {"opacity": [0.3, 0.7]} | {"value": [...]}, "layers":
-            [{"name": ...}, ...]}`` with one more layer than boundaries: the segments of every
-            ray, cut where its accumulated opacity (or scalar value) reaches each boundary.
+            ``{"tf": ..., "split": {"opacity": [0.3, 0.7]} | {"value": [...]} | {"labels": n},
+            "layers": [{"name": ...}, ...]}`` with one more layer than boundaries: the segments
+            of every ray, cut where its accumulated opacity (or scalar value) reaches each
+            boundary, or at its first ``n`` transitions between labels.
             Render it with ``LightField.render(view, layers={"skin": 0.3})``: the layers
             composite per pixel in depth order, depth layers in their order along the ray
             (``docs/volumes.md``, "Layers").
