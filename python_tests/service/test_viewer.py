@@ -13,16 +13,18 @@ import io
 import json
 import math
 import os
+import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 from PIL import Image, ImageChops
 from playwright.sync_api import Page, sync_playwright
 
-from conftest import Server
+from conftest import BIN, Server, runtime_env
 from reprojection import SETTLED, delayed, measure_warp, motion_to_photon
 
 CHROMIUM = Path(os.environ.get("LUMIGRAPH_CHROMIUM", "/usr/bin/chromium"))
@@ -367,3 +369,54 @@ def test_viewer_without_webgl2_draws_plainly(server: Server, page: Page) -> None
     assert "reproject off (no WebGL2)" in page.inner_text("#stats")
     assert canvas(page)["sum"] > 0
     assert not page.errors, page.errors  # type: ignore[attr-defined]
+
+
+def test_viewer_layer_sliders_fade_a_multi_light_field(
+    server: Server, page: Page, tmp_path: Path
+) -> None:
+    """A volume baked as two depth layers (`bake VOLUME --layers`, the rays split where their
+    opacity reaches 0.4) is uploaded; the viewer shows one opacity slider per layer, and moving
+    the inner one to 0 sends `layers`, redraws a darker frame and puts the opacities in the
+    link."""
+    n = 24
+    grid = np.indices((n, n, n), dtype=np.float32)
+    radius = np.sqrt(((grid - (n - 1) / 2) ** 2).sum(axis=0))
+    np.save(tmp_path / "ball.npy", np.clip(100 * (1 - radius / 10), 0, None).astype(np.float32))
+    (tmp_path / "layers.json").write_text(json.dumps({
+        "tf": {"points": [[0, 0, 0, 0, 0], [20, 0.2, 0.6, 1, 0.08], [60, 1, 0.5, 0, 0.3], [80, 1, 0.5, 0, 0.9]]},
+        "split": {"opacity": [0.4]},
+        "layers": [{"name": "outer"}, {"name": "inner"}],
+    }))
+    baked = subprocess.run(
+        [str(BIN), "bake", str(tmp_path / "ball.npy"), "--layers", str(tmp_path / "layers.json"),
+         "--cameras", "12", "--resolution", "48", "-o", str(tmp_path / "ball.lfa")],
+        capture_output=True, text=True, env=runtime_env(), timeout=120, check=False,
+    )
+    assert baked.returncode == 0, baked.stderr
+    created = httpx.post(f"{server.base_url}/v1/assets?id=layered-ball",
+                         content=(tmp_path / "ball.lfa").read_bytes(), timeout=60)
+    assert created.status_code == 201, created.text
+    try:
+        page.goto(server.base_url + "/?asset=layered-ball&interactive=0&background=0,0,0,255")
+        page.wait_for_function("window.lumigraphViewer.last && window.lumigraphViewer.last.quality === 1",
+                               timeout=30_000)
+        names = page.eval_on_selector_all("#layers input[data-layer]", "xs => xs.map(x => x.dataset.layer)")
+        assert names == ["outer", "inner"]
+        assert page.is_visible("#layers")
+        both = canvas(page)
+        first = last(page)
+        page.eval_on_selector(
+            "#layers input[data-layer=inner]",
+            "x => { x.value = '0'; x.dispatchEvent(new Event('input')); }")
+        page.wait_for_function(
+            f"window.lumigraphViewer.last.requestId > {first['requestId']}"
+            " && window.lumigraphViewer.last.quality === 1", timeout=30_000)
+        outer_only = canvas(page)
+        assert outer_only["hash"] != both["hash"]
+        assert outer_only["sum"] < both["sum"], "hiding the inner segment darkens the frame"
+        page.wait_for_function("location.search.includes('layers=')", timeout=10_000)
+        assert "inner%3A0" in page.evaluate("location.search") or "inner:0" in page.evaluate(
+            "decodeURIComponent(location.search)")
+        assert not page.errors, page.errors  # type: ignore[attr-defined]
+    finally:
+        httpx.delete(f"{server.base_url}/v1/assets/layered-ball", timeout=30)
