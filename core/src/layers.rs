@@ -305,33 +305,14 @@ impl Composite<'_> {
                 *z_px = z;
                 continue;
             }
-            let (mut c, mut a) = ([0.0f32; 3], 0.0f32);
-            let mut z_out = f32::INFINITY;
+            let mut blend = Blend::new(self.depth_threshold);
             for &(z, index) in &order {
                 let (layer, o) = layers[index];
-                let px = &layer.premultiplied[4 * p..4 * p + 4];
-                let w = (1.0 - a) * o / 255.0;
-                for k in 0..3 {
-                    c[k] += w * f32::from(px[k]);
-                }
-                a += w * f32::from(px[3]);
-                if a >= self.depth_threshold && z_out.is_infinite() {
-                    z_out = z;
-                }
-                if a >= 1.0 - 0.5 / 255.0 {
+                if blend.add(&layer.premultiplied[4 * p..4 * p + 4], o, z) {
                     break;
                 }
             }
-            let alpha = (255.0 * a).round().clamp(0.0, 255.0);
-            if alpha < 1.0 {
-                continue;
-            }
-            let scale = 255.0 / a;
-            for k in 0..3 {
-                out[k] = (c[k] * scale).round().clamp(0.0, 255.0) as u8;
-            }
-            out[3] = alpha as u8;
-            *z_px = z_out;
+            blend.write(out, z_px);
         }
     }
 
@@ -340,36 +321,67 @@ impl Composite<'_> {
     fn in_ray_order(&self, first: usize, color: &mut [u8], depth: &mut [f32]) {
         for (q, (out, z_px)) in color.chunks_exact_mut(4).zip(depth.iter_mut()).enumerate() {
             let p = first + q;
-            let (mut c, mut a) = ([0.0f32; 3], 0.0f32);
-            let mut z_out = f32::INFINITY;
+            let mut blend = Blend::new(self.depth_threshold);
             for &(layer, o) in self.layers {
                 let px = &layer.premultiplied[4 * p..4 * p + 4];
                 if px[3] == 0 || o <= 0.0 {
                     continue;
                 }
-                let w = (1.0 - a) * o * (1.0 / 255.0);
-                c[0] += w * f32::from(px[0]);
-                c[1] += w * f32::from(px[1]);
-                c[2] += w * f32::from(px[2]);
-                a += w * f32::from(px[3]);
-                if a >= self.depth_threshold && z_out.is_infinite() {
-                    z_out = layer.depth[p];
-                }
-                if a >= 1.0 - 0.5 / 255.0 {
+                if blend.add(px, o, layer.depth[p]) {
                     break;
                 }
             }
-            let alpha = (255.0 * a).round().clamp(0.0, 255.0);
-            if alpha < 1.0 {
-                continue;
-            }
-            let scale = 255.0 / a;
-            for k in 0..3 {
-                out[k] = (c[k] * scale).round().clamp(0.0, 255.0) as u8;
-            }
-            out[3] = alpha as u8;
-            *z_px = z_out;
+            blend.write(out, z_px);
         }
+    }
+}
+
+/// One pixel's front-to-back blend (DESIGN §9): premultiplied colour and alpha so far, and the
+/// depth of the fragment after which `A` reached `τ_d`.
+struct Blend {
+    c: [f32; 3],
+    a: f32,
+    z: f32,
+    tau: f32,
+}
+
+impl Blend {
+    fn new(tau: f32) -> Blend {
+        Blend {
+            c: [0.0; 3],
+            a: 0.0,
+            z: f32::INFINITY,
+            tau,
+        }
+    }
+
+    /// Blends premultiplied RGBA8 `px` at opacity `o` and depth `z` behind what is there;
+    /// true once the pixel is opaque (nothing behind can show).
+    fn add(&mut self, px: &[u8], o: f32, z: f32) -> bool {
+        let w = (1.0 - self.a) * o / 255.0;
+        for (c, &v) in self.c.iter_mut().zip(px) {
+            *c += w * f32::from(v);
+        }
+        self.a += w * f32::from(px[3]);
+        if self.a >= self.tau && self.z.is_infinite() {
+            self.z = z;
+        }
+        self.a >= 1.0 - 0.5 / 255.0
+    }
+
+    /// Straight colour and alpha `round(255·A)` into `out` and the depth into `z_px`, unless
+    /// the alpha rounds to 0 (the pixel stays empty).
+    fn write(&self, out: &mut [u8], z_px: &mut f32) {
+        let alpha = (255.0 * self.a).round().clamp(0.0, 255.0);
+        if alpha < 1.0 {
+            return;
+        }
+        let scale = 255.0 / self.a;
+        for (o, c) in out.iter_mut().zip(self.c) {
+            *o = (c * scale).round().clamp(0.0, 255.0) as u8;
+        }
+        out[3] = alpha as u8;
+        *z_px = self.z;
     }
 }
 

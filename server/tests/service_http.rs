@@ -2795,23 +2795,46 @@ async fn depth_layered_volumes_take_runtime_opacities_over_http() {
         "the front segment alone is not: {alphas:?}"
     );
     // The stream's `layers` setting gives the same lossless frame.
+    let streamed = one_png_frame_streamed(
+        state,
+        "split",
+        Some(serde_json::json!({"type": "settings", "layers": {"back": 0}})),
+    )
+    .await;
+    let decode = |png: &[u8]| {
+        lumigraph_core::image_io::decode_png_rgba8(png)
+            .expect("png")
+            .2
+    };
+    assert_eq!(
+        decode(&streamed),
+        decode(&front_only),
+        "the stream's frame with the back hidden is the HTTP one"
+    );
+}
+
+/// Serves `state` on loopback, opens a stream of `asset`, asks for lossless still frames (and
+/// sends `settings`, if any), requests one 48² view and returns its PNG.
+async fn one_png_frame_streamed(
+    state: AppState,
+    asset: &str,
+    settings: Option<serde_json::Value>,
+) -> Vec<u8> {
     let (addr, stop_tx, server) = serve_on_loopback(state).await;
     let (mut ws, _) =
-        tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset=split"))
+        tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset={asset}"))
             .await
             .expect("connect");
     let hello = next_json(&mut ws).await;
-    assert_eq!(hello["asset"]["id"], "split");
+    assert_eq!(hello["asset"]["id"], asset);
     send_json(
         &mut ws,
         serde_json::json!({"type": "settings", "interactive": false, "still_codec": "png"}),
     )
     .await;
-    send_json(
-        &mut ws,
-        serde_json::json!({"type": "settings", "layers": {"back": 0}}),
-    )
-    .await;
+    if let Some(settings) = settings {
+        send_json(&mut ws, settings).await;
+    }
     send_json(
         &mut ws,
         serde_json::json!({"type": "view", "id": 1, "view": view_json(48, 48)}),
@@ -2819,19 +2842,10 @@ async fn depth_layered_volumes_take_runtime_opacities_over_http() {
     .await;
     let (header, image) = next_frame(&mut ws).await;
     assert_eq!(header.request_id, 1);
-    let decode = |png: &[u8]| {
-        lumigraph_core::image_io::decode_png_rgba8(png)
-            .expect("png")
-            .2
-    };
-    assert_eq!(
-        decode(&image),
-        decode(&front_only),
-        "the stream's frame with the back hidden is the HTTP one"
-    );
     drop(ws);
     let _ = stop_tx.send(());
     let _ = server.await;
+    image
 }
 
 /// A volume light field through the service: PNG frames carry the haze's partial alpha, an
@@ -2905,30 +2919,10 @@ async fn volume_light_fields_render_with_alpha_over_http_and_the_stream() {
     assert_eq!(jpeg.status, StatusCode::OK);
     assert!(jpeg.body.starts_with(&[0xff, 0xd8]));
 
-    let (addr, stop_tx, server) = serve_on_loopback(state).await;
-    let (mut ws, _) = tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset=ball"))
-        .await
-        .expect("connect");
-    let hello = next_json(&mut ws).await;
-    assert_eq!(hello["asset"]["id"], "ball");
-    send_json(
-        &mut ws,
-        serde_json::json!({"type": "settings", "interactive": false, "still_codec": "png"}),
-    )
-    .await;
-    send_json(
-        &mut ws,
-        serde_json::json!({"type": "view", "id": 1, "view": view_json(48, 48)}),
-    )
-    .await;
-    let (header, image) = next_frame(&mut ws).await;
-    assert_eq!(header.request_id, 1);
+    let image = one_png_frame_streamed(state, "ball", None).await;
     let (_, _, streamed) = lumigraph_core::image_io::decode_png_rgba8(&image).expect("png");
     assert_eq!(
         streamed, rgba,
         "the stream's lossless frame is the HTTP frame"
     );
-    drop(ws);
-    let _ = stop_tx.send(());
-    let _ = server.await;
 }
