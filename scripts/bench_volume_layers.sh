@@ -10,7 +10,7 @@
 # opacity are the whole ray cast), then timed interleaved: `lumigraph render --views` of the
 # same 12 views (eye at 2.5 radii, 40°), one asset after the other, three rounds, the first view
 # of each process (pipeline compilation) left out. Bakes and evals already in OUT_DIR are kept.
-#   bash scripts/bench_volume_layers.sh [OUT_DIR]   (default out/volume-layers; about 45 min)
+#   bash scripts/bench_volume_layers.sh [OUT_DIR]   (default out/volume-layers; about 35 min)
 # LUMIGRAPH_PROFILE=dev times the debug build (its core crate is optimized too).
 # Writes OUT_DIR/table.md and the JSON and logs beside it.
 set -euo pipefail
