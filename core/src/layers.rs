@@ -271,7 +271,8 @@ struct Composite<'a> {
 }
 
 impl Composite<'_> {
-    /// Composites the pixels `first..first + depth.len()` into `color` and `depth`.
+    /// Composites the pixels `first..first + depth.len()` into `color` and `depth`: sorted by
+    /// depth, or in the layers' order ([`Self::in_ray_order`]).
     fn pixels(&self, first: usize, color: &mut [u8], depth: &mut [f32]) {
         let layers = self.layers;
         if !self.by_depth {
@@ -285,21 +286,16 @@ impl Composite<'_> {
             for (index, (layer, o)) in layers.iter().enumerate() {
                 if *o > 0.0 && layer.premultiplied[4 * p + 3] > 0 {
                     let z = layer.depth[p];
-                    if self.by_depth {
-                        // Insertion sort by depth; equal depths keep the input order. A
-                        // fragment with no depth (NaN cannot occur: renderers write +inf) goes
-                        // last.
-                        let at = order.partition_point(|&(d, _)| d <= z);
-                        order.insert(at, (z, index));
-                    } else {
-                        order.push((z, index));
-                    }
+                    // Insertion sort by depth; equal depths keep the input order. A fragment
+                    // with no depth (NaN cannot occur: renderers write +inf) goes last.
+                    let at = order.partition_point(|&(d, _)| d <= z);
+                    order.insert(at, (z, index));
                 }
             }
             if order.is_empty() {
                 continue;
             }
-            if self.opaque && self.by_depth {
+            if self.opaque {
                 let (z, index) = order[0];
                 out.copy_from_slice(&layers[index].0.premultiplied[4 * p..4 * p + 4]);
                 *z_px = z;

@@ -488,14 +488,16 @@ impl Scene {
                     path,
                 } => {
                     let local = placement.view_to_local(view);
-                    let (layers, _) = plan
-                        .render_layers(renderer, &self.fields[*field], &local)
-                        .map_err(|source| SceneError::Quality {
-                            index,
-                            path: path.clone(),
-                            source,
+                    let lf = &self.fields[*field];
+                    let (layers, _) =
+                        plan.render_layers(renderer, lf, &local).map_err(|source| {
+                            SceneError::Quality {
+                                index,
+                                path: path.clone(),
+                                source,
+                            }
                         })?;
-                    if self.fields[*field].layer_order == crate::asset::LayerOrder::Ray {
+                    if lf.layer_order == crate::asset::LayerOrder::Ray {
                         // Depth layers keep their order along the ray: one fragment for the
                         // object, sorted among the others.
                         let pairs: Vec<(&LayerImage, f32)> = layers
@@ -506,9 +508,7 @@ impl Scene {
                             &pairs,
                             view.width,
                             view.height,
-                            self.fields[*field]
-                                .translucent
-                                .unwrap_or(crate::volume::raycast::DEFAULT_DEPTH_THRESHOLD as f32),
+                            lf.depth_threshold(),
                         );
                         image.scale_depth(placement.scale());
                         images.push((image, 1.0));

@@ -1310,19 +1310,7 @@ fn bakes_renders_and_scores_a_volume_light_field() {
         "resolution",
     );
     // eval --volume on a mesh asset, and --mesh on a volume asset.
-    let mesh_asset = path("ball-mesh.lfa");
-    let o = lumigraph(&[
-        "bake",
-        "--demo",
-        "--cameras",
-        "12",
-        "--resolution",
-        "32",
-        "--no-calibrate",
-        "-o",
-        s(&mesh_asset),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mesh_asset = bake_uncalibrated("ball-mesh.lfa");
     assert_fails(
         &["eval", s(&mesh_asset), "--volume", v, "--views", "1"],
         "not baked from a volume",
@@ -1605,19 +1593,7 @@ fn bakes_and_renders_depth_layers_of_a_volume() {
     // In a scene the depth layers composite in their order into one fragment, sorted with an
     // opaque light field behind: the ball's centre stays as it renders alone (the flattened
     // colour is premultiplied again: within 2 codes), and the backdrop shows around it.
-    let backdrop = path("depth-backdrop.lfa");
-    let o = lumigraph(&[
-        "bake",
-        "--demo",
-        "--cameras",
-        "12",
-        "--resolution",
-        "32",
-        "--no-calibrate",
-        "-o",
-        s(&backdrop),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let backdrop = bake_uncalibrated("depth-backdrop.lfa");
     let scene = write(
         "depth-scene.json",
         format!(

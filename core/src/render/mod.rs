@@ -104,6 +104,13 @@ impl GpuLightField {
     pub fn default_opacities(&self) -> Vec<f32> {
         self.layers.iter().map(|l| l.default_opacity).collect()
     }
+
+    /// The `τ_d` its layers composite with: the bake's for a translucent field, else DESIGN
+    /// §9's default.
+    pub fn depth_threshold(&self) -> f32 {
+        self.translucent
+            .unwrap_or(crate::volume::raycast::DEFAULT_DEPTH_THRESHOLD as f32)
+    }
 }
 
 impl Drop for GpuLightField {
@@ -497,11 +504,13 @@ impl Renderer {
         let start = Instant::now();
         let pairs: Vec<(&crate::layers::LayerImage, f32)> =
             images.iter().zip(opacities.iter().copied()).collect();
-        let tau = field
-            .translucent
-            .unwrap_or(crate::volume::raycast::DEFAULT_DEPTH_THRESHOLD as f32);
-        let mut frame =
-            crate::layers::composite(&pairs, view.width, view.height, tau, field.layer_order);
+        let mut frame = crate::layers::composite(
+            &pairs,
+            view.width,
+            view.height,
+            field.depth_threshold(),
+            field.layer_order,
+        );
         frame.stats.render_ms += start.elapsed().as_secs_f64() * 1e3;
         Ok(frame)
     }

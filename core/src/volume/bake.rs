@@ -983,10 +983,10 @@ fn prepare(
         return Err(BakeError::BadDepthBits(options.depth_bits).into());
     }
     // The same checks the direct ray caster makes, before anything is uploaded.
-    for layer in layers {
+    for layer in &layers[1..] {
         layer.rays(volume, &options.raycast)?;
     }
-    let rays = VolumeRays::new(volume, tf, &options.raycast)?;
+    let rays = layers[0].rays(volume, &options.raycast)?;
     let r = &options.raycast;
     let provenance = Provenance {
         lumigraph_version: env!("CARGO_PKG_VERSION").to_owned(),
@@ -1024,10 +1024,9 @@ fn prepare(
         let json = VolumeLayer::to_json(layers);
         map.insert(
             "layers".to_owned(),
-            if VolumeLayer::are_depth_layers(layers) {
-                json
-            } else {
-                json["layers"].clone()
+            match VolumeLayer::order(layers) {
+                LayerOrder::Ray => json,
+                LayerOrder::Depth => json["layers"].clone(),
             },
         );
     }
@@ -1040,9 +1039,7 @@ fn prepare(
         provenance,
     )?;
     header.set_color_encoding(Encoding::Rgba8Premultiplied);
-    if VolumeLayer::are_depth_layers(layers) {
-        header.set_layer_order(LayerOrder::Ray);
-    }
+    header.set_layer_order(VolumeLayer::order(layers));
     header.layers = layers
         .iter()
         .map(|l| crate::asset::LayerDesc {

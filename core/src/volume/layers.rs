@@ -312,10 +312,14 @@ impl VolumeLayer {
         })
     }
 
-    /// Whether `layers` are the depth layers of split rays, composited in their order along
-    /// the ray rather than by depth.
-    pub fn are_depth_layers(layers: &[VolumeLayer]) -> bool {
-        layers.iter().any(|l| l.segment.is_some())
+    /// How `layers` composite: the depth layers of split rays in their order along the ray
+    /// ([`LayerOrder::Ray`]), any others by depth.
+    pub fn order(layers: &[VolumeLayer]) -> LayerOrder {
+        if layers.iter().any(|l| l.segment.is_some()) {
+            LayerOrder::Ray
+        } else {
+            LayerOrder::Depth
+        }
     }
 }
 
@@ -432,17 +436,12 @@ pub fn reference_layers(
         images.push(layer_image(&image, &sort));
     }
     let pairs: Vec<(&LayerImage, f32)> = images.iter().zip(opacities.iter().copied()).collect();
-    let order = if VolumeLayer::are_depth_layers(layers) {
-        LayerOrder::Ray
-    } else {
-        LayerOrder::Depth
-    };
     Ok(composite(
         &pairs,
         view.width,
         view.height,
         options.depth_threshold as f32,
-        order,
+        VolumeLayer::order(layers),
     ))
 }
 
@@ -493,7 +492,7 @@ mod tests {
         let text = r#"{"tf": "mri-brain", "split": {"opacity": [0.3, 0.8]},
             "layers": [{"name": "outer"}, {"name": "middle", "opacity": 0.5}, {"name": "inner"}]}"#;
         let layers = VolumeLayer::parse(text, dir.path()).expect("valid");
-        assert!(VolumeLayer::are_depth_layers(&layers));
+        assert_eq!(VolumeLayer::order(&layers), LayerOrder::Ray);
         assert_eq!(layers.len(), 3);
         for (i, l) in layers.iter().enumerate() {
             let s = l.segment.as_ref().expect("a segment");

@@ -305,8 +305,8 @@ impl<'a> VolumeRays<'a> {
     /// what they gather is that segment's alone.
     ///
     /// # Errors
-    /// [`RaycastError::Options`] for a segment index beyond the rule's boundaries or a value
-    /// split on a label volume.
+    /// [`RaycastError::Options`] for a segment index beyond the rule's boundaries, a value
+    /// split of a label volume or a label split of a scalar one.
     pub fn with_segment(mut self, segment: Option<Segment>) -> Result<Self, RaycastError> {
         if let Some(s) = &segment {
             if s.index > s.split.boundary_count() {
