@@ -29,6 +29,11 @@ def tf_eval(points: np.ndarray, values: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(values, points[:, 0], points[:, c]) for c in range(1, 5)], axis=-1)
 
 
+def _over_black(color: np.ndarray) -> np.ndarray:
+    """A straight-colour RGBA8 frame composited over black, as float levels."""
+    return color[..., :3].astype(float) * color[..., 3:4] / 255.0
+
+
 def numpy_raycast(
     vol: np.ndarray, spacing: np.ndarray, origin: np.ndarray, view: dict, shade: bool
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -189,10 +194,7 @@ def test_bake_volume_renders_close_to_the_direct_ray_cast(tmp_path: Path) -> Non
     frame = lf.render(view)
     truth = lg.reference_volume(vol, view, tf=tf, spacing=(0.8, 1.0, 1.2), shade=True)
 
-    def over_black(color: np.ndarray) -> np.ndarray:
-        return color[..., :3].astype(float) * color[..., 3:4] / 255.0
-
-    a, b = over_black(frame.color), over_black(truth.color)
+    a, b = _over_black(frame.color), _over_black(truth.color)
     mse = ((a - b) ** 2).mean()
     psnr = 10 * np.log10(255.0**2 / mse)
     assert (truth.color[..., 3] > 0).mean() > 0.1, "the blob fills the view"
@@ -238,14 +240,11 @@ def test_layered_bake_renders_runtime_opacities_like_the_layered_reference() -> 
     assert [layer["name"] for layer in lf.info["layers"]] == ["outside", "inside"]
     view = {"eye": [30.0, 14.0, -20.0], "target": [6.0, 8.5, 11.4], "up": [0, 1, 0], "yfov_deg": 40, "width": 64, "height": 64}
 
-    def over_black(color: np.ndarray) -> np.ndarray:
-        return color[..., :3].astype(float) * color[..., 3:4] / 255.0
-
     alphas = []
     for opacities in ({}, {"inside": 0.0}, {"outside": 1.0, "inside": 0.4}):
         frame = lf.render(view, layers=opacities) if opacities else lf.render(view)
         truth = lg.reference_volume(vol, view, layers=layers, opacities=opacities, spacing=(0.8, 1.0, 1.2))
-        a, b = over_black(frame.color), over_black(truth.color)
+        a, b = _over_black(frame.color), _over_black(truth.color)
         psnr = 10 * np.log10(255.0**2 / max(((a - b) ** 2).mean(), 1e-12))
         assert psnr > 26.0, f"{opacities}: PSNR over black {psnr:.2f} dB"
         alphas.append(frame.color[..., 3].astype(float).mean())
@@ -278,17 +277,14 @@ def test_depth_layers_split_each_ray_and_add_up_to_the_whole_ray_cast() -> None:
     assert [layer["name"] for layer in lf.info["layers"]] == ["front", "back"]
     view = {"eye": [30.0, 14.0, -20.0], "target": [6.0, 8.5, 11.4], "up": [0, 1, 0], "yfov_deg": 40, "width": 64, "height": 64}
 
-    def over_black(color: np.ndarray) -> np.ndarray:
-        return color[..., :3].astype(float) * color[..., 3:4] / 255.0
-
     whole = lg.reference_volume(vol, view, tf=TF, spacing=(0.8, 1.0, 1.2))
     segments = lg.reference_volume(vol, view, layers=split, opacities={"back": 1.0}, spacing=(0.8, 1.0, 1.2))
-    assert np.abs(over_black(whole.color) - over_black(segments.color)).max() <= 2.0
+    assert np.abs(_over_black(whole.color) - _over_black(segments.color)).max() <= 2.0
     assert np.abs(whole.color[..., 3].astype(int) - segments.color[..., 3].astype(int)).max() <= 2
     for opacities in ({"back": 1.0}, {}, {"back": 0.0}):
         frame = lf.render(view, layers=opacities)
         truth = lg.reference_volume(vol, view, layers=split, opacities=opacities, spacing=(0.8, 1.0, 1.2))
-        a, b = over_black(frame.color), over_black(truth.color)
+        a, b = _over_black(frame.color), _over_black(truth.color)
         psnr = 10 * np.log10(255.0**2 / max(((a - b) ** 2).mean(), 1e-12))
         assert psnr > 26.0, f"{opacities}: PSNR over black {psnr:.2f} dB"
     front = lf.render(view, layers={"back": 0.0}).color[..., 3].astype(float)

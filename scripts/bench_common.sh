@@ -1,8 +1,8 @@
 # Sourced by the bench scripts (from the repository root, after scripts/setup.sh): builds the
-# release binary (LUMIGRAPH_PROFILE=dev: the debug one) as $LG and provides the real-mesh fixtures as $FIX (fetched once) with their
-# paths in MESH[scene] (the demo has none: it is built in).
-# LUMIGRAPH_PROFILE=dev: the debug build instead (its core crate is optimized; the GPU work runs
-# in the driver), where a release build would take longer than the measurement.
+# release binary as $LG and provides the real-mesh fixtures as $FIX (fetched once) with their
+# paths in MESH[scene] (the demo has none: it is built in). LUMIGRAPH_PROFILE=dev builds the
+# debug binary instead (its core crate is optimized; the GPU work runs in the driver), where a
+# release build would take longer than the measurement.
 if [ "${LUMIGRAPH_PROFILE:-release}" = dev ]; then
   cargo build --locked -q -p lumigraph_server
   LG=${CARGO_TARGET_DIR:-target}/debug/lumigraph
