@@ -9,7 +9,9 @@
 # CPU ray cast (layered assets against their layers' composited ray casts; depth layers at full
 # opacity are the whole ray cast), then timed interleaved: `lumigraph render --views` of the
 # same 12 views (eye at 2.5 radii, 40°), one asset after the other, three rounds, the first view
-# of each process (pipeline compilation) left out. Bakes and evals already in OUT_DIR are kept.
+# of each process (pipeline compilation) left out; the layered assets once more composited on
+# the GPU (LUMIGRAPH_COMPOSITE=gpu) beside the default choice. Bakes and evals already in
+# OUT_DIR are kept.
 #   bash scripts/bench_volume_layers.sh [OUT_DIR]   (default out/volume-layers; about 35 min)
 # LUMIGRAPH_PROFILE=dev times the debug build (its core crate is optimized too).
 # Writes OUT_DIR/table.md and the JSON and logs beside it.
@@ -75,10 +77,15 @@ for _ in range(12):
 json.dump(views, open(sys.argv[2], "w"))
 PY
 : > "$OUT/timing.txt"
+# The layered assets twice: composited where the adapter suits (auto) and, as `three_gpu` and
+# `tf3_gpu`, on the GPU whatever the adapter (LUMIGRAPH_COMPOSITE=gpu).
 for round in 1 2 3; do
-  for a in one three tf3; do
-    asset=${!a}
-    $LG render "$asset" --views "$OUT/views.json" -o "$OUT/frames-$a" \
+  for a in one three tf3 three_gpu tf3_gpu; do
+    name=${a%_gpu}
+    asset=${!name}
+    mode=auto
+    [ "$name" = "$a" ] || mode=gpu
+    LUMIGRAPH_COMPOSITE=$mode $LG render "$asset" --views "$OUT/views.json" -o "$OUT/frames-$a" \
       | sed -n 's/^view \([0-9]*\): \([0-9.]*\) ms.*/\1 \2/p' \
       | awk -v a="$a" -v r="$round" '$1 != "000" {print a, r, $2}' >> "$OUT/timing.txt"
   done
@@ -88,7 +95,7 @@ import json, os, re, statistics, sys
 out = sys.argv[1]
 rows = ["| asset | layers | size MiB | zstd MiB | bake s | MAE | masked PSNR | PSNR over black | SSIM | wrong-surface px | footprint | eval ms/frame | interleaved ms/frame | fps | × one layer | GPU MiB |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-times = {"one": [], "three": [], "tf3": []}
+times = {"one": [], "three": [], "tf3": [], "three_gpu": [], "tf3_gpu": []}
 for line in open(f"{out}/timing.txt"):
     a, _, ms = line.split()
     times[a].append(float(ms))
@@ -109,6 +116,9 @@ for key, name, layers, tag in (("one", "mni-162", 1, "1"), ("three", "mni-162-de
                 f"{100 * foot:.1f} % | {e['mean_ms']:.1f} | {med[key]:.1f} | {1e3 / med[key]:.0f} | "
                 f"{med[key] / med['one']:.2f} | {gpu:.0f} |")
 rows.append("")
+rows.append("Composited on the GPU (LUMIGRAPH_COMPOSITE=gpu): " + ", ".join(
+    f"{a[:-4]} {med[a]:.1f} ms ({med[a] / med['one']:.2f}× one layer, {med[a] - med[a[:-4]]:+.1f} ms)"
+    for a in ("three_gpu", "tf3_gpu")) + ".")
 rows.append("Interleaved frames per asset: " + ", ".join(f"{a} {len(v)} (median {med[a]:.1f} ms)" for a, v in times.items()) + ".")
 open(f"{out}/table.md", "w").write("\n".join(rows) + "\n")
 print("\n".join(rows))

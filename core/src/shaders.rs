@@ -8,6 +8,8 @@ pub const BAKE: &str = concat!(
 );
 /// The volume ray caster of volume bakes (compute).
 pub const VOLUME_BAKE: &str = include_str!("../../shaders/volume_bake.wgsl");
+/// The compositing of a multi light field's layers (compute).
+pub const COMPOSITE: &str = include_str!("../../shaders/composite.wgsl");
 /// The reference rasterizer (vertex + fragment).
 pub const REFERENCE: &str = concat!(
     include_str!("../../shaders/shared/mesh.wgsl"),
@@ -28,12 +30,13 @@ pub const RENDER_FILES: [(&str, &str); 6] = [
 /// The light-field helpers the marcher's stages build on.
 pub const LIGHTFIELD: &str = include_str!("../../shaders/shared/lightfield.wgsl");
 
-/// The bake and reference modules, by name and full source (validated by a CPU-only naga test;
+/// The bake, reference and composite modules, by name and full source (validated by a CPU-only naga test;
 /// the marcher's is assembled by [`crate::render::shader_source`]).
 pub fn all() -> Vec<(&'static str, String)> {
     vec![
         ("bake", BAKE.to_owned()),
         ("reference", REFERENCE.to_owned()),
         ("volume_bake", VOLUME_BAKE.to_owned()),
+        ("composite", COMPOSITE.to_owned()),
     ]
 }

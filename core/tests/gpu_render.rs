@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 use std::sync::{Arc, OnceLock};
 
 use glam::{DVec3, Vec2};
-use lumigraph_core::asset::{AssetFile, Channel, ImageKey, Provenance};
+use lumigraph_core::asset::{AssetFile, Channel, ImageKey, LayerDesc, Provenance};
 use lumigraph_core::bake::{BakeOptions, Baker};
 use lumigraph_core::frame::Frame;
 use lumigraph_core::geometry;
@@ -15,7 +15,7 @@ use lumigraph_core::mesh::{Mesh, demo_mesh};
 use lumigraph_core::metrics;
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::{
-    GpuLightField, InteriorBlocks, Method, RenderOptions, Renderer, Switches,
+    Compositing, GpuLightField, InteriorBlocks, Method, RenderOptions, Renderer, Switches,
 };
 use lumigraph_core::shading::Shading;
 use lumigraph_core::view::View;
@@ -2156,6 +2156,104 @@ fn dropped_light_fields_free_their_device_memory_at_once() {
                 now <= before,
                 "round {round}: {now} bytes allocated, {before} before the upload"
             );
+        }
+    }
+}
+
+#[test]
+fn opaque_layers_composite_alike_on_the_gpu_and_the_cpu() {
+    // Two opaque layers: the demo bake, and its colours inverted on the same depths, so every
+    // covered pixel holds two fragments at equal depth (ties keep the layer order).
+    let (_, asset) = baked_demo(12, 64);
+    let mut header = asset.header().clone();
+    header.layers = ["bake", "inverted"]
+        .map(|name| LayerDesc {
+            name: name.to_owned(),
+            default_opacity: 1.0,
+        })
+        .to_vec();
+    let mut images = Vec::new();
+    for layer in 0..2u16 {
+        for k in 0..header.geometry.camera_count {
+            let key = |channel| ImageKey::new(0, 0, k, channel);
+            let mut color = asset.read_image(key(Channel::Color)).expect("colour");
+            if layer == 1 {
+                for texel in color.chunks_exact_mut(4) {
+                    for c in &mut texel[..3] {
+                        *c = 255 - *c;
+                    }
+                }
+            }
+            let depth = asset.read_image(key(Channel::Depth)).expect("depth");
+            images.push((ImageKey::new(layer, 0, k, Channel::Color), color));
+            images.push((ImageKey::new(layer, 0, k, Channel::Depth), depth));
+        }
+    }
+    let layered =
+        AssetFile::from_bytes(lumigraph_core::asset::encode_asset(header, images).expect("encode"))
+            .expect("opens");
+    let with = |compositing| {
+        let renderer = Renderer::with_switches(
+            Gpu::shared().expect("a GPU adapter"),
+            Switches {
+                compositing,
+                ..default_switches()
+            },
+        );
+        let field = renderer.upload(&layered).expect("upload");
+        (renderer, field)
+    };
+    let (on_gpu, gpu_field) = with(Compositing::Gpu);
+    let (on_cpu, cpu_field) = with(Compositing::Cpu);
+    let single = on_gpu.upload(&asset).expect("upload");
+    let o = RenderOptions::default();
+    for view in eval_views(&asset, 3, 5, 96) {
+        // Both at full opacity: the nearest fragment as it is, the first layer's on ties: the
+        // single-layer frame exactly.
+        let alone = on_gpu.render(&single, &view, &o).expect("render");
+        for opacities in [[1.0, 1.0], [0.5, 1.0], [1.0, 0.25], [0.3, 0.6], [0.0, 0.8]] {
+            let composited = on_gpu
+                .render_layered(&gpu_field, &view, (&o, &o, 0.0), [0.0; 2], &opacities)
+                .expect("GPU composite");
+            let read_back = on_cpu
+                .render_layered(&cpu_field, &view, (&o, &o, 0.0), [0.0; 2], &opacities)
+                .expect("CPU composite");
+            // The same f32 blend on both sides, rounded alike: within one code where a sum
+            // rounds differently; the depth is a fragment's, chosen by the same rule.
+            let worst = composited
+                .color
+                .iter()
+                .zip(&read_back.color)
+                .map(|(x, y)| x.abs_diff(*y))
+                .max()
+                .unwrap_or(0);
+            assert!(worst <= 1, "{opacities:?}: colour {worst} codes apart");
+            assert!(
+                composited
+                    .depth
+                    .iter()
+                    .zip(&read_back.depth)
+                    .all(|(x, y)| x.to_bits() == y.to_bits()),
+                "{opacities:?}: depths differ"
+            );
+            assert_eq!(composited.translucent, read_back.translucent);
+            assert_eq!(composited.translucent, opacities != [1.0, 1.0]);
+            if opacities == [1.0, 1.0] {
+                // Where the first layer's fragment is the nearest (its depth is the frame's),
+                // the frame is that fragment as it is: ties go to the first layer. (The
+                // second layer's silhouettes can differ: a no-hit texel's colour carries its
+                // sub-texel edge, which the inversion changed.)
+                let (mut tied, mut wrong) = (0, 0);
+                for (p, z) in alone.depth.iter().enumerate() {
+                    if z.is_finite() && z.to_bits() == composited.depth[p].to_bits() {
+                        tied += 1;
+                        wrong += usize::from(
+                            composited.color[4 * p..4 * p + 4] != alone.color[4 * p..4 * p + 4],
+                        );
+                    }
+                }
+                assert!(tied > 1000 && wrong == 0, "{wrong} of {tied} pixels");
+            }
         }
     }
 }

@@ -8,6 +8,7 @@
 //! baseline); [`Method::Default`] marches coarse steps with an edge-aware depth lookup and
 //! accepts a bisection-refined crossing only where a camera's estimate is continuous across it.
 
+mod composite;
 mod gpu_data;
 mod guide;
 mod options;
@@ -19,8 +20,9 @@ mod upload;
 pub use gpu_data::render_params_layout;
 pub use gpu_data::shader_source;
 pub use options::{
-    DEFAULT_FIXED_STEP, DEFAULT_GUIDE, DEFAULT_REFINED_STEP, InteriorBlocks, MAX_GUIDE, MIN_STEP,
-    Method, RenderError, RenderOptions, ResolvedOptions, Switches, UploadOptions,
+    COMPOSITING_VARIABLE, Compositing, DEFAULT_FIXED_STEP, DEFAULT_GUIDE, DEFAULT_REFINED_STEP,
+    InteriorBlocks, MAX_GUIDE, MIN_STEP, Method, RenderError, RenderOptions, ResolvedOptions,
+    Switches, UploadOptions,
 };
 pub use passes::PASS_TIMING_VARIABLE;
 pub use upload::field_bytes;
@@ -36,6 +38,7 @@ use crate::geometry;
 use crate::gpu::{Gpu, GpuError};
 use crate::view::{DEFAULT_MAX_VIEW_PX, View, ViewError};
 
+use composite::{CompositeParams, CompositePipeline, MAX_GPU_LAYERS};
 use gpu_data::{
     EDGE_GAP, FRONT_MASS, MethodSet, REFINE_ITERATIONS, RenderParams, Role, ShaderSetting, Tiling,
     max_steps_for, method_code,
@@ -171,6 +174,8 @@ pub struct Renderer {
     hierarchy_buffer: wgpu::Buffer,
     /// [`geometry::CameraSet::direction_lookup`] (`locate` in the marcher).
     lookup_view: wgpu::TextureView,
+    /// The GPU composite of a multi light field's layers.
+    composite: CompositePipeline,
     /// Reusable targets; the lock also serializes frames on the one queue.
     targets: Mutex<Option<Targets>>,
     max_px: u32,
@@ -337,6 +342,7 @@ impl Renderer {
                 &[("TILE_SPAN", span)],
             )
         });
+        let composite = CompositePipeline::new(device);
         let renderer = Renderer {
             gpu,
             module,
@@ -350,6 +356,7 @@ impl Renderer {
             camera_buffer,
             hierarchy_buffer,
             lookup_view,
+            composite,
             targets: Mutex::new(None),
             max_px,
             resident: Arc::default(),
@@ -500,6 +507,25 @@ impl Renderer {
             }
             return Ok(frame);
         }
+        let visible: Vec<(usize, f32)> = opacities
+            .iter()
+            .copied()
+            .enumerate()
+            .filter(|&(_, o)| o > 0.0)
+            .collect();
+        // Up to MAX_GPU_LAYERS visible layers may composite on the GPU; more, or none (an
+        // empty frame, no pass), on the CPU.
+        let on_gpu = match self.switches.compositing {
+            Compositing::Automatic => !self.gpu.is_software,
+            Compositing::Gpu => true,
+            Compositing::Cpu => false,
+        };
+        if on_gpu
+            && (1..=MAX_GPU_LAYERS).contains(&visible.len())
+            && self.stack_fits(view, visible.len())
+        {
+            return self.render_composited(field, view, (a, b, weight), jitter, &visible);
+        }
         let images = self.render_layer_images(field, view, (a, b, weight), jitter, opacities)?;
         let start = Instant::now();
         let pairs: Vec<(&crate::layers::LayerImage, f32)> =
@@ -569,6 +595,29 @@ impl Renderer {
         Ok(out)
     }
 
+    /// The targets for `view`'s size (made or remade as needed), locked: the lock also
+    /// serializes frames on the one queue.
+    ///
+    /// # Errors
+    /// [`RenderError::View`] for a view that is not valid (before anything is allocated).
+    fn lock_targets(
+        &self,
+        view: &View,
+    ) -> Result<std::sync::MutexGuard<'_, Option<Targets>>, RenderError> {
+        view.basis(self.max_px)?;
+        let mut guard = self
+            .targets
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if guard
+            .as_ref()
+            .is_none_or(|t| (t.width, t.height) != (view.width, view.height))
+        {
+            *guard = Some(self.targets_for(view.width, view.height));
+        }
+        Ok(guard)
+    }
+
     /// One layer's pass: the marcher's output as it is (premultiplied colour for a translucent
     /// field, depth wherever the maps' surface was met).
     fn render_maps(
@@ -581,6 +630,107 @@ impl Renderer {
         weight: f32,
         jitter: [f32; 2],
     ) -> Result<Frame, RenderError> {
+        let start = Instant::now();
+        let guard = self.lock_targets(view)?;
+        let Some(targets) = guard.as_ref() else {
+            return Err(GpuError::Operation("render targets missing".to_owned()).into());
+        };
+        let (encoder, timer) =
+            self.encode_maps(targets, field, maps, view, (a, b, weight), jitter, true)?;
+        self.read_frame(targets, encoder, timer, start, field.translucent.is_some())
+    }
+
+    /// Whether a stack of `layers` frames of `view`'s size fits one storage binding (and one
+    /// buffer) of this device: a large frame with many layers composites on the CPU.
+    fn stack_fits(&self, view: &View, layers: usize) -> bool {
+        let limits = self.gpu.device.limits();
+        let bytes = 4 * u64::from(view.width) * u64::from(view.height) * layers as u64;
+        bytes <= limits.max_storage_buffer_binding_size.min(limits.max_buffer_size)
+    }
+
+    /// The visible layers of `field` (index and opacity, in the field's order, at most
+    /// [`MAX_GPU_LAYERS`]) rendered one after the other into the layer stack and composited
+    /// there (shaders/composite.wgsl): one readback, no CPU pass over the pixels.
+    fn render_composited(
+        &self,
+        field: &GpuLightField,
+        view: &View,
+        settings: (&RenderOptions, &RenderOptions, f32),
+        jitter: [f32; 2],
+        visible: &[(usize, f32)],
+    ) -> Result<Frame, RenderError> {
+        let start = Instant::now();
+        let mut guard = self.lock_targets(view)?;
+        let Some(targets) = guard.as_mut() else {
+            return Err(GpuError::Operation("render targets missing".to_owned()).into());
+        };
+        if targets
+            .stack
+            .as_ref()
+            .is_none_or(|s| s.layers < visible.len())
+        {
+            targets.stack = Some(
+                self.composite
+                    .stack(&self.gpu.device, targets, visible.len()),
+            );
+        }
+        let targets = &*targets;
+        let Some(stack) = targets.stack.as_ref() else {
+            return Err(GpuError::Operation("layer stack missing".to_owned()).into());
+        };
+        let gpu = &self.gpu;
+        let size = (view.width, view.height);
+        let opacities: Vec<f32> = visible.iter().map(|&(_, o)| o).collect();
+        let params = CompositeParams::new(
+            size,
+            &opacities,
+            field.translucent.is_some(),
+            field.depth_threshold(),
+            field.layer_order,
+        );
+        for (slot, &(index, _)) in visible.iter().enumerate() {
+            let Some(maps) = field.maps.get(index) else {
+                return Err(RenderError::Option(format!("no layer {index}")));
+            };
+            // Each layer's passes are submitted as soon as they are recorded (its parameters
+            // are written before its submission, after the previous one's); the counters add
+            // up over the layers.
+            let (mut encoder, mut timer) =
+                self.encode_maps(targets, field, maps, view, settings, jitter, slot == 0)?;
+            stack.push(&mut encoder, targets, slot);
+            encoder = timer.split(gpu, encoder, "stack")?;
+            if slot + 1 < visible.len() {
+                gpu.queue.submit([encoder.finish()]);
+                timer.finish(view.width, view.height);
+                continue;
+            }
+            gpu.queue
+                .write_buffer(&stack.uniform, 0, bytemuck::bytes_of(&params));
+            self.composite.record(&mut encoder, stack, size);
+            encoder = timer.split(gpu, encoder, "composite")?;
+            let mut frame = self.read_frame(targets, encoder, timer, start, true)?;
+            frame.translucent = params.nearest_only == 0;
+            return Ok(frame);
+        }
+        Err(RenderError::Option(
+            "no visible layer to composite".to_owned(),
+        ))
+    }
+
+    /// Records one layer's passes into a new encoder (after writing their parameters): the
+    /// frame's colour and depth are in `targets` once it has run. `clear_counters`: start the
+    /// work counters from 0 (else they add up).
+    #[allow(clippy::too_many_arguments)]
+    fn encode_maps(
+        &self,
+        targets: &Targets,
+        field: &GpuLightField,
+        maps: &LayerMaps,
+        view: &View,
+        (a, b, weight): (&RenderOptions, &RenderOptions, f32),
+        jitter: [f32; 2],
+        clear_counters: bool,
+    ) -> Result<(wgpu::CommandEncoder, PassTimer), RenderError> {
         if !Arc::ptr_eq(&field.gpu, &self.gpu) {
             return Err(RenderError::Option(
                 "the light field was uploaded on another device than this renderer's".to_owned(),
@@ -606,7 +756,6 @@ impl Renderer {
         let resolved_a = a.resolve(field.max_level)?;
         let first = ShaderSetting::of(&resolved_a);
         let second = ShaderSetting::of(&b.resolve(field.max_level)?);
-        let start = Instant::now();
         let lf_eye = (basis.eye - field.center) / field.scale;
         if !lf_eye.is_finite() {
             return Err(RenderError::View(ViewError::NotFinite("eye")));
@@ -659,19 +808,6 @@ impl Renderer {
         let factor = resolved_a.guide;
         let coarse = coarse_size(view.width, view.height, factor).filter(|_| guided);
         let pixels = u64::from(view.width) * u64::from(view.height);
-        let mut guard = self
-            .targets
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        if guard
-            .as_ref()
-            .is_none_or(|t| (t.width, t.height) != (view.width, view.height))
-        {
-            *guard = Some(self.targets_for(view.width, view.height));
-        }
-        let Some(targets) = guard.as_ref() else {
-            return Err(GpuError::Operation("render targets missing".to_owned()).into());
-        };
         let gpu = &self.gpu;
         let mut fine = params;
         // The coarse passes, coarsest first, with their sizes, focal lengths and jitters (the
@@ -758,8 +894,10 @@ impl Renderer {
         }
         gpu.queue
             .write_buffer(&targets.uniform, 0, bytemuck::bytes_of(&fine));
-        gpu.queue
-            .write_buffer(&targets.counters, 0, &[0u8; COUNTERS_SIZE as usize]);
+        if clear_counters {
+            gpu.queue
+                .write_buffer(&targets.counters, 0, &[0u8; COUNTERS_SIZE as usize]);
+        }
         let mut encoder = gpu
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -881,6 +1019,22 @@ impl Renderer {
             );
             encoder = timer.split(gpu, encoder, "interior")?;
         }
+        Ok((encoder, timer))
+    }
+
+    /// Submits `encoder` with the copies the readback needs, waits, and reads the frame back
+    /// (`start`: when its work began; `translucent`: the field's).
+    fn read_frame(
+        &self,
+        targets: &Targets,
+        mut encoder: wgpu::CommandEncoder,
+        mut timer: PassTimer,
+        start: Instant,
+        translucent: bool,
+    ) -> Result<Frame, RenderError> {
+        let gpu = &self.gpu;
+        let (width, height) = (targets.width, targets.height);
+        let pixels = u64::from(width) * u64::from(height);
         let split = (pixels * 4) as usize;
         if let Some(readback) = &targets.readback {
             encoder.copy_buffer_to_buffer(&targets.color, 0, readback, 0, pixels * 4);
@@ -923,15 +1077,14 @@ impl Renderer {
                 |bytes| read(bytes[0], bytes[1], bytes[2]),
             )?,
         };
-        drop(guard);
         let render_ms = start.elapsed().as_secs_f64() * 1e3;
-        timer.finish(view.width, view.height);
+        timer.finish(width, height);
         Ok(Frame {
-            width: view.width,
-            height: view.height,
+            width,
+            height,
             color,
             depth,
-            translucent: field.translucent.is_some(),
+            translucent,
             stats: FrameStats {
                 render_ms,
                 rays: u64::from(counters[2]),

@@ -208,6 +208,8 @@ pub struct Switches {
     /// Times every frame's passes and logs them (default: whether
     /// [`super::PASS_TIMING_VARIABLE`] is set when the switches are made).
     pub pass_timing: bool,
+    /// Where a multi light field's visible layers composite.
+    pub compositing: Compositing,
 }
 
 impl Default for Switches {
@@ -218,6 +220,49 @@ impl Default for Switches {
             interior_blocks: InteriorBlocks::Automatic,
             wide_tile_reads: false,
             pass_timing: std::env::var_os(super::PASS_TIMING_VARIABLE).is_some(),
+            compositing: Compositing::from_env(),
+        }
+    }
+}
+
+/// [`Switches::compositing`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Compositing {
+    /// On the GPU where the adapter is hardware; on the CPU where it is a software rasterizer,
+    /// whose compute passes run on the same cores as the CPU composite and cost more there
+    /// (BENCHMARKS.md, "Three layers").
+    #[default]
+    Automatic,
+    /// On the GPU: the layers go to a stack on the device and one pass composites them; one
+    /// readback (shaders/composite.wgsl).
+    Gpu,
+    /// On the CPU: every layer is read back and [`crate::layers::composite`] blends them, as
+    /// scenes do.
+    Cpu,
+}
+
+/// Environment variable that picks [`Compositing`] for renderers made while it is set:
+/// `auto`, `gpu` or `cpu` (for measuring one against the other on the same adapter).
+pub const COMPOSITING_VARIABLE: &str = "LUMIGRAPH_COMPOSITE";
+
+impl Compositing {
+    /// [`COMPOSITING_VARIABLE`]'s choice; [`Compositing::Automatic`] where it is unset, or
+    /// not one of the three (with a warning).
+    pub fn from_env() -> Compositing {
+        let Some(value) = std::env::var_os(COMPOSITING_VARIABLE) else {
+            return Compositing::Automatic;
+        };
+        match value.to_str().map(str::trim) {
+            Some("gpu") => Compositing::Gpu,
+            Some("cpu") => Compositing::Cpu,
+            Some("auto") => Compositing::Automatic,
+            _ => {
+                tracing::warn!(
+                    "{COMPOSITING_VARIABLE}={value:?} is not auto, gpu or cpu: compositing where \
+                     the adapter suits"
+                );
+                Compositing::Automatic
+            }
         }
     }
 }

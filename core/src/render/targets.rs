@@ -1,6 +1,7 @@
 //! Per-size output buffers and bind groups of the marcher's passes.
 
 use super::Renderer;
+use super::composite::LayerStack;
 use super::gpu_data::RenderParams;
 use super::guide::{PRE_FACTOR, coarse_size};
 
@@ -31,6 +32,9 @@ pub(super) struct Targets {
     pub(super) tile_args: wgpu::Buffer,
     /// `tile_dispatch`'s starting values, copied in before each tile listing.
     pub(super) tile_reset: wgpu::Buffer,
+    /// The layers of a multi light field before their composite (made for the first such
+    /// frame, grown to the most visible layers one frame had).
+    pub(super) stack: Option<LayerStack>,
 }
 
 /// One coarse pass's buffers: its parameters, its results (rows of [`coarse_stride`] pixels, two
@@ -249,6 +253,7 @@ impl Renderer {
             tile_dispatch,
             tile_args,
             tile_reset,
+            stack: None,
         }
     }
 }
