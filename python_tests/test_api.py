@@ -174,6 +174,25 @@ def test_shading_options_change_the_reference(demo_mesh: lg.Mesh, demo_views: li
     np.testing.assert_array_equal(lit.depth, unlit.depth)
 
 
+def test_shadows_reach_the_bake_and_the_reference(demo_mesh: lg.Mesh, demo_views: list[lg.View]) -> None:
+    lf = lg.bake_mesh(demo_mesh, cameras=42, resolution=96, shadows=True, progress=False)
+    assert lf.shading["shadows"] is True
+    view = demo_views[1]
+    lit = lg.reference_render(demo_mesh, view)
+    shadowed = lg.reference_render(demo_mesh, view, **lf.shading)
+    cov = lit.coverage
+    np.testing.assert_array_equal(cov, shadowed.coverage)
+    # Shadows only take light away (one code of rounding), and the trefoil shadows itself.
+    a = lit.color[cov][:, :3].astype(int)
+    b = shadowed.color[cov][:, :3].astype(int)
+    assert (b <= a + 1).all()
+    assert ((a - b).max(axis=1) > 20).mean() > 0.02
+    # The light field carries the baked shadows: closer to the shadowed reference than to the
+    # lit one.
+    frame = lf.render(view)
+    assert lg.metrics.masked_psnr(frame, shadowed) > lg.metrics.masked_psnr(frame, lit) + 1.0
+
+
 def test_render_releases_the_gil_and_threads_agree(
     demo_lf: lg.LightField, demo_views: list[lg.View]
 ) -> None:

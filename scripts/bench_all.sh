@@ -25,6 +25,8 @@ step "volume light fields (scripts/bench_volume.sh)" "$OUT/volume/table.md: 'Vol
 bash scripts/bench_volume.sh "$OUT/volume"
 step "volume multi light fields (scripts/bench_volume_layers.sh)" "$OUT/volume-layers/table.md: 'Volume light fields', 3-layer rows"
 bash scripts/bench_volume_layers.sh "$OUT/volume-layers"
+step "shadows (scripts/bench_shadows.sh)" "$OUT/shadows/table.md: 'Shadows'"
+bash scripts/bench_shadows.sh "$OUT/shadows"
 step "still refinement (scripts/bench_refine.sh)" "$OUT/refine/tables.md: 'Still-frame refinement'"
 bash scripts/bench_refine.sh "$OUT/refine"
 step "render service (scripts/bench_service.py)" "$OUT/service.md: 'Render service streaming'"

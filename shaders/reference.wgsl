@@ -22,7 +22,7 @@ struct ReferenceParams {
 
 @group(1) @binding(0) var<storage, read> vertices: array<Vertex>;
 @group(1) @binding(1) var<storage, read> triangles: array<Triangle>;
-@group(1) @binding(2) var<storage, read> unused_nodes: array<vec4<f32>>;
+@group(1) @binding(2) var<storage, read> nodes: array<BvhNode>;
 @group(1) @binding(3) var<storage, read> materials: array<Material>;
 @group(1) @binding(4) var mesh_texture: texture_2d_array<f32>;
 @group(1) @binding(5) var mesh_sampler: sampler;
@@ -34,6 +34,7 @@ struct VertexOut {
     @location(2) uv: vec2<f32>,
     @location(3) color: vec3<f32>,
     @location(4) @interpolate(flat) material: u32,
+    @location(5) @interpolate(flat) triangle: u32,
 }
 
 @vertex
@@ -56,6 +57,7 @@ fn vs_main(@builtin(vertex_index) vertex_index: u32) -> VertexOut {
     out.uv = vec2<f32>(v.u, v.v);
     out.color = v.color.rgb;
     out.material = tri.material;
+    out.triangle = vertex_index / 3u;
     return out;
 }
 
@@ -70,7 +72,11 @@ fn fs_main(in: VertexOut) -> FragmentOut {
     let view_dir = normalize(params.eye - in.position);
     let albedo = albedo_of(materials[in.material], in.uv, in.color, mesh_texture, mesh_sampler);
     var out: FragmentOut;
-    out.color = vec4<f32>(shade(albedo, n, view_dir, params.shading), 1.0);
+    var visibility = 1.0;
+    if params.shading.shadows != 0u {
+        visibility = light_visibility(in.position, in.triangle, params.eye, params.shading.light);
+    }
+    out.color = vec4<f32>(shade(albedo, n, view_dir, params.shading, visibility), 1.0);
     out.depth = dot(in.position - params.eye, params.forward) * params.depth_scale;
     return out;
 }

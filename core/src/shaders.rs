@@ -4,6 +4,7 @@
 /// The bake ray tracer (compute).
 pub const BAKE: &str = concat!(
     include_str!("../../shaders/shared/mesh.wgsl"),
+    include_str!("../../shaders/shared/trace.wgsl"),
     include_str!("../../shaders/bake.wgsl")
 );
 /// The volume ray caster of volume bakes (compute).
@@ -13,6 +14,7 @@ pub const COMPOSITE: &str = include_str!("../../shaders/composite.wgsl");
 /// The reference rasterizer (vertex + fragment).
 pub const REFERENCE: &str = concat!(
     include_str!("../../shaders/shared/mesh.wgsl"),
+    include_str!("../../shaders/shared/trace.wgsl"),
     include_str!("../../shaders/reference.wgsl")
 );
 

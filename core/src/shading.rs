@@ -27,7 +27,8 @@ pub enum ShadingError {
     },
 }
 
-/// `color = albedo·(ambient + (1-ambient)·max(0, n·light)) + ks·max(0, n·h)^shininess`.
+/// `color = albedo·(ambient + (1-ambient)·V·max(0, n·light)) + ks·V·max(0, n·h)^shininess`, V = 1
+/// without shadows (DESIGN §3, §9).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Shading {
@@ -39,6 +40,11 @@ pub struct Shading {
     pub specular: Option<(f32, f32)>,
     /// `color = albedo`.
     pub unlit: bool,
+    /// DESIGN §9's shadow term: the light is tested for occlusion from every shaded point
+    /// (baked texel and reference pixel alike); off by default, and then left out of the JSON
+    /// (assets baked without it record what they did before).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub shadows: bool,
 }
 
 impl Default for Shading {
@@ -48,6 +54,7 @@ impl Default for Shading {
             ambient: DEFAULT_AMBIENT,
             specular: None,
             unlit: false,
+            shadows: false,
         }
     }
 }
@@ -61,7 +68,7 @@ pub(crate) struct GpuShading {
     pub ks: f32,
     pub shininess: f32,
     pub unlit: u32,
-    pub pad: u32,
+    pub shadows: u32,
 }
 const _: () = assert!(std::mem::size_of::<GpuShading>() == 32);
 
@@ -101,7 +108,34 @@ impl Shading {
             ks,
             shininess,
             unlit: u32::from(self.unlit),
-            pad: 0,
+            shadows: u32::from(self.shadows && !self.unlit),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shadows_are_off_by_default_and_only_written_when_on() {
+        // Assets baked without shadows record the shading JSON they always did.
+        let plain = serde_json::to_value(Shading::default()).expect("serializes");
+        assert!(plain.get("shadows").is_none(), "{plain}");
+        let on = Shading {
+            shadows: true,
+            ..Shading::default()
+        };
+        let json = serde_json::to_value(on).expect("serializes");
+        assert_eq!(json["shadows"], serde_json::Value::Bool(true));
+        assert_eq!(serde_json::from_value::<Shading>(json).expect("parses"), on);
+        let old: Shading = serde_json::from_str(r#"{"light": [0, 1, 0], "ambient": 0.3}"#)
+            .expect("shading without the field");
+        assert!(!old.shadows);
+        // On the GPU: unlit shading has no light to shadow.
+        assert_eq!(on.to_gpu().shadows, 1);
+        let unlit = Shading { unlit: true, ..on };
+        assert_eq!(unlit.to_gpu().shadows, 0);
+        assert_eq!(Shading::default().to_gpu().shadows, 0);
     }
 }

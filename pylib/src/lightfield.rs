@@ -298,7 +298,8 @@ impl PyLightField {
     }
 
     /// The shading the asset was baked with, as keyword arguments for
-    /// :func:`lumigraph.reference_render`: ``{"light", "ambient", "specular", "unlit"}``.
+    /// :func:`lumigraph.reference_render`: ``{"light", "ambient", "specular", "unlit",
+    /// "shadows"}``.
     #[getter]
     fn shading<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let s = shading_of(self.asset.header());
@@ -307,6 +308,7 @@ impl PyLightField {
         d.set_item("ambient", s.ambient)?;
         d.set_item("specular", s.specular)?;
         d.set_item("unlit", s.unlit)?;
+        d.set_item("shadows", s.shadows)?;
         Ok(d)
     }
 
@@ -497,7 +499,9 @@ impl PyLightField {
 
 /// Native bake on a `Mesh` (the Python `bake_mesh` converts other inputs and the progress flag).
 #[pyfunction]
-#[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress, calibrate = false, auto = false, target_psnr = None, max_bytes = None))]
+#[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress, calibrate = false, auto = false, target_psnr = None, max_bytes = None, shadows = false))]
+// Python's keyword-only flags, one parameter each (the Python signature is the interface).
+#[allow(clippy::fn_params_excessive_bools)]
 pub fn bake(
     py: Python<'_>,
     mesh: &Bound<'_, PyMesh>,
@@ -513,6 +517,7 @@ pub fn bake(
     auto: bool,
     target_psnr: Option<f64>,
     max_bytes: Option<u64>,
+    shadows: bool,
 ) -> PyResult<PyLightField> {
     if let Some(callback) = &progress
         && !callback.bind(py).is_callable()
@@ -533,7 +538,7 @@ pub fn bake(
     let options = BakeOptions {
         cameras,
         resolution,
-        shading: shading(light, ambient, specular, unlit)?,
+        shading: shading(light, ambient, specular, unlit, shadows)?,
         depth_bits,
     };
     options.validate().map_err(|e| errors::bake(&e))?;

@@ -243,12 +243,14 @@ pub fn shading(
     ambient: f32,
     specular: Option<(f32, f32)>,
     unlit: bool,
+    shadows: bool,
 ) -> PyResult<Shading> {
     let shading = Shading {
         light,
         ambient,
         specular,
         unlit,
+        shadows,
     };
     shading.validate().map_err(|e| errors::shading(&e))?;
     Ok(shading)
@@ -256,7 +258,8 @@ pub fn shading(
 
 /// Native reference render on a `Mesh` (the Python wrapper converts other mesh inputs).
 #[pyfunction]
-#[pyo3(signature = (mesh, view, *, light, ambient, specular, unlit, background))]
+#[pyo3(signature = (mesh, view, *, light, ambient, specular, unlit, background, shadows = false))]
+#[allow(clippy::too_many_arguments)]
 pub fn reference_render(
     py: Python<'_>,
     mesh: &Bound<'_, PyMesh>,
@@ -266,9 +269,10 @@ pub fn reference_render(
     specular: Option<(f32, f32)>,
     unlit: bool,
     background: Option<&Bound<'_, PyAny>>,
+    shadows: bool,
 ) -> PyResult<PyFrame> {
     let view = view::parse_view(view)?;
-    let shading = shading(light, ambient, specular, unlit)?;
+    let shading = shading(light, ambient, specular, unlit, shadows)?;
     let background = background.map(parse_background).transpose()?;
     let mesh = mesh.get();
     let frame = py.detach(|| {

@@ -1642,3 +1642,97 @@ fn bakes_and_renders_depth_layers_of_a_volume() {
         );
     }
 }
+
+#[test]
+fn shadows_reach_the_bake_the_reference_and_eval() {
+    let view = write("shadow-view.json", VIEW.as_bytes());
+    let render = |extra: &[&str], name: &str| {
+        let png = path(name);
+        let mut args = vec!["reference", "--demo", "--view", s(&view), "-o", s(&png)];
+        args.extend(extra);
+        let o = lumigraph(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        lumigraph_core::image_io::read_png_rgba8(&png)
+            .expect("png")
+            .2
+    };
+    let plain = render(&[], "unshadowed.png");
+    let shadowed = render(&["--shadows"], "shadowed.png");
+    // Shadows only take light away: the same pixels covered, none brighter (one code of
+    // rounding), and the demo's tori shadow one another, so some are darker by far.
+    let (mut darker, mut covered) = (0, 0);
+    for (a, b) in plain.chunks_exact(4).zip(shadowed.chunks_exact(4)) {
+        assert_eq!(a[3], b[3], "coverage");
+        if a[3] == 0 {
+            continue;
+        }
+        covered += 1;
+        assert!(
+            a[..3]
+                .iter()
+                .zip(&b[..3])
+                .all(|(x, y)| *y <= x.saturating_add(1))
+        );
+        darker += usize::from(
+            a[..3]
+                .iter()
+                .zip(&b[..3])
+                .any(|(x, y)| y.saturating_add(20) < *x),
+        );
+    }
+    assert!(
+        darker > covered / 50,
+        "{darker} of {covered} pixels in shadow"
+    );
+    // The bake records it, so eval scores against the shadowed reference.
+    let asset = path("shadowed.lfa");
+    let o = lumigraph(&[
+        "bake",
+        "--demo",
+        "--shadows",
+        "--cameras",
+        "42",
+        "--resolution",
+        "64",
+        "--no-calibrate",
+        "-o",
+        s(&asset),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let file = lumigraph_core::asset::AssetFile::open(&asset).expect("asset");
+    assert!(
+        lumigraph_core::bake::BakeOptions::of(file.header())
+            .shading
+            .shadows
+    );
+    let o = lumigraph(&[
+        "eval",
+        s(&asset),
+        "--demo",
+        "--views",
+        "2",
+        "--size",
+        "64",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("eval json");
+    let masked = report["mean"]["masked_psnr"].as_f64().expect("masked psnr");
+    assert!(masked > 18.0, "masked PSNR {masked}");
+    // A volume has no triangles to cast shadows on.
+    let volume = write("shadow-ball.npy", &ball_npy(16));
+    assert_fails(
+        &[
+            "reference",
+            s(&volume),
+            "--tf",
+            "ct-bone",
+            "--shadows",
+            "--view",
+            s(&view),
+            "-o",
+            s(&path("never.png")),
+        ],
+        "--shadows applies to meshes",
+    );
+}

@@ -2926,3 +2926,50 @@ async fn volume_light_fields_render_with_alpha_over_http_and_the_stream() {
         "the stream's lossless frame is the HTTP frame"
     );
 }
+
+/// `POST /v1/bake` takes the shading's `shadows` (DESIGN §9) in `options` like the rest of the
+/// shading; the asset records it (so `eval` and `**lf.shading` shade the reference alike), and a
+/// value that is not a boolean is a `422` before any job exists.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_bake_takes_shadows_in_its_shading() {
+    let (_dir, state) = setup(None, |_| {}).await;
+    let obj = icosahedron_obj();
+    let bad = post_bake(
+        &state,
+        None,
+        &[
+            ("mesh", Some("ico.obj"), obj.as_bytes()),
+            (
+                "options",
+                None,
+                br#"{"cameras": 12, "resolution": 16, "shading": {"shadows": "yes"}}"#,
+            ),
+        ],
+    )
+    .await;
+    assert_eq!(bad.status, StatusCode::UNPROCESSABLE_ENTITY);
+    let accepted = post_bake(
+        &state,
+        None,
+        &[
+            ("mesh", Some("ico.obj"), obj.as_bytes()),
+            (
+                "options",
+                None,
+                br#"{"cameras": 12, "resolution": 16, "shading": {"shadows": true}}"#,
+            ),
+            ("calibrate", None, b"false"),
+            ("id", None, b"shadowed"),
+        ],
+    )
+    .await;
+    assert_eq!(accepted.status, StatusCode::ACCEPTED);
+    let status = finished_job(&state, accepted.header("location")).await;
+    assert_eq!(status["state"], "done", "{status}");
+    let asset = get(&state, "/v1/assets/shadowed").await.json();
+    assert_eq!(
+        asset["header"]["provenance"]["bake_options"]["shading"]["shadows"],
+        serde_json::Value::Bool(true),
+        "{asset}"
+    );
+}

@@ -21,26 +21,28 @@ struct Material {
     pad2: i32,
 }
 
-// `light` is a unit world-space direction; ks = 0 disables the specular term.
+// `light` is a unit world-space direction; ks = 0 disables the specular term; `shadows` 1: the
+// light is tested for occlusion (DESIGN §9, shared/trace.wgsl `light_visibility`).
 struct Shading {
     light: vec3<f32>,
     ambient: f32,
     ks: f32,
     shininess: f32,
     unlit: u32,
-    pad: u32,
+    shadows: u32,
 }
 
-// DESIGN §3: color = albedo·(ambient + (1-ambient)·max(0, n·light)) + ks·max(0, n·h)^shininess,
+// DESIGN §3 with §9's shadow term V (`visibility`, 1 without shadows):
+// color = albedo·(ambient + (1-ambient)·V·max(0, n·light)) + ks·V·max(0, n·h)^shininess,
 // h = normalize(light + v), v towards the capturing camera; unlit: color = albedo.
-fn shade(albedo: vec3<f32>, n: vec3<f32>, v: vec3<f32>, s: Shading) -> vec3<f32> {
+fn shade(albedo: vec3<f32>, n: vec3<f32>, v: vec3<f32>, s: Shading, visibility: f32) -> vec3<f32> {
     if s.unlit != 0u {
         return clamp(albedo, vec3<f32>(0.0), vec3<f32>(1.0));
     }
-    var c = albedo * (s.ambient + (1.0 - s.ambient) * max(dot(n, s.light), 0.0));
+    var c = albedo * (s.ambient + (1.0 - s.ambient) * visibility * max(dot(n, s.light), 0.0));
     if s.ks > 0.0 {
         let h = normalize(s.light + v);
-        c += vec3<f32>(s.ks * pow(max(dot(n, h), 0.0), s.shininess));
+        c += vec3<f32>(s.ks * visibility * pow(max(dot(n, h), 0.0), s.shininess));
     }
     return clamp(c, vec3<f32>(0.0), vec3<f32>(1.0));
 }

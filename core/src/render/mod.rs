@@ -645,7 +645,10 @@ impl Renderer {
     fn stack_fits(&self, view: &View, layers: usize) -> bool {
         let limits = self.gpu.device.limits();
         let bytes = 4 * u64::from(view.width) * u64::from(view.height) * layers as u64;
-        bytes <= limits.max_storage_buffer_binding_size.min(limits.max_buffer_size)
+        bytes
+            <= limits
+                .max_storage_buffer_binding_size
+                .min(limits.max_buffer_size)
     }
 
     /// The visible layers of `field` (index and opacity, in the field's order, at most

@@ -198,12 +198,14 @@ def bake_mesh(
     auto: bool = False,
     target_psnr: float | None = None,
     max_bytes: int | None = None,
+    shadows: bool = False,
 ) -> LightField:
     """Bakes a mesh into a spherical light field on the GPU (GIL released).
 
     Every camera of an icosphere camera set records a parabolic colour + depth map of the
-    hemisphere opposite to it; depth is exact per texel (ray traced). Shading (DESIGN §3):
-    ``color = albedo * (ambient + (1 - ambient) * max(0, n·light)) + ks * max(0, n·h)**shininess``.
+    hemisphere opposite to it; depth is exact per texel (ray traced). Shading (DESIGN §3, §9):
+    ``color = albedo * (ambient + (1 - ambient) * V * max(0, n·light)) + ks * V * max(0, n·h)**shininess``
+    with ``V = 1`` unless ``shadows``.
 
     Args:
         mesh: a :class:`Mesh`, ``trimesh.Trimesh``, path, or ``(vertices, faces[, colors])``
@@ -217,6 +219,9 @@ def bake_mesh(
         specular: ``(ks, shininess)`` with 0 <= ks <= 1 and 0 < shininess <= 10000, or None for
             view-independent (Lambertian) shading.
         unlit: if True, ``color = albedo``.
+        shadows: if True, every texel casts a shadow ray towards the light through the mesh
+            (DESIGN §9): ``V`` is 0 where it meets a triangle. Recorded in the asset, so
+            ``**lf.shading`` and ``lumigraph eval`` shade the reference alike.
         depth_bits: depth precision, 16 (default) or 8. With ``auto=True``, ``cameras``,
             ``resolution`` and ``depth_bits`` are chosen and must not be given.
         progress: True prints "baking cameras k/n" to stderr; a callable gets
@@ -283,6 +288,7 @@ def bake_mesh(
         auto=auto,
         target_psnr=target_psnr,
         max_bytes=max_bytes,
+        shadows=shadows,
     )
 
 
@@ -295,6 +301,7 @@ def reference_render(
     specular: tuple[float, float] | None = None,
     unlit: bool = False,
     background: Sequence[int] | None = None,
+    shadows: bool = False,
 ) -> Frame:
     """Rasterizes the mesh itself with the bake's shading: the ground truth for quality numbers.
 
@@ -305,7 +312,8 @@ def reference_render(
     Args:
         mesh: a :class:`Mesh`, ``trimesh.Trimesh``, path, or ``(vertices, faces[, colors])``.
         view: a :class:`View` or a dict with keys eye, target, up, yfov_deg, width, height.
-        light, ambient, specular, unlit: shading, as in :func:`bake_mesh`.
+        light, ambient, specular, unlit, shadows: shading, as in :func:`bake_mesh` (with
+            ``shadows`` every pixel casts its shadow ray through the mesh).
         background: RGB or RGBA integers 0..255 outside coverage (default transparent black).
 
     Returns:
@@ -322,6 +330,7 @@ def reference_render(
         specular=specular,
         unlit=unlit,
         background=background,
+        shadows=shadows,
     )
 
 

@@ -203,6 +203,7 @@ def bake(
     auto: bool = False,
     target_psnr: float | None = None,
     max_bytes: int | None = None,
+    shadows: bool = False,
 ) -> LightField: ...
 def reference_render(
     mesh: Mesh,
@@ -213,6 +214,7 @@ def reference_render(
     specular: tuple[float, float] | None,
     unlit: bool,
     background: Sequence[int] | None,
+    shadows: bool = False,
 ) -> Frame: ...
 def reference_volume(
     volume: npt.ArrayLike | str | PathLike[str],

@@ -25,6 +25,10 @@ pub struct ShadingArgs {
     /// Unlit: colour = albedo.
     #[arg(long)]
     pub unlit: bool,
+    /// Shadows: the light is tested for occlusion from every shaded point, a shadow ray through
+    /// the mesh (DESIGN §9).
+    #[arg(long)]
+    pub shadows: bool,
 }
 
 impl ShadingArgs {
@@ -38,6 +42,7 @@ impl ShadingArgs {
         }
         shading.specular = self.specular;
         shading.unlit = self.unlit;
+        shading.shadows = self.shadows;
         shading.validate()?;
         Ok(shading)
     }

@@ -327,6 +327,11 @@ impl VolumeArgs {
         if shading.unlit || shading.specular.is_some() {
             bail!("--unlit and --specular apply to meshes; a volume's colour comes from its --tf");
         }
+        if shading.shadows {
+            bail!(
+                "--shadows applies to meshes (a shadow ray through their triangles); a volume is shaded by its gradient (--shade)"
+            );
+        }
         let volume = Volume::load(
             path,
             &LoadOptions {
