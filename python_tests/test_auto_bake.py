@@ -1,5 +1,5 @@
 """`bake_mesh(auto=True)`: the automatic bake's flags and errors, and its report on a target
-outside what any setting reaches (issue #26 item 4)."""
+outside what any setting reaches."""
 
 from __future__ import annotations
 

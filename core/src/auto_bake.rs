@@ -1,4 +1,4 @@
-//! A bake that models only what the scene requires (issue #26 item 4, `lumigraph bake --auto`).
+//! A bake that models only what the scene requires (`lumigraph bake --auto`).
 //!
 //! [`calibrate`] bakes the scene thrice at low resolution ([`CALIBRATION_RESOLUTIONS`], all 642
 //! cameras, whose first 12/42/162 are the coarser sets) and renders every camera count × depth

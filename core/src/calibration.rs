@@ -1,4 +1,4 @@
-//! A scene's error against cost, measured at bake time and stored in the asset (issue #5 item 5).
+//! A scene's error against cost, measured at bake time and stored in the asset.
 //!
 //! [`Calibration::measure`] runs a small [`crate::tradeoff`] sweep (the default method at every
 //! camera count the asset holds × [`CALIBRATION_STEPS`]) against the source mesh;
@@ -130,7 +130,7 @@ pub const CALIBRATION_VIEWS: usize = 4;
 /// Steps the calibration measures (bounding diameters).
 pub const CALIBRATION_STEPS: [f32; 4] = [1.0 / 8.0, 1.0 / 16.0, 1.0 / 32.0, 1.0 / 64.0];
 
-/// A scene's error against cost, measured at bake time (issue #5 item 5) and stored in the
+/// A scene's error against cost, measured at bake time and stored in the
 /// asset's quality report under `"calibration"`: the default method at every camera count the
 /// asset holds × [`CALIBRATION_STEPS`], on [`CALIBRATION_VIEWS`] random orbit views of
 /// [`CALIBRATION_SIZE`]².

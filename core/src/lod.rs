@@ -1,4 +1,4 @@
-//! Automatic level of detail (issue #5 item 2, seed 000 §3.1).
+//! Automatic level of detail (seed 000 §3.1).
 //!
 //! A light field renders at a discrete level (12/42/162/642 cameras, all from one asset) and a
 //! continuous one (the march step; the tolerance follows it as step / 2). Seed 000 picks them

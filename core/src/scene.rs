@@ -1,5 +1,5 @@
 //! Scenes: light-field instances and polygon meshes, each with its own world transform, rendered
-//! into one frame with a shared depth buffer (seed 000 §3.2, issue #5; format in
+//! into one frame with a shared depth buffer (seed 000 §3.2; format in
 //! `docs/scene.md`).
 //!
 //! Every object is rendered by the pipeline it belongs to (light fields by [`Renderer`], meshes

@@ -1,4 +1,4 @@
-//! The speed/accuracy trade-off sweep (issue #5, `lumigraph bench tradeoff`).
+//! The speed/accuracy trade-off sweep (`lumigraph bench tradeoff`).
 //!
 //! A [`Grid`] lists values of every quality knob — cameras (discrete LOD), step, tolerance (as a
 //! multiple of the step), marching method, depth precision and output resolution. [`sweep`]

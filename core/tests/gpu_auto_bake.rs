@@ -1,4 +1,4 @@
-//! The automatic bake on the GPU (issue #26 item 4): the setting chosen from the low-resolution
+//! The automatic bake on the GPU: the setting chosen from the low-resolution
 //! calibration and corrected on tuning views, baked, measures on held-out views what the tuning
 //! measured, and the asset holds exactly that setting.
 

@@ -1,4 +1,4 @@
-//! Automatic LOD on the GPU (issue #5 item 2): the calibration's silhouette error predicts
+//! Automatic LOD on the GPU: the calibration's silhouette error predicts
 //! what a render measures against the mesh, and a level switch cross-fades instead of popping.
 
 use std::sync::{Arc, OnceLock};

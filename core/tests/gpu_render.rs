@@ -2,6 +2,8 @@
 //! against analytic geometry (a cube: flat faces make exact ray intersections easy to compute
 //! independently in f64) and against each other.
 
+mod common;
+
 use std::fmt::Write as _;
 use std::sync::{Arc, OnceLock};
 
@@ -699,7 +701,7 @@ fn lod_prefixes_render_from_one_asset() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Numerical stability at the extremes (issue #5 item 6). Each case renders a baked cube and
+// Numerical stability at the extremes. Each case renders a baked cube and
 // checks depth and coverage against the exact f64 ray/box intersection. The depth tolerances
 // are relative to the bounding radius r; the default method measures a median error of
 // 2–6e-4 r on real meshes (BENCHMARKS.md), so each bound leaves room for the case's geometry
@@ -2220,13 +2222,7 @@ fn opaque_layers_composite_alike_on_the_gpu_and_the_cpu() {
                 .expect("CPU composite");
             // The same f32 blend on both sides, rounded alike: within one code where a sum
             // rounds differently; the depth is a fragment's, chosen by the same rule.
-            let worst = composited
-                .color
-                .iter()
-                .zip(&read_back.color)
-                .map(|(x, y)| x.abs_diff(*y))
-                .max()
-                .unwrap_or(0);
+            let worst = common::max_code_diff(&composited.color, &read_back.color);
             assert!(worst <= 1, "{opacities:?}: colour {worst} codes apart");
             assert!(
                 composited

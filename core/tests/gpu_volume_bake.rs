@@ -1,4 +1,4 @@
-//! Volume light fields on the GPU (issue #21 item 3): every baked texel against the CPU ray
+//! Volume light fields on the GPU: every baked texel against the CPU ray
 //! caster along the same ray, the premultiplied asset (format version 2), and rendered views
 //! against the direct ray cast (DESIGN §9).
 
@@ -561,13 +561,7 @@ fn the_gpu_direct_render_matches_the_cpu_ray_cast() {
                 .zip(&cpu.color)
                 .filter(|(a, b)| a.abs_diff(**b) > 1)
                 .count();
-            let worst = gpu
-                .color
-                .iter()
-                .zip(&cpu.color)
-                .map(|(a, b)| a.abs_diff(*b))
-                .max()
-                .unwrap_or(0);
+            let worst = common::max_code_diff(&gpu.color, &cpu.color);
             assert!(
                 off as f64 <= 0.005 * gpu.color.len() as f64 && worst <= 3,
                 "shade {shade}: {off} channels off, worst {worst}"
@@ -808,13 +802,7 @@ fn assert_gpu_composite_matches_cpu(asset: &AssetFile, views: &[View], opacity_s
                 .expect("CPU composite");
             assert_eq!(composited.translucent, read_back.translucent);
             assert_eq!(composited.stats.rays, read_back.stats.rays, "{opacities:?}");
-            let worst = composited
-                .color
-                .iter()
-                .zip(&read_back.color)
-                .map(|(x, y)| x.abs_diff(*y))
-                .max()
-                .unwrap_or(0);
+            let worst = common::max_code_diff(&composited.color, &read_back.color);
             assert!(worst <= 1, "{opacities:?}: colour {worst} codes apart");
             covered += read_back
                 .color
@@ -916,13 +904,7 @@ fn a_multi_light_field_composites_its_layers_like_their_direct_ray_casts() {
             .render_layered(&field, view, (&a, &b, 0.0), [0.0; 2], &[1.0, 0.0])
             .expect("render");
         let alone = renderer.render(&shell_only, view, &a).expect("render");
-        let worst = layered
-            .color
-            .iter()
-            .zip(&alone.color)
-            .map(|(x, y)| x.abs_diff(*y))
-            .max()
-            .unwrap_or(0);
+        let worst = common::max_code_diff(&layered.color, &alone.color);
         assert!(
             worst <= 1,
             "layered with the core at 0 differs by {worst} codes"

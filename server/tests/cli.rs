@@ -78,6 +78,24 @@ fn write(name: &str, contents: &[u8]) -> PathBuf {
 const VIEW: &str =
     r#"{"eye":[0,2,9],"target":[0,0,0],"up":[0,1,0],"yfov_deg":40,"width":48,"height":40}"#;
 
+/// `lumigraph eval ASSET --demo --views 2 --size 64 --json [EXTRA...]`'s report.
+fn eval_demo_json(asset: &Path, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec![
+        "eval",
+        s(asset),
+        "--demo",
+        "--views",
+        "2",
+        "--size",
+        "64",
+        "--json",
+    ];
+    args.extend(extra);
+    let o = lumigraph(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_slice(&o.stdout).expect("eval json")
+}
+
 /// Asserts a clean failure: non-zero exit, one `error:` line mentioning `needle`, no panic.
 fn assert_fails(args: &[&str], needle: &str) {
     let o = lumigraph(args);
@@ -176,18 +194,7 @@ fn happy_path_bake_info_render_reference_eval() {
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 
-    let o = lumigraph(&[
-        "eval",
-        s(asset),
-        "--demo",
-        "--views",
-        "2",
-        "--size",
-        "64",
-        "--json",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("eval json");
+    let report = eval_demo_json(asset, &[]);
     let masked = report["mean"]["masked_psnr"].as_f64().expect("masked psnr");
     assert!(masked > 15.0, "masked PSNR {masked}");
     assert_eq!(report["views"].as_array().map(Vec::len), Some(2));
@@ -767,20 +774,7 @@ fn calibrated_goals_pick_settings_and_report_predictions() {
     assert!(stdout.contains("chose 12 cameras, step 1/"), "{stdout}");
     assert!(stdout.contains("predicted masked PSNR"), "{stdout}");
     // eval puts the prediction beside the measurement.
-    let o = lumigraph(&[
-        "eval",
-        s(asset),
-        "--demo",
-        "--views",
-        "2",
-        "--size",
-        "64",
-        "--budget-ms",
-        "1000",
-        "--json",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    let report = eval_demo_json(asset, &["--budget-ms", "1000"]);
     let choice = &report["choice"];
     assert_eq!(choice["met"], serde_json::Value::Bool(true), "{report}");
     let predicted = choice["predicted_psnr"].as_f64().expect("predicted");
@@ -944,14 +938,18 @@ fn auto_lod_chooses_per_view_and_reports_predicted_beside_measured() {
 
 #[test]
 fn closed_stdout_ends_quietly_not_with_a_panic() {
-    // `lumigraph info ASSET | head -1`: the reader goes away after the first line.
-    let mut child = Command::new(env!("CARGO_BIN_EXE_lumigraph"))
+    // `lumigraph info ASSET | head -1`: the reader goes away after the first line. Its end of
+    // the pipe is closed before the child starts, so the child's first write fails however
+    // fast it runs (a reader dropped after the spawn can lose the race to a child that has
+    // already written everything into the pipe's buffer).
+    let (reader, writer) = std::io::pipe().expect("pipe");
+    drop(reader);
+    let child = Command::new(env!("CARGO_BIN_EXE_lumigraph"))
         .args(["info", s(demo_asset())])
-        .stdout(std::process::Stdio::piped())
+        .stdout(writer)
         .stderr(std::process::Stdio::piped())
         .spawn()
         .expect("spawn");
-    drop(child.stdout.take());
     let o = child.wait_with_output().expect("wait");
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(!stderr.contains("panicked"), "{stderr}");
@@ -1705,19 +1703,9 @@ fn shadows_reach_the_bake_the_reference_and_eval() {
             .shading
             .shadows
     );
-    let o = lumigraph(&[
-        "eval",
-        s(&asset),
-        "--demo",
-        "--views",
-        "2",
-        "--size",
-        "64",
-        "--json",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("eval json");
-    let masked = report["mean"]["masked_psnr"].as_f64().expect("masked psnr");
+    let masked = eval_demo_json(&asset, &[])["mean"]["masked_psnr"]
+        .as_f64()
+        .expect("masked psnr");
     assert!(masked > 18.0, "masked PSNR {masked}");
     // A volume has no triangles to cast shadows on.
     let volume = write("shadow-ball.npy", &ball_npy(16));

@@ -1,4 +1,4 @@
-//! Service tests: the router driven with `oneshot` (every endpoint, every bad input of issue 3)
+//! Service tests: the router driven with `oneshot` (every endpoint, every bad input)
 //! and one real server on port 0 driven over a WebSocket. GPU work runs on lavapipe here; the
 //! asset is tiny (12 cameras, 32 px maps) so the whole file runs in seconds.
 

@@ -1,4 +1,4 @@
-//! Scalar and label volumes in (issue #21 item 1): NIfTI `.nii`/`.nii.gz`, NumPy `.npy`,
+//! Scalar and label volumes in: NIfTI `.nii`/`.nii.gz`, NumPy `.npy`,
 //! MetaImage `.mha`/`.mhd`, NRRD `.nrrd`/`.nhdr`, INRIA `.inr`/`.inr.gz` and VTK image data
 //! `.vti`, read into one validated [`Volume`] with DESIGN §9's conventions.
 //!

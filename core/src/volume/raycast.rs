@@ -1,6 +1,6 @@
 //! The direct volume ray caster on the CPU: DESIGN §9's sampling, transfer function,
 //! integration, shading, depth and coverage, followed literally. It is the ground truth the
-//! volume bake and renderer are measured against (issue #21 item 4), so it favours being
+//! volume bake and renderer are measured against, so it favours being
 //! obviously the convention over speed; rows are spread over the CPU cores.
 //!
 //! Per pixel ray `eye + t·d` (§3's `pixel_dir`, `|d| = 1`, so `t` is in world units):

@@ -71,3 +71,13 @@ pub fn fixtures_dir() -> PathBuf {
     drop(lock);
     dir
 }
+
+/// The largest difference between two 8-bit images' codes, channel by channel (0 for empty
+/// images).
+pub fn max_code_diff(a: &[u8], b: &[u8]) -> u8 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| x.abs_diff(*y))
+        .max()
+        .unwrap_or(0)
+}
