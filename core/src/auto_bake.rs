@@ -614,7 +614,7 @@ pub fn auto_views(center: [f64; 3], radius: f64, set: ViewSet) -> Vec<View> {
 const TUNING_SPIRAL_TURN: f64 = 1.2;
 
 /// The [`AUTO_TUNING_VIEWS`] views of the tuning measurement: a Fibonacci spiral of its own
-/// (another point count, turned by [`TUNING_SPIRAL_TURN`]) at the distance and field of view of
+/// (another point count, turned by `TUNING_SPIRAL_TURN`) at the distance and field of view of
 /// [`auto_views`].
 pub fn tuning_views(center: [f64; 3], radius: f64) -> Vec<View> {
     (0..AUTO_TUNING_VIEWS)

@@ -162,7 +162,7 @@ pub struct CalibrationPoint {
     /// Mean median depth error, bounding radii.
     pub depth_median_r: f64,
     /// Mean silhouette displacement in bounding-sphere diameters: the calibration's
-    /// [`Point::silhouette_error_px`] over the bounding sphere's projected diameter in its
+    /// [`crate::tradeoff::Point::silhouette_error_px`] over the bounding sphere's projected diameter in its
     /// views. Times an object's projected diameter in pixels, it predicts the setting's
     /// silhouette error in pixels (what automatic LOD bounds, [`crate::lod`]). Absent in
     /// calibrations made before it was measured.

@@ -63,7 +63,7 @@ fn parent_dir(path: &Path) -> PathBuf {
     }
 }
 
-/// The target file name of a temporary name [`temp_path_for`] makes (`.name.tmp-<pid>-<n>` →
+/// The target file name of a temporary name `temp_path_for` makes (`.name.tmp-<pid>-<n>` →
 /// `name`), or `None` when `file_name` is not one: how a folder's owner finds the temporary
 /// files a killed writer left.
 pub fn temp_target(file_name: &str) -> Option<&str> {

@@ -17,7 +17,7 @@
 //!   hierarchy, parabolic maps, depth encoding.
 //! - [`asset`] is the `.lfa` container (docs/format.md): a validating reader and an atomic writer.
 //! - [`gpu`] owns the one headless wgpu device per process; [`bake`], [`render`] and
-//!   [`reference`] are its pipelines, built once and reused. WGSL lives in `shaders/` and is
+//!   [`reference`](mod@reference) are its pipelines, built once and reused. WGSL lives in `shaders/` and is
 //!   embedded at build time ([`shaders`]).
 //! - [`metrics`] implements DESIGN §3's metrics (cross-checked against scikit-image);
 //!   [`tradeoff`] sweeps every quality knob and measures its cost and error.

@@ -9,18 +9,18 @@
 //!                          └── reference_render(View) ┴──▶ Frame (core Frame; numpy on access)
 //! ```
 //!
-//! - [`view::PyView`] wraps `view::View` (DESIGN §3); every function that takes a view also takes
+//! - `view::PyView` wraps `view::View` (DESIGN §3); every function that takes a view also takes
 //!   a dict with the same keys.
-//! - [`mesh::PyMesh`] holds an `Arc<Mesh>` plus its provenance and, once used by the reference
+//! - `mesh::PyMesh` holds an `Arc<Mesh>` plus its provenance and, once used by the reference
 //!   renderer, its GPU upload.
-//! - [`lightfield::PyLightField`] holds the validated asset and its GPU textures.
-//! - [`frame::PyFrame`] holds an `Arc<Frame>`; `.color`, `.depth`, `.coverage` build numpy arrays.
-//! - [`metrics`] exposes `lumigraph_core::metrics` on contiguous numpy arrays; the Python module
+//! - `lightfield::PyLightField` holds the validated asset and its GPU textures.
+//! - `frame::PyFrame` holds an `Arc<Frame>`; `.color`, `.depth`, `.coverage` build numpy arrays.
+//! - `metrics` exposes `lumigraph_core::metrics` on contiguous numpy arrays; the Python module
 //!   `lumigraph.metrics` converts user input to those.
-//! - [`errors`] is the one mapping from core errors to Python exceptions.
+//! - `errors` is the one mapping from core errors to Python exceptions.
 //!
 //! The GPU device and the three pipelines (baker, renderer, reference renderer) are created once
-//! per process ([`engines`]) and shared by every thread; bake and render run with the GIL
+//! per process (`engines`) and shared by every thread; bake and render run with the GIL
 //! released (`py.detach`).
 
 // pyo3 extracts arguments by value (`PathBuf`, `Vec`, `Py<PyAny>`); borrowing them is not an option.

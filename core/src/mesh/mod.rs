@@ -98,7 +98,7 @@ pub struct Texture {
 /// A material: base-colour factor times an optional texture.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Material {
-    /// Multiplies texture and vertex colour; RGBA in [0,1].
+    /// Multiplies texture and vertex colour; RGBA in \[0, 1\].
     pub base_color_factor: [f32; 4],
     /// Index into [`Mesh::textures`].
     pub base_color_texture: Option<u32>,
@@ -122,7 +122,7 @@ pub struct Mesh {
     pub normals: Vec<[f32; 3]>,
     /// Texture coordinates (glTF convention: v down, origin top-left), if any.
     pub uvs: Option<Vec<[f32; 2]>>,
-    /// Vertex colours RGBA in [0,1], if any.
+    /// Vertex colours RGBA in \[0, 1\], if any.
     pub colors: Option<Vec<[f32; 4]>>,
     /// Triangles as vertex indices, counter-clockwise seen from outside.
     pub triangles: Vec<[u32; 3]>,

@@ -104,7 +104,7 @@ pub const MAX_GUIDE: u32 = 16;
 /// time at equal masked PSNR (BENCHMARKS.md).
 pub const DEFAULT_GUIDE: u32 = 4;
 
-/// Options of [`Renderer::upload_with`].
+/// Options of [`super::Renderer::upload_with`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct UploadOptions {
     /// Depth precision to render with: `None` = as stored, `Some(8)` requantizes 16-bit depth.

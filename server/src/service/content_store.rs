@@ -533,7 +533,7 @@ impl ContentStore {
     /// Publishes the asset file at `path` as `id`: its content under its hash, then the name
     /// (create-only). Publishing the same content under the same id again succeeds. The file is
     /// read twice (hashed, then sent) and never held in memory whole: files above
-    /// [`MULTIPART_BYTES`] go up in parts of that size, at most [`MULTIPART_PARALLEL`] at once.
+    /// [`MULTIPART_BYTES`] go up in parts of that size, at most `MULTIPART_PARALLEL` at once.
     ///
     /// The content is always sent, not skipped when its key exists: a concurrent writer of the
     /// key can only put the same bytes, and an object there that was damaged (which its length

@@ -146,7 +146,7 @@ async fn read_body_within_deadline(
 const SHUTDOWN_GRACE: Duration = Duration::from_secs(8);
 
 /// Serves `state` on `listener` until `shutdown` resolves, then lets in-flight HTTP requests
-/// finish (at most [`SHUTDOWN_GRACE`]) and stream sessions finish their frame and close (at most
+/// finish (at most `SHUTDOWN_GRACE`) and stream sessions finish their frame and close (at most
 /// 10 s).
 pub async fn run(
     listener: TcpListener,

@@ -287,7 +287,7 @@ fn vec3_at(bytes: &[u8], at: usize) -> [f32; 3] {
 }
 
 /// Splits a binary frame into header, colour and depth image (the reader's side of
-/// [`FrameHeader::write`]; clients in other languages follow docs/protocol.md).
+/// `FrameHeader::write`; clients in other languages follow docs/protocol.md).
 ///
 /// # Errors
 /// A message too short for its header, a wrong magic, an unknown codec, or extension lengths
@@ -429,7 +429,7 @@ impl FrameHeader {
     /// Flag: a resting frame was sent as JPEG because the lossless `still_codec` would have
     /// taken too long on the link.
     pub const STILL_FALLBACK: u8 = 2;
-    /// Flag: the depth extension follows the 40-byte header (set by [`FrameHeader::write`]
+    /// Flag: the depth extension follows the 40-byte header (set by `FrameHeader::write`
     /// when [`FrameHeader::depth`] is present).
     pub const DEPTH: u8 = 4;
 
