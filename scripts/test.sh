@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Runs every test on a fresh machine: installs the software Vulkan driver, fetches the real-mesh
-# fixtures (into $LUMIGRAPH_FIXTURES, default ./fixtures), checks formatting and lints, then runs
+# fixtures (into $LUMIGRAPH_FIXTURES, default ./fixtures), checks formatting, lints and API docs, then runs
 # the Rust test suite (GPU tests on lavapipe where there is no GPU), the Python bindings' suite and
 # the service's end-to-end suite, and validates the Kubernetes manifests. LUMIGRAPH_FUZZ=1 adds
 # the fuzz smoke run, LUMIGRAPH_DOCKER=1 the container image build and its smoke test.
@@ -13,6 +13,8 @@ stage "cargo fmt --check"
 cargo fmt --all -- --check
 stage "cargo clippy"
 cargo clippy --workspace --all-targets --locked -q -- -D warnings
+stage "cargo doc (no warnings: broken or private intra-doc links fail)"
+RUSTDOCFLAGS="-D warnings" cargo doc --workspace --no-deps --locked -q
 stage "cargo test"
 cargo test --workspace --locked -- --test-threads=2
 # The Python and service suites reuse this debug build instead of a second, release one.
