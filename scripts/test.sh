@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Runs every test on a fresh machine: installs the software Vulkan driver, fetches the real-mesh
-# fixtures (into $LUMIGRAPH_FIXTURES, default ./fixtures), checks formatting, lints and API docs, then runs
-# the Rust test suite (GPU tests on lavapipe where there is no GPU), the Python bindings' suite and
-# the service's end-to-end suite, and validates the Kubernetes manifests. LUMIGRAPH_FUZZ=1 adds
-# the fuzz smoke run, LUMIGRAPH_DOCKER=1 the container image build and its smoke test.
+# fixtures (into $LUMIGRAPH_FIXTURES, default ./fixtures), checks formatting, lints and API docs,
+# then runs the Rust test suite (GPU tests on lavapipe where there is no GPU), the Python
+# bindings' suite and the service's end-to-end suite, and validates the Kubernetes manifests.
+# LUMIGRAPH_FUZZ=1 adds the fuzz smoke run, LUMIGRAPH_DOCKER=1 the container image build and its
+# smoke test.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
