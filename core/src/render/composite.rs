@@ -13,8 +13,9 @@ use super::buffer_entry;
 use super::passes::compute_pipeline;
 use super::targets::Targets;
 
-/// The most visible layers one GPU composite takes (the shader's `MAX_LAYERS`): a pixel's
-/// fragments are sorted in registers. More fall back to the CPU composite.
+/// The most visible layers one GPU composite takes (the shader's `MAX_LAYERS`, its loops'
+/// bound: a pixel's fragments are taken in depth order by one scan of the stack per fragment,
+/// so the work grows with the square of the count). More fall back to the CPU composite.
 pub(super) const MAX_GPU_LAYERS: usize = 16;
 
 /// The composite pass's parameters, as shaders/composite.wgsl declares them.
@@ -29,6 +30,7 @@ pub(super) struct CompositeParams {
     pub(super) nearest_only: u32,
     pub(super) depth_threshold: f32,
     pub(super) pad: u32,
+    /// One per stacked layer (WGSL: four `vec4<f32>`, a uniform array's stride being 16).
     pub(super) opacities: [f32; MAX_GPU_LAYERS],
 }
 
