@@ -193,7 +193,8 @@ impl LayerImage {
 
 /// Composites `layers` (each with its opacity) per pixel front to back (DESIGN §9): in depth
 /// order ([`LayerOrder::Depth`]), or in the order given ([`LayerOrder::Ray`], depth layers whose
-/// order along every ray is fixed by the split: seed 002 §7 omits the sort for them). The result is opaque (`translucent: false`, depth of the nearest fragment) when
+/// order along every ray is fixed by the split: seed 002 §7 omits the sort for them). The
+/// result is opaque (`translucent: false`, depth of the nearest fragment) when
 /// every layer is opaque at opacity 1 — a plain depth test — and otherwise translucent: straight
 /// colour and alpha `round(255·A)`, depth of the first fragment after whose compositing
 /// `A ≥ τ_d` (`depth_threshold`), `+inf` elsewhere. Statistics add up.

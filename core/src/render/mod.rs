@@ -495,10 +495,15 @@ impl Renderer {
                 field.maps.len()
             )));
         }
+        let visible: Vec<(usize, f32)> = opacities
+            .iter()
+            .copied()
+            .enumerate()
+            .filter(|&(_, o)| o > 0.0)
+            .collect();
         // One visible layer at full opacity (every other at 0) is one pass, no compositing.
-        let mut visible = opacities.iter().enumerate().filter(|(_, o)| **o > 0.0);
-        if let (Some((only, o)), None) = (visible.next(), visible.next())
-            && *o >= 1.0
+        if let [(only, o)] = visible[..]
+            && o >= 1.0
         {
             let maps = &field.maps[only];
             let mut frame = self.render_maps(field, maps, view, a, b, weight, jitter)?;
@@ -507,12 +512,6 @@ impl Renderer {
             }
             return Ok(frame);
         }
-        let visible: Vec<(usize, f32)> = opacities
-            .iter()
-            .copied()
-            .enumerate()
-            .filter(|&(_, o)| o > 0.0)
-            .collect();
         // Up to MAX_GPU_LAYERS visible layers may composite on the GPU; more, or none (an
         // empty frame, no pass), on the CPU.
         let on_gpu = match self.switches.compositing {

@@ -231,15 +231,8 @@ impl VolumeLayer {
                 })
                 .collect::<Result<Vec<_>, LayersError>>()?,
             (Some(split), Some(tf)) => {
+                // The layer count against the boundaries: `validate` below.
                 let split = split.rule()?;
-                if file.layers.len() != split.boundary_count() + 1 {
-                    return Err(LayersError::Invalid(format!(
-                        "{} boundaries split each ray into {} depth layers; {} are named",
-                        split.boundary_count(),
-                        split.boundary_count() + 1,
-                        file.layers.len()
-                    )));
-                }
                 if let Some(spec) = file.layers.iter().find(|l| l.tf.is_some()) {
                     return Err(LayersError::Invalid(format!(
                         "depth layer {:?}: depth layers share the top-level \"tf\"",
