@@ -2271,6 +2271,15 @@ fn shadow_scene() -> (Mesh, (DVec3, DVec3)) {
     (mesh, (corner(lo), corner(hi)))
 }
 
+/// The shadow tests' shading: the light from above, a little to the side, with shadows.
+fn shadow_shading() -> Shading {
+    Shading {
+        light: [0.3, 1.0, 0.2],
+        shadows: true,
+        ..Shading::default()
+    }
+}
+
 /// Per pixel of `view` (row-major): the ground's expected 8-bit grey under DESIGN §9's shading
 /// with shadows (albedo 0.8, ambient 0.25, `light`), from an f64 ray cast of the scene
 /// (ray–plane and slab tests), where the pixel's ray meets the ground in front of the box and
@@ -2328,11 +2337,7 @@ fn ground_truth(
 #[test]
 fn shadows_darken_what_the_light_cannot_reach_in_the_reference_and_the_bake() {
     let (mesh, corners) = shadow_scene();
-    let shading = Shading {
-        light: [0.3, 1.0, 0.2],
-        shadows: true,
-        ..Shading::default()
-    };
+    let shading = shadow_shading();
     let light = DVec3::from(shading.light.map(f64::from)).normalize();
     let view = View::look_at([3.0, 3.5, 4.0], [0.0, 0.0, 0.0], 40.0, 192, 192);
     let truth = ground_truth(&view, corners, light, 1);
@@ -2447,11 +2452,7 @@ fn shadows_do_not_depend_on_the_scene_scale() {
     // the scaled eye, gives the same frame: no acne on a tiny scene, no light leaking under
     // the box of a huge one (one code for f32 rounding of the scaled geometry).
     let (mesh, _) = shadow_scene();
-    let shading = Shading {
-        light: [0.3, 1.0, 0.2],
-        shadows: true,
-        ..Shading::default()
-    };
+    let shading = shadow_shading();
     let render = |scale: f32| {
         let mut scaled = mesh.clone();
         for p in &mut scaled.positions {

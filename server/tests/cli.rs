@@ -1315,15 +1315,7 @@ fn bakes_renders_and_scores_a_volume_light_field() {
     );
     // A scene composites the translucent ball with an opaque light field behind it: the ball's
     // core stays opaque and the mesh shows through its faint halo.
-    let scene = write(
-        "ball-scene.json",
-        format!(
-            r#"{{"objects": [{{"type": "lightfield", "asset": "{a}"}},
-                {{"type": "lightfield", "asset": "{}", "transform": {{"translation": [5.75, 5.75, 20], "scale": 8}}}}]}}"#,
-            s(&mesh_asset)
-        )
-        .as_bytes(),
-    );
+    let scene = ball_before_backdrop("ball-scene.json", a, &mesh_asset);
     let scene_png = path("ball-scene.png");
     let o = lumigraph(&["render", s(&scene), "--view", s(&view), "-o", s(&scene_png)]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -1349,6 +1341,20 @@ fn bakes_renders_and_scores_a_volume_light_field() {
 /// halo's parallax between 42 cameras dominates, as for one layer). 1.5 dB below the lowest;
 /// a lost or misordered layer costs far more.
 const LAYERED_BALL_MIN_PSNR: f64 = 17.7;
+
+/// A scene file `name`: the ball light field `ball` (at the ball's place) before the opaque
+/// light field `backdrop`, moved behind it and scaled up to fill the view around it.
+fn ball_before_backdrop(name: &str, ball: &str, backdrop: &Path) -> PathBuf {
+    write(
+        name,
+        format!(
+            r#"{{"objects": [{{"type": "lightfield", "asset": "{ball}"}},
+                {{"type": "lightfield", "asset": "{}", "transform": {{"translation": [5.75, 5.75, 20], "scale": 8}}}}]}}"#,
+            s(backdrop)
+        )
+        .as_bytes(),
+    )
+}
 
 /// `bake VOLUME --layers LAYERS` of the ball at 0.5 spacing, 42 cameras × 64 px, into `asset`;
 /// the run must succeed.
@@ -1592,15 +1598,7 @@ fn bakes_and_renders_depth_layers_of_a_volume() {
     // opaque light field behind: the ball's centre stays as it renders alone (the flattened
     // colour is premultiplied again: within 2 codes), and the backdrop shows around it.
     let backdrop = bake_uncalibrated("depth-backdrop.lfa");
-    let scene = write(
-        "depth-scene.json",
-        format!(
-            r#"{{"objects": [{{"type": "lightfield", "asset": "{a}"}},
-                {{"type": "lightfield", "asset": "{}", "transform": {{"translation": [5.75, 5.75, 20], "scale": 8}}}}]}}"#,
-            s(&backdrop)
-        )
-        .as_bytes(),
-    );
+    let scene = ball_before_backdrop("depth-scene.json", a, &backdrop);
     let in_scene = centre(&["render", s(&scene)], "depth-scene.png");
     for k in 0..4 {
         assert!(

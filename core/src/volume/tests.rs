@@ -694,7 +694,9 @@ mod transfer_and_raycast {
     //! take the nearest voxel, shading follows the gradient's angle to the light. Tolerance
     //! 1e-12: the ray caster works in f64 and these are a handful of operations per sample.
 
-    use super::super::raycast::{EARLY_STOP_ALPHA, RaycastError, RaycastOptions, raycast};
+    use super::super::raycast::{
+        EARLY_STOP_ALPHA, RaycastError, RaycastOptions, Segment, SplitRule, VolumeRays, raycast,
+    };
     use super::super::tf::{PRESETS, TfError, TransferFunction, opacity_for_step};
     use super::super::{Volume, VolumeFormat, VoxelType, Voxels, diagonal};
     use crate::view::View;
@@ -1034,9 +1036,46 @@ mod transfer_and_raycast {
         assert_eq!(a.samples, b.samples);
     }
 
+    /// The rays of segment `index` of `split`.
+    fn segment_rays<'a>(
+        v: &'a Volume,
+        tf: &'a TransferFunction,
+        options: &RaycastOptions,
+        split: &SplitRule,
+        index: usize,
+    ) -> VolumeRays<'a> {
+        VolumeRays::new(v, tf, options)
+            .and_then(|r| {
+                r.with_segment(Some(Segment {
+                    split: split.clone(),
+                    index,
+                }))
+            })
+            .expect("segment")
+    }
+
+    /// Asserts that `segments` (premultiplied RGBA, nearest first) composited front to back,
+    /// `C += (1 − A)·C_i`, `A += (1 − A)·A_i`, give the whole ray's `whole` within EPS (f64
+    /// sums of a few hundred terms, regrouped: far below 1e-12).
+    fn assert_segments_compose(segments: &[[f64; 4]], whole: [f64; 4], what: &str) {
+        let (mut c, mut a) = ([0.0; 3], 0.0);
+        for s in segments {
+            for k in 0..3 {
+                c[k] += (1.0 - a) * s[k];
+            }
+            a += (1.0 - a) * s[3];
+        }
+        for k in 0..3 {
+            assert!(
+                (c[k] - whole[k]).abs() < EPS,
+                "{what} {k}: {c:?} vs {whole:?}"
+            );
+        }
+        assert!((a - whole[3]).abs() < EPS, "{what}: A {a} vs {}", whole[3]);
+    }
+
     #[test]
     fn depth_layer_segments_composite_to_the_whole_ray_exactly() {
-        use super::super::raycast::{Segment, SplitRule, VolumeRays};
         // A ramp along z with a dense band: every split rule cuts the ray somewhere inside.
         let v = Volume {
             affine: diagonal([0.7, 0.7, 0.9]),
@@ -1070,36 +1109,15 @@ mod transfer_and_raycast {
             for dir in [[0.0, 0.0, 1.0], [0.1, 0.05, 1.0], [-0.02, 0.2, 1.0]] {
                 let dir = glam::DVec3::from(dir).normalize().to_array();
                 let full = whole.cast(eye, dir);
-                let (mut c, mut a) = ([0.0; 3], 0.0);
-                let mut gathered = 0;
-                for index in 0..n {
-                    let seg = VolumeRays::new(&v, &tf, &options)
-                        .and_then(|r| {
-                            r.with_segment(Some(Segment {
-                                split: split.clone(),
-                                index,
-                            }))
-                        })
-                        .expect("segment");
-                    let s = seg.cast(eye, dir).rgba;
-                    gathered += usize::from(s[3] > 0.0);
-                    for k in 0..3 {
-                        c[k] += (1.0 - a) * s[k];
-                    }
-                    a += (1.0 - a) * s[3];
-                }
-                // f64 sums of a few hundred terms, regrouped: far below 1e-12.
-                for k in 0..3 {
-                    assert!(
-                        (c[k] - full.rgba[k]).abs() < EPS,
-                        "{split:?} {k}: {c:?} vs {full:?}"
-                    );
-                }
-                assert!(
-                    (a - full.rgba[3]).abs() < EPS,
-                    "{split:?}: A {a} vs {}",
-                    full.rgba[3]
-                );
+                let segments: Vec<[f64; 4]> = (0..n)
+                    .map(|index| {
+                        segment_rays(&v, &tf, &options, &split, index)
+                            .cast(eye, dir)
+                            .rgba
+                    })
+                    .collect();
+                let gathered = segments.iter().filter(|s| s[3] > 0.0).count();
+                assert_segments_compose(&segments, full.rgba, &format!("{split:?}"));
                 // The last rule fires both events at one sample and may leave the rest of the
                 // ray to the early stop: only the first three must cut every ray.
                 if split != SplitRule::Value(vec![60.0, 61.0]) {
@@ -1150,7 +1168,6 @@ mod transfer_and_raycast {
 
     #[test]
     fn label_transitions_start_a_new_segment_with_the_new_label() {
-        use super::super::raycast::{Segment, SplitRule, VolumeRays};
         // Nested shells: label 1 outside, 2, then 3 at the centre; a ray through the centre
         // meets 1, 2, 3, 2, 1.
         let n = 15u32;
@@ -1182,33 +1199,15 @@ mod transfer_and_raycast {
             .expect("rays")
             .cast(eye, dir);
         let segment = |transitions: usize, index: usize| {
-            VolumeRays::new(&v, &tf, &options)
-                .and_then(|r| {
-                    r.with_segment(Some(Segment {
-                        split: SplitRule::Labels(transitions),
-                        index,
-                    }))
-                })
-                .expect("segment")
+            segment_rays(&v, &tf, &options, &SplitRule::Labels(transitions), index)
                 .cast(eye, dir)
                 .rgba
         };
         for transitions in [1, 2, 4, 6] {
-            let (mut c, mut a) = ([0.0; 3], 0.0);
-            for index in 0..=transitions {
-                let s = segment(transitions, index);
-                for k in 0..3 {
-                    c[k] += (1.0 - a) * s[k];
-                }
-                a += (1.0 - a) * s[3];
-            }
-            for k in 0..3 {
-                assert!(
-                    (c[k] - whole.rgba[k]).abs() < EPS,
-                    "{transitions}: {c:?} {whole:?}"
-                );
-            }
-            assert!((a - whole.rgba[3]).abs() < EPS);
+            let segments: Vec<[f64; 4]> = (0..=transitions)
+                .map(|index| segment(transitions, index))
+                .collect();
+            assert_segments_compose(&segments, whole.rgba, &format!("{transitions} transitions"));
         }
         // With four transitions each segment holds one shell crossing: its colour is that
         // label's alone (red, green, blue, green, red); a fifth transition never comes.
