@@ -4,7 +4,8 @@ struct BakeParams {
     resolution: u32,
     first_camera: u32,
     camera_count: u32,
-    pad: u32,
+    // 1: `cs_main` records each texel's hit in `hits` for the light states' `cs_shade` passes.
+    store_hits: u32,
     shading: Shading,
 }
 
@@ -21,6 +22,8 @@ struct BakeCamera {
 @group(0) @binding(1) var<storage, read> cameras: array<BakeCamera>;
 @group(0) @binding(2) var<storage, read_write> out_color: array<u32>;
 @group(0) @binding(3) var<storage, read_write> out_depth: array<f32>;
+// Per texel: triangle (0xffffffff: none), t, b1, b2 (bit patterns of f32).
+@group(0) @binding(4) var<storage, read_write> hits: array<vec4<u32>>;
 
 @group(1) @binding(0) var<storage, read> vertices: array<Vertex>;
 @group(1) @binding(1) var<storage, read> triangles: array<Triangle>;
@@ -63,6 +66,9 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let w = ray.w;
     out_color[out_index] = 0u;
     out_depth[out_index] = 1.0;
+    if params.store_hits != 0u {
+        hits[out_index] = vec4<u32>(0xffffffffu, 0u, 0u, 0u);
+    }
     if chord <= 0.0 {
         return;
     }
@@ -71,6 +77,17 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if hit.triangle == 0xffffffffu {
         return;
     }
+    if params.store_hits != 0u {
+        hits[out_index] = vec4<u32>(hit.triangle, bitcast<u32>(hit.t), bitcast<u32>(hit.b1), bitcast<u32>(hit.b2));
+    }
+    out_color[out_index] = shade_hit(o, w, hit.triangle, hit.t, hit.b1, hit.b2);
+    out_depth[out_index] = hit.t / chord;
+}
+
+// The packed colour of the hit at t on ray o + t·w (triangle `index`, barycentrics b1, b2),
+// shaded with `params.shading`.
+fn shade_hit(o: vec3<f32>, w: vec3<f32>, index: u32, t: f32, b1: f32, b2: f32) -> u32 {
+    let hit = Hit(t, index, b1, b2);
     let tri = triangles[hit.triangle];
     let v0 = vertices[tri.v.x];
     let v1 = vertices[tri.v.y];
@@ -85,8 +102,28 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         visibility = light_visibility(o + hit.t * w, hit.triangle, o, params.shading.light);
     }
     let color = shade(albedo, n_interp, -w, params.shading, visibility);
-    out_color[out_index] = pack4x8unorm(vec4<f32>(color, 1.0));
-    out_depth[out_index] = hit.t / chord;
+    return pack4x8unorm(vec4<f32>(color, 1.0));
+}
+
+// A light state's colour pass: every texel that `cs_main` found a hit for (in `hits`) shaded
+// again with this pass's `params.shading` (another light, or one part of the colour), without
+// tracing the texel's ray again; texels without a hit get 0, as the base colour's no-hit texels
+// hold once the renderer has read their silhouettes.
+@compute @workgroup_size(8, 8, 1)
+fn cs_shade(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let n = params.resolution;
+    if gid.x >= n || gid.y >= n || gid.z >= params.camera_count {
+        return;
+    }
+    let out_index = (gid.z * n + gid.y) * n + gid.x;
+    let h = hits[out_index];
+    if h.x == 0xffffffffu {
+        out_color[out_index] = 0u;
+        return;
+    }
+    let cam = cameras[params.first_camera + gid.z];
+    let ray = map_ray(cam, texel_uv(gid.x, gid.y, n));
+    out_color[out_index] = shade_hit(cam.position.xyz, ray.w, h.x, bitcast<f32>(h.y), bitcast<f32>(h.z), bitcast<f32>(h.w));
 }
 
 // Bisection steps of `cs_edges`: the silhouette lies within 2^-7 texel of the final bracket's

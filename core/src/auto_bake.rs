@@ -345,6 +345,7 @@ impl Prediction {
             resolution: self.resolution,
             shading,
             depth_bits: self.depth_bits,
+            lights: None,
         }
     }
 }
@@ -770,6 +771,7 @@ pub fn calibrate(
             resolution,
             shading: *shading,
             depth_bits,
+            lights: None,
         };
         let bytes = baker.bake_to_bytes(mesh, &options, source, &mut |done, cameras| {
             progress(AutoStage::CalibrationBake {

@@ -19,7 +19,7 @@ use crate::geometry::{self, CAMERA_COUNTS};
 use crate::gpu::mesh::{GpuMesh, mesh_bind_group, mesh_layout, mesh_sampler, storage_entry};
 use crate::gpu::{Gpu, GpuError, storage_buffer};
 use crate::mesh::Mesh;
-use crate::shading::{GpuShading, Shading, ShadingError};
+use crate::shading::{GpuShading, ShadePart, Shading, ShadingError};
 
 /// Largest map resolution accepted by the baker.
 pub const MAX_BAKE_RESOLUTION: u32 = 4096;
@@ -40,6 +40,12 @@ pub enum BakeError {
     /// Bad shading options.
     #[error(transparent)]
     Shading(#[from] ShadingError),
+    /// A bad light-proxy size.
+    #[error(transparent)]
+    Lights(#[from] crate::light::LightError),
+    /// Light states asked of an unlit bake, whose colour does not depend on the light.
+    #[error("--lights relights a lit bake: drop --unlit or --lights")]
+    LightsUnlit,
     /// The device failed.
     #[error(transparent)]
     Gpu(#[from] GpuError),
@@ -60,6 +66,11 @@ pub struct BakeOptions {
     pub shading: Shading,
     /// Depth precision: 16 (default) or 8 bits.
     pub depth_bits: u8,
+    /// Light states (DESIGN §9, [`crate::light`]): the colour is also baked for each of this
+    /// many light directions (12, 42 or 162) plus the ambient part alone, so that renders can
+    /// relight the asset; `None`: the base state only (left out of the JSON).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lights: Option<u32>,
 }
 
 impl Default for BakeOptions {
@@ -69,6 +80,7 @@ impl Default for BakeOptions {
             resolution: 256,
             shading: Shading::default(),
             depth_bits: 16,
+            lights: None,
         }
     }
 }
@@ -102,6 +114,12 @@ impl BakeOptions {
             return Err(BakeError::BadDepthBits(self.depth_bits));
         }
         self.shading.validate()?;
+        if let Some(count) = self.lights {
+            crate::light::proxy_level(count).ok_or(crate::light::LightError::BadCount(count))?;
+            if self.shading.unlit {
+                return Err(BakeError::LightsUnlit);
+            }
+        }
         Ok(level)
     }
 }
@@ -127,6 +145,8 @@ pub struct Baker {
     pipeline: wgpu::ComputePipeline,
     /// `cs_edges`: sub-texel silhouette positions in the alpha of no-hit texels.
     edges: wgpu::ComputePipeline,
+    /// `cs_shade`: a light state's colour from the hits `cs_main` recorded.
+    shade: wgpu::ComputePipeline,
     frame_layout: wgpu::BindGroupLayout,
     /// `cs_edges`'s list of texels.
     edge_layout: wgpu::BindGroupLayout,
@@ -140,7 +160,7 @@ struct BakeParams {
     resolution: u32,
     first_camera: u32,
     camera_count: u32,
-    pad: u32,
+    store_hits: u32,
     shading: GpuShading,
 }
 const _: () = assert!(std::mem::size_of::<BakeParams>() == 48);
@@ -217,6 +237,7 @@ impl Baker {
                 storage_entry(1, true),
                 storage_entry(2, false),
                 storage_entry(3, false),
+                storage_entry(4, false),
             ]
             .map(|e| wgpu::BindGroupLayoutEntry {
                 visibility: wgpu::ShaderStages::COMPUTE,
@@ -255,11 +276,13 @@ impl Baker {
         };
         let pipeline = entry("cs_main", &layout);
         let edges = entry("cs_edges", &edges_layout);
+        let shade = entry("cs_shade", &layout);
         let sampler = mesh_sampler(&gpu);
         Baker {
             gpu,
             pipeline,
             edges,
+            shade,
             frame_layout,
             edge_layout,
             mesh_layout,
@@ -345,13 +368,17 @@ impl Baker {
         } else {
             Encoding::R16
         };
-        let header = AssetHeader::new_spherical(
+        let mut header = AssetHeader::new_spherical(
             u8::try_from(level).unwrap_or(u8::MAX),
             options.resolution,
             gpu_mesh.frame.clone(),
             depth,
             provenance,
         )?;
+        if let Some(count) = options.lights {
+            header.states.extend(crate::light::state_descs(count)?);
+            header.validate()?;
+        }
         Ok((header, gpu_mesh))
     }
 
@@ -390,51 +417,74 @@ impl Baker {
         };
         let out_color = make_out("bake colour");
         let out_depth = make_out("bake depth");
+        // Light states shade again from the base pass's hits (16 bytes a texel); without them
+        // the binding is a stand-in nothing writes.
+        let light_passes = light_passes(options)?;
+        let hits_bytes = if light_passes.is_empty() {
+            16
+        } else {
+            u64::from(per_batch) * texels * 16
+        };
+        gpu.check_storage("bake hits", hits_bytes)?;
+        let hits = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("bake hits"),
+            size: hits_bytes,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
         let mesh_group = mesh_bind_group(gpu, &self.mesh_layout, mesh, &self.sampler);
         let shading = options.shading.to_gpu();
         progress(0, total);
         let mut first = 0;
         while first < total {
             let count = per_batch.min(total - first);
-            let params = BakeParams {
-                resolution: n,
-                first_camera: first,
-                camera_count: count,
-                pad: 0,
-                shading,
+            let frame_group = |shading: GpuShading| {
+                let params = BakeParams {
+                    resolution: n,
+                    first_camera: first,
+                    camera_count: count,
+                    store_hits: u32::from(!light_passes.is_empty()),
+                    shading,
+                };
+                let uniform = {
+                    use wgpu::util::DeviceExt;
+                    gpu.device
+                        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                            label: Some("bake params"),
+                            contents: bytemuck::bytes_of(&params),
+                            usage: wgpu::BufferUsages::UNIFORM,
+                        })
+                };
+                gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("bake frame"),
+                    layout: &self.frame_layout,
+                    entries: &[
+                        wgpu::BindGroupEntry {
+                            binding: 0,
+                            resource: uniform.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 1,
+                            resource: camera_buffer.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 2,
+                            resource: out_color.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 3,
+                            resource: out_depth.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 4,
+                            resource: hits.as_entire_binding(),
+                        },
+                    ],
+                })
             };
-            let uniform = {
-                use wgpu::util::DeviceExt;
-                gpu.device
-                    .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                        label: Some("bake params"),
-                        contents: bytemuck::bytes_of(&params),
-                        usage: wgpu::BufferUsages::UNIFORM,
-                    })
-            };
-            let frame_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("bake frame"),
-                layout: &self.frame_layout,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: uniform.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: camera_buffer.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: out_color.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 3,
-                        resource: out_depth.as_entire_binding(),
-                    },
-                ],
-            });
+            let base_group = frame_group(shading);
             let dispatch = |pipeline: &wgpu::ComputePipeline,
+                            frame_group: &wgpu::BindGroup,
                             edge_group: Option<&wgpu::BindGroup>,
                             groups: (u32, u32, u32)| {
                 let mut encoder =
@@ -448,7 +498,7 @@ impl Baker {
                         timestamp_writes: None,
                     });
                     pass.set_pipeline(pipeline);
-                    pass.set_bind_group(0, &frame_group, &[]);
+                    pass.set_bind_group(0, frame_group, &[]);
                     pass.set_bind_group(1, &mesh_group, &[]);
                     if let Some(group) = edge_group {
                         pass.set_bind_group(2, group, &[]);
@@ -457,7 +507,8 @@ impl Baker {
                 }
                 gpu.queue.submit([encoder.finish()]);
             };
-            dispatch(&self.pipeline, None, (n.div_ceil(8), n.div_ceil(8), count));
+            let map_groups = (n.div_ceil(8), n.div_ceil(8), count);
+            dispatch(&self.pipeline, &base_group, None, map_groups);
             let used = u64::from(count) * texels * 4;
             let depths = gpu.read_buffer(&out_depth, used)?;
             let pairs = edge_pairs(bytemuck::cast_slice(&depths), n as usize);
@@ -491,7 +542,7 @@ impl Baker {
                     ],
                 });
                 let groups = u32::try_from(pairs.len().div_ceil(64)).unwrap_or(u32::MAX);
-                dispatch(&self.edges, Some(&edge_group), (groups, 1, 1));
+                dispatch(&self.edges, &base_group, Some(&edge_group), (groups, 1, 1));
                 let found = gpu.read_buffer(&crossings, crossings_bytes)?;
                 store_edges(&mut colors, &pairs, bytemuck::cast_slice(&found));
             }
@@ -503,11 +554,18 @@ impl Baker {
                 let depth_f32: &[f32] = bytemuck::cast_slice(&depths[range]);
                 let depth = encode_depth(depth_f32, options.depth_bits);
                 for (channel, bytes) in [(Channel::Color, color), (Channel::Depth, depth)] {
-                    let key = ImageKey::new(0, 0, camera, channel);
-                    match sink {
-                        Sink::File(writer) => writer.add_image(key, &bytes)?,
-                        Sink::Memory(images) => images.push((key, bytes)),
-                    }
+                    sink.add(ImageKey::new(0, 0, camera, channel), bytes)?;
+                }
+            }
+            // Light states: colour only, shaded from the hits just traced (one trace per texel
+            // serves every light); their depth is the base state's.
+            for (state, shading) in &light_passes {
+                dispatch(&self.shade, &frame_group(*shading), None, map_groups);
+                let colors = gpu.read_buffer(&out_color, used)?;
+                for c in 0..count {
+                    let range = c as usize * image_bytes..(c as usize + 1) * image_bytes;
+                    let key = ImageKey::new(0, *state, first + c, Channel::Color);
+                    sink.add(key, colors[range].to_vec())?;
                 }
             }
             first += count;
@@ -515,6 +573,36 @@ impl Baker {
         }
         Ok(())
     }
+}
+
+impl Sink {
+    fn add(&mut self, key: ImageKey, bytes: Vec<u8>) -> Result<(), AssetError> {
+        match self {
+            Sink::File(writer) => writer.add_image(key, &bytes),
+            Sink::Memory(images) => {
+                images.push((key, bytes));
+                Ok(())
+            }
+        }
+    }
+}
+
+/// The colour passes of the light states `options` asks for, with their state index (as
+/// [`crate::light::state_descs`] orders them after the base state): the ambient part, then the
+/// direct part of each proxy direction.
+fn light_passes(options: &BakeOptions) -> Result<Vec<(u16, GpuShading)>, BakeError> {
+    let Some(count) = options.lights else {
+        return Ok(Vec::new());
+    };
+    let mut out = vec![(1, options.shading.part_to_gpu(ShadePart::Ambient))];
+    for (i, d) in crate::light::proxy_directions(count)?.iter().enumerate() {
+        let shading = Shading {
+            light: d.as_vec3().to_array(),
+            ..options.shading
+        };
+        out.push((i as u16 + 2, shading.part_to_gpu(ShadePart::Direct)));
+    }
+    Ok(out)
 }
 
 /// Mask of a pair's texel index in `edge_pairs`; the neighbour's direction is above it.

@@ -253,6 +253,7 @@ impl Choice {
             tolerance: None,
             method: Method::Default,
             guide: Some(CALIBRATION_GUIDE),
+            light: None,
         }
     }
 }

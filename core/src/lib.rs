@@ -32,6 +32,8 @@
 //!   it plans against an asset and renders a view, returning the frame and the decision.
 //! - [`layers`] holds runtime layer opacities and the depth-ordered compositing of layers and
 //!   scene objects (DESIGN §9).
+//! - [`light`] holds light states: an asset baked for a proxy of light directions, relit for any
+//!   direction between them (DESIGN §9).
 //! - [`scene`] composites light-field instances and meshes, each with its own transform, by depth.
 
 pub mod asset;
@@ -44,6 +46,7 @@ pub mod geometry;
 pub mod gpu;
 pub mod image_io;
 pub mod layers;
+pub mod light;
 pub mod lod;
 pub mod mesh;
 pub mod metrics;

@@ -452,6 +452,7 @@ impl Ladder {
             tolerance: self.tolerance,
             method: Method::Default,
             guide: self.guide,
+            light: None,
         }
     }
 

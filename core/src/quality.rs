@@ -188,6 +188,16 @@ pub struct Quality {
     )]
     #[cfg_attr(feature = "openapi", schema(value_type = Option<std::collections::BTreeMap<String, f32>>))]
     pub layers: Option<LayerOpacities>,
+    /// Relight with this world-space light direction (towards the light; `X,Y,Z`, JSON
+    /// `[x, y, z]`), blended from the asset's light states (an asset baked with `--lights`;
+    /// DESIGN §9). Absent: the light the asset was baked with.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(
+        feature = "clap",
+        arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)
+    )]
+    #[cfg_attr(feature = "openapi", schema(value_type = Option<[f64; 3]>))]
+    pub light: Option<crate::light::LightDirection>,
 }
 
 impl Quality {
@@ -207,6 +217,7 @@ impl Quality {
         "lod_blend",
         "refine",
         "layers",
+        "light",
     ];
 
     /// The request of a JSON object holding only quality keys (`null` = absent).
@@ -259,6 +270,7 @@ impl Quality {
             tolerance: self.tolerance,
             method: self.method.unwrap_or_default(),
             guide: self.guide,
+            light: self.light,
         }
     }
 
@@ -328,6 +340,9 @@ impl Quality {
         if let Some(layers) = &self.layers {
             layers.validate().map_err(QualityError::Layers)?;
         }
+        if let Some(light) = &self.light {
+            light.unit().map_err(RenderError::from)?;
+        }
         Ok(())
     }
 
@@ -382,6 +397,13 @@ impl Quality {
         } else {
             Strategy::Options(options)
         };
+        if self.light.is_some()
+            && crate::light::LightStates::of(header)
+                .map_err(RenderError::from)?
+                .is_none()
+        {
+            return Err(RenderError::from(crate::light::LightError::NoLightStates).into());
+        }
         let opacities = self
             .layers
             .clone()
@@ -513,6 +535,21 @@ impl Plan {
 
     /// The decision for `view` and the render it asks for.
     fn job(&self, view: &View) -> Result<(Decision, Job), QualityError> {
+        // The light applies whatever the strategy chose.
+        let light = |mut options: RenderOptions| {
+            options.light = self.quality.light;
+            options
+        };
+        let (decision, job) = self.job_unlit(view)?;
+        let job = match job {
+            Job::Single(a) => Job::Single(light(a)),
+            Job::Blend(a, b, w) => Job::Blend(light(a), light(b), w),
+        };
+        Ok((decision, job))
+    }
+
+    /// [`Plan::job`] before its light is set.
+    fn job_unlit(&self, view: &View) -> Result<(Decision, Job), QualityError> {
         Ok(match &self.strategy {
             Strategy::Options(options) => (
                 Decision {
@@ -646,6 +683,7 @@ mod tests {
             lod_blend: Some(0.1),
             refine: Some(4),
             layers: Some("skin=0.5".parse().expect("opacities")),
+            light: Some(crate::light::LightDirection([0.0, 1.0, 0.0])),
         }
     }
 

@@ -67,8 +67,20 @@ pub(crate) struct GpuShading {
     pub ambient: f32,
     pub ks: f32,
     pub shininess: f32,
-    pub unlit: u32,
+    /// `SHADE_*` in mesh.wgsl: 0 the whole colour, 1 unlit, 2 the ambient part, 3 the rest.
+    pub mode: u32,
     pub shadows: u32,
+}
+
+/// Which part of the colour a shading pass produces (`Shading.mode` in mesh.wgsl).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum ShadePart {
+    /// The whole DESIGN §3 colour (or the albedo when unlit).
+    Whole,
+    /// `albedo · ambient` alone.
+    Ambient,
+    /// The light's terms alone: `albedo·(1−ambient)·V·max(0, n·ℓ) + ks·V·max(0, n·h)^s`.
+    Direct,
 }
 const _: () = assert!(std::mem::size_of::<GpuShading>() == 32);
 
@@ -101,13 +113,24 @@ impl Shading {
     }
 
     pub(crate) fn to_gpu(self) -> GpuShading {
+        self.part_to_gpu(ShadePart::Whole)
+    }
+
+    /// [`Shading::to_gpu`] producing only `part` of the colour (an unlit shading stays unlit).
+    pub(crate) fn part_to_gpu(self, part: ShadePart) -> GpuShading {
         let (ks, shininess) = self.specular.unwrap_or((0.0, 1.0));
+        let mode = match (self.unlit, part) {
+            (true, _) => 1,
+            (false, ShadePart::Whole) => 0,
+            (false, ShadePart::Ambient) => 2,
+            (false, ShadePart::Direct) => 3,
+        };
         GpuShading {
             light: self.light_dir(),
             ambient: self.ambient,
             ks,
             shininess,
-            unlit: u32::from(self.unlit),
+            mode,
             shadows: u32::from(self.shadows && !self.unlit),
         }
     }

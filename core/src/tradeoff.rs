@@ -235,6 +235,7 @@ impl Setting {
             tolerance: Some(self.tolerance),
             method: self.method,
             guide: Some(self.guide),
+            light: None,
         }
     }
 }

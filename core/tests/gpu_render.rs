@@ -583,6 +583,7 @@ fn seed_000_tolerance_below_half_step_leaves_gaps() {
             tolerance: Some(tolerance),
             lod: None,
             guide: None,
+            light: None,
         };
         interior_holes(
             &ctx()
@@ -1076,6 +1077,7 @@ fn stability_step_and_tolerance_at_their_limits() {
                     tolerance: Some(tolerance),
                     lod: None,
                     guide: None,
+                    light: None,
                 },
             )
             .unwrap_or_else(|e| panic!("{method} step {step} tol {tolerance}: {e}"));

@@ -121,6 +121,7 @@ pub fn render(error: &CoreRenderError) -> PyErr {
     match error {
         CoreRenderError::View(e) => view(e),
         CoreRenderError::Option(message) => PyValueError::new_err(message.clone()),
+        CoreRenderError::Light(e) => PyValueError::new_err(e.to_string()),
         CoreRenderError::Asset(e) => asset(e, None),
         other => RenderError::new_err(chain(other)),
     }

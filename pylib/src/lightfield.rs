@@ -328,11 +328,13 @@ impl PyLightField {
     ///         or a goal ``target_psnr`` (dB) / ``budget_ms`` served by the calibration (see
     ///         :meth:`choose`); or automatic LOD ``auto_lod`` (bound on the predicted
     ///         silhouette error, pixels) with ``lod_min_psnr``, ``lod_max_psnr_drop`` and
-    ///         ``lod_blend`` (see :meth:`choose_lod`).
+    ///         ``lod_blend`` (see :meth:`choose_lod`). ``light=(x, y, z)`` relights an asset
+    ///         baked with ``lights=`` at that world-space direction (DESIGN §9).
     ///
     /// Raises:
     ///     ValueError: a bad view, an unknown or bad quality option, or a conflict between
-    ///         them. TypeError: an argument of the wrong type. AssetError: a corrupt page.
+    ///         them; a zero or NaN light, or a light for an asset without light states.
+    ///         TypeError: an argument of the wrong type. AssetError: a corrupt page.
     ///     RenderError: the device failed.
     #[pyo3(signature = (view, *, background = None, **quality))]
     fn render(
@@ -499,7 +501,7 @@ impl PyLightField {
 
 /// Native bake on a `Mesh` (the Python `bake_mesh` converts other inputs and the progress flag).
 #[pyfunction]
-#[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress, calibrate = false, auto = false, target_psnr = None, max_bytes = None, shadows = false))]
+#[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress, calibrate = false, auto = false, target_psnr = None, max_bytes = None, shadows = false, lights = None))]
 // Python's keyword-only flags, one parameter each (the Python signature is the interface).
 #[allow(clippy::fn_params_excessive_bools)]
 pub fn bake(
@@ -518,6 +520,7 @@ pub fn bake(
     target_psnr: Option<f64>,
     max_bytes: Option<u64>,
     shadows: bool,
+    lights: Option<u32>,
 ) -> PyResult<PyLightField> {
     if let Some(callback) = &progress
         && !callback.bind(py).is_callable()
@@ -535,11 +538,18 @@ pub fn bake(
     } else {
         None
     };
+    if auto && lights.is_some() {
+        return Err(PyValueError::new_err(
+            "lights: an automatic bake chooses settings for the base state only; bake light \
+             states without auto",
+        ));
+    }
     let options = BakeOptions {
         cameras,
         resolution,
         shading: shading(light, ambient, specular, unlit, shadows)?,
         depth_bits,
+        lights,
     };
     options.validate().map_err(|e| errors::bake(&e))?;
     let mesh = mesh.get();

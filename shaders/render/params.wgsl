@@ -68,9 +68,12 @@ struct RenderParams {
     // 1 for a translucent light field (premultiplied RGBA maps, e.g. a volume): the output
     // keeps the blended (premultiplied) colour and alpha; 0: every hit is opaque.
     premultiplied: u32,
-    pad0: u32,
+    // 1: relit from the light states (`color_texel`), with `light_weights` (x, y, z) on
+    // `light_a_maps`, `light_b_maps`, `light_c_maps` (core/src/light.rs); 0: the base colour.
+    lit: u32,
     pad1: u32,
     pad2: u32,
+    light_weights: vec4<f32>,
 }
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
@@ -101,6 +104,12 @@ struct RenderParams {
 @group(1) @binding(2) var color_maps: texture_2d_array<f32>;
 @group(1) @binding(3) var footprints: texture_2d_array<u32>;
 @group(1) @binding(4) var linear_sampler: sampler;
+// Light states (`params.lit`): the ambient part and the direct parts of the three proxy lights
+// around the frame's light; the base colour maps stand in for all four otherwise.
+@group(1) @binding(6) var ambient_maps: texture_2d_array<f32>;
+@group(1) @binding(7) var light_a_maps: texture_2d_array<f32>;
+@group(1) @binding(8) var light_b_maps: texture_2d_array<f32>;
+@group(1) @binding(9) var light_c_maps: texture_2d_array<f32>;
 
 // Pipeline specialisation: lavapipe runs every branch an 8-lane batch meets, so code a pass
 // cannot use is compiled out instead of skipped (docs/marcher.md). METHODS: the marching

@@ -75,22 +75,43 @@ fn probe(cam: Camera, k: u32, x: vec3<f32>, edge_aware: bool) -> Probe {
     return Probe(pr.z - depth * pr.w, tc, color_weights);
 }
 
+// Texel p of camera k's colour map: the base state's, or in a relit frame (`params.lit`) the
+// light states' blend, ambient + Σ w_i · direct_i (core/src/light.rs), clamped as the bake
+// clamps a colour; its alpha is the ambient map's (1 at hits, as the base colour's).
+fn color_texel(p: vec2<i32>, k: u32) -> vec4<f32> {
+    if per_invocation(params.lit == 0u) {
+        return textureLoad(color_maps, p, k, 0);
+    }
+    let w = params.light_weights;
+    let a = textureLoad(ambient_maps, p, k, 0);
+    let c = a.rgb + w.x * textureLoad(light_a_maps, p, k, 0).rgb + w.y * textureLoad(light_b_maps, p, k, 0).rgb + w.z * textureLoad(light_c_maps, p, k, 0).rgb;
+    return vec4<f32>(min(c, vec3<f32>(1.0)), a.a);
+}
+
 // Colour of camera k at texel coordinates tc from the footprint texels with the given weights,
-// normalized by their sum (four loads: a bilinear sample would mix colours across a silhouette;
-// docs/marcher.md).
+// normalized by their sum (four texels: a bilinear sample would mix colours across a
+// silhouette; docs/marcher.md).
 fn layer_color(k: u32, tc: vec2<f32>, bw: vec4<f32>) -> vec4<f32> {
     let n = i32(params.resolution);
     let base = vec2<i32>(floor(tc - 0.5));
     let i0 = clamp(base, vec2<i32>(0), vec2<i32>(n - 1));
     let i1 = clamp(base + 1, vec2<i32>(0), vec2<i32>(n - 1));
-    let sum = bw.x * textureLoad(color_maps, vec2<i32>(i0.x, i0.y), k, 0)
-        + bw.y * textureLoad(color_maps, vec2<i32>(i1.x, i0.y), k, 0)
-        + bw.z * textureLoad(color_maps, vec2<i32>(i0.x, i1.y), k, 0)
-        + bw.w * textureLoad(color_maps, vec2<i32>(i1.x, i1.y), k, 0);
+    let sum = bw.x * color_texel(vec2<i32>(i0.x, i0.y), k)
+        + bw.y * color_texel(vec2<i32>(i1.x, i0.y), k)
+        + bw.z * color_texel(vec2<i32>(i0.x, i1.y), k)
+        + bw.w * color_texel(vec2<i32>(i1.x, i1.y), k);
     return sum / max(bw.x + bw.y + bw.z + bw.w, 1e-12);
 }
 
-// The fixed baseline's colour: one bilinear sample.
+// The fixed baseline's colour: one bilinear sample (per light state in a relit frame, whose
+// sum is clamped like `color_texel`'s).
 fn bilinear_color(k: u32, tc: vec2<f32>) -> vec4<f32> {
-    return textureSampleLevel(color_maps, linear_sampler, tc / params.resolution, k, 0.0);
+    let uv = tc / params.resolution;
+    if per_invocation(params.lit == 0u) {
+        return textureSampleLevel(color_maps, linear_sampler, uv, k, 0.0);
+    }
+    let w = params.light_weights;
+    let a = textureSampleLevel(ambient_maps, linear_sampler, uv, k, 0.0);
+    let c = a.rgb + w.x * textureSampleLevel(light_a_maps, linear_sampler, uv, k, 0.0).rgb + w.y * textureSampleLevel(light_b_maps, linear_sampler, uv, k, 0.0).rgb + w.z * textureSampleLevel(light_c_maps, linear_sampler, uv, k, 0.0).rgb;
+    return vec4<f32>(min(c, vec3<f32>(1.0)), a.a);
 }

@@ -59,11 +59,14 @@ pub(super) struct RenderParams {
     /// 1 for a translucent light field (premultiplied RGBA maps): the output keeps the blended
     /// alpha; 0: every hit is opaque.
     pub(super) premultiplied: u32,
-    pub(super) pad0: u32,
+    /// 1: relit from the light states with `light_weights`; 0: the base colour.
+    pub(super) lit: u32,
     pub(super) pad1: u32,
     pub(super) pad2: u32,
+    /// Weights of the three proxy lights' direct parts (w unused).
+    pub(super) light_weights: [f32; 4],
 }
-const _: () = assert!(std::mem::size_of::<RenderParams>() == 208);
+const _: () = assert!(std::mem::size_of::<RenderParams>() == 224);
 
 /// One setting as the shader takes it: level, step and tolerance in light-field units,
 /// step bound, method.
@@ -309,9 +312,10 @@ pub fn render_params_layout() -> Vec<(&'static str, usize)> {
         guide_step_ratio,
         jitter,
         premultiplied,
-        pad0,
+        lit,
         pad1,
         pad2,
+        light_weights,
     ]
 }
 

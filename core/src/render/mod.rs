@@ -21,8 +21,8 @@ pub use gpu_data::render_params_layout;
 pub use gpu_data::shader_source;
 pub use options::{
     COMPOSITING_VARIABLE, Compositing, DEFAULT_FIXED_STEP, DEFAULT_GUIDE, DEFAULT_REFINED_STEP,
-    InteriorBlocks, MAX_GUIDE, MIN_STEP, Method, RenderError, RenderOptions, ResolvedOptions,
-    Switches, UploadOptions,
+    InteriorBlocks, LIGHT_BLEND_VARIABLE, MAX_GUIDE, MIN_STEP, Method, RenderError, RenderOptions,
+    ResolvedOptions, Switches, UploadOptions,
 };
 pub use passes::PASS_TIMING_VARIABLE;
 pub use upload::field_bytes;
@@ -82,6 +82,8 @@ pub struct GpuLightField {
     pub translucent: Option<f32>,
     /// Every layer's maps, in the asset's layer order (one for most assets).
     maps: Vec<LayerMaps>,
+    /// The light states' colour maps, when the asset has them ([`crate::light`]).
+    lights: Option<LightMaps>,
     /// The device, polled on drop so that wgpu reclaims the textures at once.
     gpu: Arc<Gpu>,
     /// The renderer's count of resident fields, decremented on drop.
@@ -95,6 +97,18 @@ struct LayerMaps {
     group: wgpu::BindGroup,
     /// The colour and depth texture arrays, destroyed on drop.
     textures: [wgpu::Texture; 2],
+    /// Views of `textures`, for a relit frame's bind group.
+    views: [wgpu::TextureView; 2],
+}
+
+/// A light-state asset's colour maps on the GPU: the ambient part and each proxy direction's
+/// direct part, one texture array (a layer per camera) each.
+struct LightMaps {
+    /// Proxy directions: 12, 42 or 162.
+    count: u32,
+    ambient: (wgpu::Texture, wgpu::TextureView),
+    /// In the proxy's order.
+    direct: Vec<(wgpu::Texture, wgpu::TextureView)>,
 }
 
 impl GpuLightField {
@@ -124,6 +138,11 @@ impl Drop for GpuLightField {
         // that reads them completes, whoever else still holds a handle to them.
         for texture in self.maps.iter().flat_map(|m| &m.textures) {
             texture.destroy();
+        }
+        if let Some(lights) = &self.lights {
+            for (texture, _) in std::iter::once(&lights.ambient).chain(&lights.direct) {
+                texture.destroy();
+            }
         }
         // A non-blocking poll reclaims what completed submissions held. Its only error is a
         // lost device, whose memory is gone anyway; a drop has no one to report to.
@@ -279,6 +298,11 @@ impl Renderer {
                     },
                     count: None,
                 },
+                // Light states: ambient and three proxy lights' direct parts.
+                texture_entry(6, true),
+                texture_entry(7, true),
+                texture_entry(8, true),
+                texture_entry(9, true),
             ],
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -719,6 +743,73 @@ impl Renderer {
         ))
     }
 
+    /// The bind group and light weights of a frame relit with `light` (world direction; the
+    /// asset frame shares the world's axes), or `None` for the base colour.
+    ///
+    /// # Errors
+    /// [`RenderError::Light`] for a bad direction or an asset without light states.
+    fn relit_group(
+        &self,
+        field: &GpuLightField,
+        maps: &LayerMaps,
+        light: Option<crate::light::LightDirection>,
+    ) -> Result<Option<(wgpu::BindGroup, [f32; 4])>, RenderError> {
+        let Some(light) = light else {
+            return Ok(None);
+        };
+        let l = light.unit()?;
+        let lights = field
+            .lights
+            .as_ref()
+            .ok_or(crate::light::LightError::NoLightStates)?;
+        let blend = crate::light::blend_for(lights.count, l, self.switches.light_blend)?;
+        let [a, b, c] = blend.directions.map(|i| &lights.direct[i as usize].1);
+        let group = self.field_group(&maps.views[0], &maps.views[1], [&lights.ambient.1, a, b, c]);
+        let w = blend.weights.map(|x| x as f32);
+        Ok(Some((group, [w[0], w[1], w[2], 0.0])))
+    }
+
+    /// The light-field bind group of `color` and `depth` maps, with the four light-state maps
+    /// (ambient, then three proxy lights; the colour maps themselves when not relit).
+    fn field_group(
+        &self,
+        color: &wgpu::TextureView,
+        depth: &wgpu::TextureView,
+        lights: [&wgpu::TextureView; 4],
+    ) -> wgpu::BindGroup {
+        let texture = |binding, view| wgpu::BindGroupEntry {
+            binding,
+            resource: wgpu::BindingResource::TextureView(view),
+        };
+        self.gpu
+            .device
+            .create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("light field"),
+                layout: &self.field_layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: self.camera_buffer.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: self.hierarchy_buffer.as_entire_binding(),
+                    },
+                    texture(2, color),
+                    texture(3, depth),
+                    wgpu::BindGroupEntry {
+                        binding: 4,
+                        resource: wgpu::BindingResource::Sampler(&self.linear),
+                    },
+                    texture(5, &self.lookup_view),
+                    texture(6, lights[0]),
+                    texture(7, lights[1]),
+                    texture(8, lights[2]),
+                    texture(9, lights[3]),
+                ],
+            })
+    }
+
     /// Records one layer's passes into a new encoder (after writing their parameters): the
     /// frame's colour and depth are in `targets` once it has run. `clear_counters`: start the
     /// work counters from 0 (else they add up).
@@ -756,6 +847,7 @@ impl Renderer {
             )));
         }
         let resolved_a = a.resolve(field.max_level)?;
+        let relit = self.relit_group(field, maps, a.light)?;
         let first = ShaderSetting::of(&resolved_a);
         let second = ShaderSetting::of(&b.resolve(field.max_level)?);
         let lf_eye = (basis.eye - field.center) / field.scale;
@@ -799,10 +891,12 @@ impl Renderer {
             guide_step_ratio: 1.0,
             jitter,
             premultiplied: u32::from(field.translucent.is_some()),
-            pad0: 0,
+            lit: u32::from(relit.is_some()),
             pad1: 0,
             pad2: 0,
+            light_weights: relit.as_ref().map_or([0.0; 4], |(_, w)| *w),
         };
+        let field_group = relit.as_ref().map_or(&maps.group, |(group, _)| group);
         // Coarse-to-fine (`guide`, the first setting's): a coarse pass renders every
         // guide-th pixel per axis, and its depths bound each pixel's march (docs/marcher.md).
         let methods = MethodSet::of(first.method, second.method);
@@ -918,7 +1012,7 @@ impl Renderer {
                     &mut encoder,
                     targets,
                     &level.group,
-                    &maps.group,
+                    field_group,
                     (cw, ch, PRE_FACTOR),
                 );
             }
@@ -926,7 +1020,7 @@ impl Renderer {
                 &mut encoder,
                 "render coarse",
                 self.pipeline(methods, Role::Coarse),
-                (&level.group, &maps.group),
+                (&level.group, field_group),
                 if compact {
                     Workgroups::Indirect(&targets.tile_args, 0)
                 } else {
@@ -968,7 +1062,7 @@ impl Renderer {
                 &mut encoder,
                 targets,
                 &targets.group,
-                &maps.group,
+                field_group,
                 (view.width, view.height, factor),
             );
             encoder = timer.split(gpu, encoder, "tiles")?;
@@ -982,7 +1076,7 @@ impl Renderer {
             &mut encoder,
             "render",
             self.pipeline(methods, role),
-            (&targets.group, &maps.group),
+            (&targets.group, field_group),
             if tiled {
                 Workgroups::Indirect(&targets.tile_args, 0)
             } else {
@@ -1002,7 +1096,7 @@ impl Renderer {
                         Role::Interior
                     },
                 ),
-                (&targets.group, &maps.group),
+                (&targets.group, field_group),
                 Workgroups::Indirect(&targets.tile_args, INTERIOR_ARGS),
             );
             encoder.copy_buffer_to_buffer(
@@ -1016,7 +1110,7 @@ impl Renderer {
                 &mut encoder,
                 "render given back",
                 self.pipeline(methods, Role::Guided),
-                (&targets.given_back_group, &maps.group),
+                (&targets.given_back_group, field_group),
                 Workgroups::Indirect(&targets.tile_args, GIVEN_BACK_ARGS),
             );
             encoder = timer.split(gpu, encoder, "interior")?;

@@ -30,6 +30,9 @@ pub enum RenderError {
     /// The device failed.
     #[error(transparent)]
     Gpu(#[from] GpuError),
+    /// A bad light, or a light asked of an asset without light states.
+    #[error(transparent)]
+    Light(#[from] crate::light::LightError),
 }
 
 /// Marching method.
@@ -96,6 +99,10 @@ pub struct RenderOptions {
     /// coarser, when that has at least 4 pixels a side. 0: off; `None`: [`DEFAULT_GUIDE`] for
     /// the default method, off for the fixed baseline.
     pub guide: Option<u32>,
+    /// Relight with this world-space light direction, blending the asset's light states
+    /// ([`crate::light`]); `None`: the base colour (the bake's own light).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub light: Option<crate::light::LightDirection>,
 }
 
 /// Largest coarse-to-fine factor ([`RenderOptions::guide`]).
@@ -160,6 +167,9 @@ impl RenderOptions {
                 "step {step} must be finite and in [{MIN_STEP}, 1] bounding diameters"
             )));
         }
+        if let Some(light) = self.light {
+            light.unit()?;
+        }
         let tolerance = self.tolerance.unwrap_or(step / 2.0);
         if !(tolerance.is_finite() && tolerance > 0.0 && tolerance <= 1.0) {
             return Err(RenderError::Option(format!(
@@ -210,7 +220,14 @@ pub struct Switches {
     pub pass_timing: bool,
     /// Where a multi light field's visible layers composite.
     pub compositing: Compositing,
+    /// How a relit frame blends the light states around its light (env
+    /// [`LIGHT_BLEND_VARIABLE`] = `spherical` | `planar` when the switches are made; the
+    /// planar baseline is for measuring).
+    pub light_blend: crate::light::Blend,
 }
+
+/// Environment variable choosing [`Switches::light_blend`].
+pub const LIGHT_BLEND_VARIABLE: &str = "LUMIGRAPH_LIGHT_BLEND";
 
 impl Default for Switches {
     fn default() -> Self {
@@ -221,6 +238,10 @@ impl Default for Switches {
             wide_tile_reads: false,
             pass_timing: std::env::var_os(super::PASS_TIMING_VARIABLE).is_some(),
             compositing: Compositing::from_env(),
+            light_blend: match std::env::var(LIGHT_BLEND_VARIABLE).as_deref() {
+                Ok("planar") => crate::light::Blend::Planar,
+                _ => crate::light::Blend::Spherical,
+            },
         }
     }
 }

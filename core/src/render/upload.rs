@@ -9,25 +9,38 @@ use glam::DVec3;
 use crate::asset::{AssetError, AssetFile, AssetHeader, Channel, Encoding, ImageKey};
 use crate::geometry;
 use crate::gpu::{Gpu, GpuError, array_view, texture_array};
+use crate::light::LightStates;
 
 use super::options::{RenderError, UploadOptions};
 use super::{GpuLightField, Renderer};
 
 /// Texture bytes [`Renderer::upload`] allocates on the device for an asset: one colour
 /// (RGBA8, 4 bytes) and one depth-footprint (RGBA16, 8 bytes) texel per map texel, for every
-/// camera (padded as [`Gpu::padded_layers`] does) and every layer of the base state. The upload
-/// stages one layer's worth again on the host while it runs. Saturates instead of overflowing.
+/// camera (padded as [`Gpu::padded_layers`] does) and every layer of the base state, plus one
+/// colour texel per map texel and camera for each light-state map (the ambient part and every
+/// proxy direction, [`crate::light`]). The upload stages one layer's worth again on the host
+/// while it runs. Saturates instead of overflowing.
 pub fn field_bytes(header: &AssetHeader) -> u64 {
     let side = u64::from(header.geometry.resolution_px);
-    [
-        u64::from(Gpu::padded_layers(header.geometry.camera_count)),
+    let layers = u64::from(Gpu::padded_layers(header.geometry.camera_count));
+    let base = [
+        layers,
         header.layers.len() as u64,
         side,
         side,
         FIELD_TEXEL_BYTES,
     ]
     .into_iter()
-    .fold(1, u64::saturating_mul)
+    .fold(1, u64::saturating_mul);
+    // Light states: one RGBA8 map per camera for the ambient part and each proxy direction.
+    let light_maps = LightStates::of(header)
+        .ok()
+        .flatten()
+        .map_or(0, |s| u64::from(s.count) + 1);
+    let lights = [light_maps, layers, side, side, 4]
+        .into_iter()
+        .fold(1, u64::saturating_mul);
+    base.saturating_add(lights)
 }
 
 /// Bytes per map texel on the device: RGBA8 colour plus RGBA16 depth footprint.
@@ -163,39 +176,7 @@ impl Renderer {
             self.gpu.wait()?;
             let color_view = array_view(&color_tex);
             let depth_view = array_view(&depth_tex);
-            let group = self
-                .gpu
-                .device
-                .create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("light field"),
-                    layout: &self.field_layout,
-                    entries: &[
-                        wgpu::BindGroupEntry {
-                            binding: 0,
-                            resource: self.camera_buffer.as_entire_binding(),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 1,
-                            resource: self.hierarchy_buffer.as_entire_binding(),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 2,
-                            resource: wgpu::BindingResource::TextureView(&color_view),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 3,
-                            resource: wgpu::BindingResource::TextureView(&depth_view),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 4,
-                            resource: wgpu::BindingResource::Sampler(&self.linear),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 5,
-                            resource: wgpu::BindingResource::TextureView(&self.lookup_view),
-                        },
-                    ],
-                });
+            let group = self.field_group(&color_view, &depth_view, [&color_view; 4]);
             let visible_box = visible.finish(n, requantize_8 || depth_encoding == Encoding::R8);
             let (lo, hi) = (
                 glam::Vec3::from(visible_box[0]),
@@ -209,8 +190,10 @@ impl Renderer {
                 visible_box,
                 group,
                 textures: [color_tex, depth_tex],
+                views: [color_view, depth_view],
             });
         }
+        let lights = self.upload_lights(asset)?;
         let gpu_bytes = field_bytes(header);
         let frame = &header.frame;
         // Decremented by the field's drop.
@@ -232,9 +215,53 @@ impl Renderer {
             layer_order: header.layer_order,
             translucent,
             maps,
+            lights,
             gpu: Arc::clone(&self.gpu),
             resident: Arc::clone(&self.resident),
         })
+    }
+}
+
+impl Renderer {
+    /// The asset's light states' colour maps ([`crate::light`]), or `None` without them.
+    fn upload_lights(&self, asset: &AssetFile) -> Result<Option<super::LightMaps>, RenderError> {
+        let header = asset.header();
+        let Some(states) = LightStates::of(header)? else {
+            return Ok(None);
+        };
+        let n = header.geometry.resolution_px;
+        let cameras = header.geometry.camera_count;
+        let upload = |state: u16| -> Result<(wgpu::Texture, wgpu::TextureView), RenderError> {
+            let mut colors = Vec::with_capacity(cameras as usize);
+            for k in 0..cameras {
+                colors.push(asset.read_image(ImageKey::new(0, state, k, Channel::Color))?);
+            }
+            let refs: Vec<&[u8]> = colors.iter().map(Vec::as_slice).collect();
+            let texture = texture_array(
+                &self.gpu,
+                "light-state colour",
+                wgpu::TextureFormat::Rgba8Unorm,
+                n,
+                n,
+                &refs,
+            );
+            self.gpu.queue.submit(std::iter::empty());
+            drop(colors);
+            self.gpu.wait()?;
+            let view = array_view(&texture);
+            Ok((texture, view))
+        };
+        let ambient = upload(states.ambient)?;
+        let direct = states
+            .direct
+            .iter()
+            .map(|&s| upload(s))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Some(super::LightMaps {
+            count: states.count,
+            ambient,
+            direct,
+        }))
     }
 }
 

@@ -199,6 +199,7 @@ def bake_mesh(
     target_psnr: float | None = None,
     max_bytes: int | None = None,
     shadows: bool = False,
+    lights: int | None = None,
 ) -> LightField:
     """Bakes a mesh into a spherical light field on the GPU (GIL released).
 
@@ -222,6 +223,11 @@ def bake_mesh(
         shadows: if True, every texel casts a shadow ray towards the light through the mesh
             (DESIGN §9): ``V`` is 0 where it meets a triangle. Recorded in the asset, so
             ``**lf.shading`` and ``lumigraph eval`` shade the reference alike.
+        lights: light states (DESIGN §9): also bake the colour for each of 12, 42 or 162 light
+            directions (a nested icosphere) plus the ambient part, sharing one depth per
+            camera, so that ``lf.render(view, light=(x, y, z))`` relights the asset at any
+            direction (with ``shadows``, the shadows move). Costs ``(lights + 1) x cameras x
+            resolution**2 x 4`` bytes more in memory. Not with ``auto`` or ``unlit``.
         depth_bits: depth precision, 16 (default) or 8. With ``auto=True``, ``cameras``,
             ``resolution`` and ``depth_bits`` are chosen and must not be given.
         progress: True prints "baking cameras k/n" to stderr; a callable gets
@@ -289,6 +295,7 @@ def bake_mesh(
         target_psnr=target_psnr,
         max_bytes=max_bytes,
         shadows=shadows,
+        lights=lights,
     )
 
 

@@ -31,6 +31,7 @@ class _Quality(TypedDict, total=False):
     lod_blend: float | None
     refine: int | None
     layers: Mapping[str, float] | str | None
+    light: Sequence[float] | None
 
 _Image = Frame | npt.ArrayLike
 
@@ -204,6 +205,7 @@ def bake(
     target_psnr: float | None = None,
     max_bytes: int | None = None,
     shadows: bool = False,
+    lights: int | None = None,
 ) -> LightField: ...
 def reference_render(
     mesh: Mesh,

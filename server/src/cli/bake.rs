@@ -48,6 +48,17 @@ pub struct BakeArgs {
     /// Shading.
     #[command(flatten)]
     pub shading: ShadingArgs,
+    /// Light states: also bake the colour for each of N light directions (12, 42 or 162, a
+    /// nested icosphere in the asset frame) and the ambient part alone, sharing the base
+    /// depth, so that `render --light X,Y,Z` relights the asset (DESIGN §9; with --shadows the
+    /// shadows move with the light). Memory: (N + 1) × cameras × resolution² × 4 bytes more.
+    #[arg(
+        long,
+        value_name = "N",
+        allow_hyphen_values = true,
+        conflicts_with = "auto"
+    )]
+    pub lights: Option<u32>,
     /// Skip the calibration (error against cost of this scene, stored in the asset's quality
     /// report for `render --target-psnr / --budget-ms`; a few seconds on lavapipe).
     #[arg(long)]
@@ -89,6 +100,9 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
         return bake_volume(path, args);
     }
     if args.volume.given() || args.layers.is_some() {
+        if args.lights.is_some() {
+            anyhow::bail!("--lights relights meshes; volumes take one light (--shade)");
+        }
         anyhow::bail!(
             "--tf, --layers, --labels, --shade, --step, --depth-threshold and --spacing apply to \
              volumes only"
@@ -102,6 +116,7 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
         resolution: args.resolution,
         shading: args.shading.to_shading()?,
         depth_bits: args.depth_bits,
+        lights: args.lights,
     };
     options.validate()?;
     let (mesh, provenance) = load_source(args.mesh.as_deref(), args.demo)?;
@@ -285,6 +300,9 @@ fn bake_auto(args: &BakeArgs) -> Result<()> {
 /// (lumigraph_core::volume::bake). Volume assets are not calibrated: the calibration measures
 /// against the mesh reference.
 fn bake_volume(path: &std::path::Path, args: &BakeArgs) -> Result<()> {
+    if args.lights.is_some() {
+        anyhow::bail!("--lights relights meshes; volumes take one light (--shade)");
+    }
     if args.auto {
         anyhow::bail!(
             "--auto chooses settings for meshes; give a volume --cameras and --resolution"

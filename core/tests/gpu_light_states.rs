@@ -1,0 +1,330 @@
+//! GPU tests of light states (DESIGN §9, `lumigraph_core::light`): a bake for a proxy of light
+//! directions, relit renders at and between them checked against bakes and reference renders
+//! with the same light.
+
+use std::sync::{Arc, OnceLock};
+
+use glam::DVec3;
+use lumigraph_core::asset::{AssetFile, Channel, ImageKey, Provenance};
+use lumigraph_core::bake::{BakeError, BakeOptions, Baker};
+use lumigraph_core::frame::Frame;
+use lumigraph_core::gpu::Gpu;
+use lumigraph_core::light::{self, Blend, LightDirection, LightError, LightStates};
+use lumigraph_core::mesh::Mesh;
+use lumigraph_core::reference::ReferenceRenderer;
+use lumigraph_core::render::{RenderError, RenderOptions, Renderer, Switches};
+use lumigraph_core::shading::Shading;
+use lumigraph_core::view::View;
+
+struct Ctx {
+    baker: Baker,
+    renderer: Renderer,
+    planar: Renderer,
+    reference: ReferenceRenderer,
+}
+
+fn ctx() -> &'static Ctx {
+    static CTX: OnceLock<Ctx> = OnceLock::new();
+    CTX.get_or_init(|| {
+        let gpu: Arc<Gpu> = Gpu::shared().expect("a GPU adapter (install mesa-vulkan-drivers)");
+        let switches = |light_blend| Switches {
+            pass_timing: false,
+            light_blend,
+            ..Switches::default()
+        };
+        Ctx {
+            baker: Baker::new(gpu.clone()),
+            renderer: Renderer::with_switches(gpu.clone(), switches(Blend::Spherical)),
+            planar: Renderer::with_switches(gpu.clone(), switches(Blend::Planar)),
+            reference: ReferenceRenderer::new(gpu),
+        }
+    })
+}
+
+/// A ground quad (y = 0, ±2) under a box floating at y ∈ [0.5, 1]: shadows on the ground move
+/// with the light.
+fn scene() -> Mesh {
+    let mut positions = vec![
+        [-2.0, 0.0, -2.0],
+        [-2.0, 0.0, 2.0],
+        [2.0, 0.0, 2.0],
+        [2.0, 0.0, -2.0],
+    ];
+    let mut triangles = vec![[0, 1, 2], [0, 2, 3]];
+    let (lo, hi) = ([-0.4f32, 0.5, -0.3], [0.3f32, 1.0, 0.4]);
+    let base = positions.len() as u32;
+    for i in 0..8u32 {
+        let pick = |axis: usize| {
+            if i & (1 << axis) == 0 {
+                lo[axis]
+            } else {
+                hi[axis]
+            }
+        };
+        positions.push([pick(0), pick(1), pick(2)]);
+    }
+    for f in [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ] {
+        triangles.push([base + f[0], base + f[1], base + f[2]]);
+        triangles.push([base + f[0], base + f[2], base + f[3]]);
+    }
+    Mesh::from_arrays(positions, triangles, None).expect("scene")
+}
+
+fn bake(mesh: &Mesh, options: &BakeOptions) -> AssetFile {
+    let bytes = ctx()
+        .baker
+        .bake_to_bytes(mesh, options, &Provenance::default(), &mut |_, _| {})
+        .expect("bake");
+    AssetFile::from_bytes(bytes).expect("baked asset opens")
+}
+
+/// The scene baked at 162 cameras × 128 px with shadows, and with `lights` light states.
+fn shadow_bake(lights: Option<u32>, light: [f32; 3]) -> AssetFile {
+    bake(
+        &scene(),
+        &BakeOptions {
+            cameras: 162,
+            resolution: 128,
+            shading: Shading {
+                light,
+                shadows: true,
+                ..Shading::default()
+            },
+            lights,
+            ..Default::default()
+        },
+    )
+}
+
+fn view() -> View {
+    View::look_at([3.0, 3.5, 4.0], [0.0, 0.0, 0.0], 40.0, 160, 160)
+}
+
+fn lit(light: DVec3) -> RenderOptions {
+    RenderOptions {
+        light: Some(LightDirection(light.to_array())),
+        ..RenderOptions::default()
+    }
+}
+
+/// Mean absolute difference per colour component (8-bit codes) over pixels both frames cover.
+fn mean_diff(a: &Frame, b: &Frame) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for p in 0..a.depth.len() {
+        if !(a.depth[p].is_finite() && b.depth[p].is_finite()) {
+            continue;
+        }
+        for c in 0..3 {
+            sum += (f64::from(a.color[4 * p + c]) - f64::from(b.color[4 * p + c])).abs();
+        }
+        n += 3;
+    }
+    assert!(n > 3 * 5000, "{n} components covered");
+    sum / n as f64
+}
+
+#[test]
+fn a_bake_with_lights_stores_colour_per_proxy_direction_and_shares_the_base_depth() {
+    let asset = shadow_bake(Some(12), [0.3, 1.0, 0.2]);
+    let header = asset.header();
+    // base, ambient, 12 directions.
+    assert_eq!(header.states.len(), 14);
+    let states = LightStates::of(header)
+        .expect("valid")
+        .expect("light states");
+    assert_eq!((states.count, states.ambient), (12, 1));
+    let key = |state, channel| ImageKey::new(0, state, 5, channel);
+    assert!(asset.has_image(key(states.direct[3], Channel::Color)));
+    assert!(!asset.has_image(key(states.direct[3], Channel::Depth)));
+    assert_eq!(
+        BakeOptions::of(header).lights,
+        Some(12),
+        "recorded in the bake options"
+    );
+    // The ambient part is albedo · ambient wherever the base state has a hit: 0.8 · 0.25.
+    let mut hits = 0;
+    for camera in 0..header.camera_count() {
+        let key = |state, channel| ImageKey::new(0, state, camera, channel);
+        let ambient = asset
+            .read_image(key(states.ambient, Channel::Color))
+            .expect("ambient");
+        let base_depth = asset
+            .read_image(key(0, Channel::Depth))
+            .expect("base depth");
+        for (texel, px) in ambient.chunks_exact(4).enumerate() {
+            let depth = u16::from_le_bytes([base_depth[2 * texel], base_depth[2 * texel + 1]]);
+            if depth == u16::MAX {
+                assert_eq!(px, [0, 0, 0, 0]);
+            } else {
+                hits += 1;
+                assert_eq!(px, [51, 51, 51, 255], "camera {camera} texel {texel}");
+            }
+        }
+    }
+    assert!(hits > 50_000, "{hits} hits");
+}
+
+#[test]
+fn relit_at_a_proxy_direction_matches_a_bake_with_that_light() {
+    let asset = shadow_bake(Some(12), [0.3, 1.0, 0.2]);
+    let field = ctx().renderer.upload(&asset).expect("upload");
+    let dirs = light::proxy_directions(12).expect("proxy");
+    // Two proxy directions above the ground, one from the side (the box shadows the ground).
+    for d in dirs.iter().filter(|d| d.y > 0.2).take(2) {
+        let relit = ctx()
+            .renderer
+            .render(&field, &view(), &lit(*d))
+            .expect("relit");
+        let plain_asset = shadow_bake(None, d.as_vec3().to_array());
+        let plain_field = ctx().renderer.upload(&plain_asset).expect("upload");
+        let plain = ctx()
+            .renderer
+            .render(&plain_field, &view(), &RenderOptions::default())
+            .expect("plain");
+        // Same depth maps, so the same surface per pixel; the colour is the sum of two
+        // rounded parts instead of one rounded whole: at most 1 code per texel, blended.
+        assert_eq!(relit.depth, plain.depth, "light {d}");
+        let worst = relit
+            .color
+            .iter()
+            .zip(&plain.color)
+            .map(|(a, b)| a.abs_diff(*b))
+            .max()
+            .unwrap_or(0);
+        assert!(worst <= 1, "light {d}: {worst} codes");
+    }
+}
+
+#[test]
+fn relit_between_proxy_lights_approaches_the_reference_better_than_planar_weights() {
+    let mesh = ctx().reference.upload(&scene()).expect("mesh");
+    // Lights at the centres of the proxy's triangles, where blending errs most. The ones well
+    // above the ground light all of it from all three directions, so that planar weights lose
+    // 20 % (12 lights) or 6.8 % (42) of its diffuse term there, and the spherical blend none.
+    let mut mean_error = Vec::new();
+    for count in [12, 42] {
+        let asset = shadow_bake(Some(count), [0.3, 1.0, 0.2]);
+        let field = ctx().renderer.upload(&asset).expect("upload");
+        let planar_field = ctx().planar.upload(&asset).expect("upload");
+        let dirs = light::proxy_directions(count).expect("proxy");
+        let lights: Vec<DVec3> = light::centroid_lights(count)
+            .expect("centroids")
+            .into_iter()
+            .filter(|&l| {
+                let b = light::blend_for(count, l, Blend::Spherical).expect("blend");
+                b.directions.iter().all(|&i| dirs[i as usize].y > 0.3)
+            })
+            .take(2)
+            .collect();
+        assert_eq!(lights.len(), 2);
+        let mut sum = 0.0;
+        for &l in &lights {
+            let shading = Shading {
+                light: l.as_vec3().to_array(),
+                shadows: true,
+                ..Shading::default()
+            };
+            let reference = ctx()
+                .reference
+                .render(&mesh, &view(), &shading)
+                .expect("reference");
+            let spherical = ctx()
+                .renderer
+                .render(&field, &view(), &lit(l))
+                .expect("relit");
+            let planar = ctx()
+                .planar
+                .render(&planar_field, &view(), &lit(l))
+                .expect("planar");
+            // The light field's own error: a bake with exactly this light.
+            let exact_asset = shadow_bake(None, shading.light);
+            let exact_field = ctx().renderer.upload(&exact_asset).expect("upload");
+            let exact = ctx()
+                .renderer
+                .render(&exact_field, &view(), &RenderOptions::default())
+                .expect("exact");
+            let (e0, es, ep) = (
+                mean_diff(&exact, &reference),
+                mean_diff(&spherical, &reference),
+                mean_diff(&planar, &reference),
+            );
+            eprintln!(
+                "{count} lights, light {l}: exact bake {e0:.2}, spherical {es:.2}, planar {ep:.2}"
+            );
+            // Beyond the light field's own error, the spherical blend errs where the three
+            // lights' shadows differ from the true one (ghost shadows); planar weights also
+            // darken every lit pixel.
+            assert!(
+                es > e0 - 0.5,
+                "{count} lights, light {l}: {es:.2} vs {e0:.2}"
+            );
+            assert!(
+                ep > es + 3.0,
+                "{count} lights, light {l}: spherical {es:.2}, planar {ep:.2}"
+            );
+            sum += es - e0;
+        }
+        mean_error.push(sum / 2.0);
+    }
+    // More light directions: closer shadows, less interpolation error.
+    assert!(
+        mean_error[1] < 0.6 * mean_error[0],
+        "interpolation error {mean_error:?} (12, 42 lights)"
+    );
+}
+
+#[test]
+fn bad_lights_and_light_requests_are_clear_errors() {
+    let plain = shadow_bake(None, [0.3, 1.0, 0.2]);
+    let field = ctx().renderer.upload(&plain).expect("upload");
+    let err = ctx()
+        .renderer
+        .render(&field, &view(), &lit(DVec3::Y))
+        .expect_err("no light states");
+    assert!(
+        matches!(err, RenderError::Light(LightError::NoLightStates)),
+        "{err}"
+    );
+    for bad in [[0.0; 3], [f64::NAN, 1.0, 0.0], [f64::INFINITY, 0.0, 0.0]] {
+        let options = RenderOptions {
+            light: Some(LightDirection(bad)),
+            ..RenderOptions::default()
+        };
+        let err = ctx()
+            .renderer
+            .render(&field, &view(), &options)
+            .expect_err("bad light");
+        assert!(matches!(err, RenderError::Light(_)), "{bad:?}: {err}");
+    }
+    let bake_err = |options: BakeOptions| {
+        ctx()
+            .baker
+            .bake_to_bytes(&scene(), &options, &Provenance::default(), &mut |_, _| {})
+            .expect_err("refused")
+    };
+    assert!(matches!(
+        bake_err(BakeOptions {
+            lights: Some(13),
+            ..Default::default()
+        }),
+        BakeError::Lights(LightError::BadCount(13))
+    ));
+    assert!(matches!(
+        bake_err(BakeOptions {
+            lights: Some(12),
+            shading: Shading {
+                unlit: true,
+                ..Shading::default()
+            },
+            ..Default::default()
+        }),
+        BakeError::LightsUnlit
+    ));
+}
