@@ -10,7 +10,9 @@
 //! file) share a single upload: the GPU holds each asset once however many times it is placed.
 //!
 //! Lighting is baked into a light field in its own frame, so it turns with the instance; a
-//! mesh object is shaded in its own frame the same way, so both kinds stay consistent.
+//! mesh object is shaded in its own frame the same way, so both kinds stay consistent. An
+//! instance of an asset with light states may be relit: its `options.light` is a world-space
+//! direction, carried into the instance's frame.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -394,7 +396,7 @@ impl Scene {
                         fields.len() - 1
                     };
                     let shown = path.display().to_string();
-                    let plan = object_quality(options, auto_lod.as_ref())
+                    let plan = object_quality(options, auto_lod.as_ref(), &placement)
                         .plan(&headers[field])
                         .map_err(|source| SceneError::Quality {
                             index,
@@ -546,9 +548,18 @@ impl Scene {
 }
 
 /// The quality of a light-field object: its `options` knobs, with automatic LOD when it has an
-/// `auto_lod` policy (`max_psnr_drop: null` there means no limit).
-fn object_quality(options: &RenderOptions, auto_lod: Option<&LodPolicy>) -> Quality {
+/// `auto_lod` policy (`max_psnr_drop: null` there means no limit), and its world-space `light`
+/// carried into the instance's frame (the asset's light states are in that frame).
+fn object_quality(
+    options: &RenderOptions,
+    auto_lod: Option<&LodPolicy>,
+    placement: &Similarity,
+) -> Quality {
+    let light = options.light.map(|l| {
+        crate::light::LightDirection((placement.rotation.inverse() * DVec3::from(l.0)).to_array())
+    });
     Quality {
+        light,
         lod: options.lod,
         step: options.step,
         tolerance: options.tolerance,

@@ -328,3 +328,81 @@ fn bad_lights_and_light_requests_are_clear_errors() {
         BakeError::LightsUnlit
     ));
 }
+
+#[test]
+fn a_scene_instance_relights_with_the_light_carried_into_its_frame() {
+    use lumigraph_core::scene::{Rotation, Scene, Transform};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let bytes = ctx()
+        .baker
+        .bake_to_bytes(
+            &scene(),
+            &BakeOptions {
+                cameras: 42,
+                resolution: 64,
+                shading: Shading {
+                    shadows: true,
+                    ..Shading::default()
+                },
+                lights: Some(12),
+                ..Default::default()
+            },
+            &Provenance::default(),
+            &mut |_, _| {},
+        )
+        .expect("bake");
+    std::fs::write(dir.path().join("lit.lfa"), &bytes).expect("write");
+    let world_light = [1.0, 0.6, 0.2];
+    let scene_file = dir.path().join("scene.json");
+    let text = serde_json::json!({"objects": [{
+        "type": "lightfield",
+        "asset": "lit.lfa",
+        "transform": {"rotation": {"axis": [0, 1, 0], "degrees": 90}},
+        "options": {"light": world_light},
+    }]});
+    std::fs::write(&scene_file, text.to_string()).expect("write");
+    let loaded = Scene::load(&scene_file, &ctx().renderer, &ctx().reference).expect("scene");
+    let in_scene = loaded
+        .render(&ctx().renderer, &ctx().reference, &view())
+        .expect("scene render");
+    // The instance alone, in its own frame: the view and the light turned back by 90°.
+    let placement = Transform {
+        rotation: Some(Rotation {
+            axis: [0.0, 1.0, 0.0],
+            degrees: 90.0,
+        }),
+        ..Transform::default()
+    }
+    .similarity()
+    .expect("similarity");
+    let local_view = placement.view_to_local(&view());
+    let asset = AssetFile::from_bytes(bytes).expect("asset");
+    let field = ctx().renderer.upload(&asset).expect("upload");
+    let local_light = placement.to_local(DVec3::from(world_light)); // no translation or scale
+    let alone = ctx()
+        .renderer
+        .render(&field, &local_view, &lit(local_light))
+        .expect("alone");
+    let unturned = ctx()
+        .renderer
+        .render(&field, &local_view, &lit(DVec3::from(world_light)))
+        .expect("unturned");
+    let worst = |a: &Frame, b: &Frame| {
+        a.color
+            .iter()
+            .zip(&b.color)
+            .map(|(x, y)| x.abs_diff(*y))
+            .max()
+            .unwrap_or(0)
+    };
+    // Compositing one opaque layer keeps its colours (one code of rounding).
+    assert!(
+        worst(&in_scene, &alone) <= 1,
+        "{}",
+        worst(&in_scene, &alone)
+    );
+    assert!(
+        worst(&in_scene, &unturned) > 40,
+        "the light turned with the instance"
+    );
+}

@@ -98,9 +98,10 @@ pub fn bake(error: &CoreBakeError) -> PyErr {
         CoreBakeError::BadCameras(n) => PyValueError::new_err(format!(
             "cameras={n} is not an icosphere camera count: use 12, 42, 162 or 642"
         )),
-        CoreBakeError::BadResolution(_) | CoreBakeError::BadDepthBits(_) => {
-            PyValueError::new_err(error.to_string())
-        }
+        CoreBakeError::BadResolution(_)
+        | CoreBakeError::BadDepthBits(_)
+        | CoreBakeError::Lights(_)
+        | CoreBakeError::LightsUnlit => PyValueError::new_err(error.to_string()),
         CoreBakeError::Shading(e) => shading(e),
         other => BakeError::new_err(chain(other)),
     }

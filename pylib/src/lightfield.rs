@@ -165,6 +165,16 @@ fn json_of(value: &Bound<'_, PyAny>) -> PyResult<serde_json::Value> {
     if let Ok(text) = value.cast::<PyString>() {
         return Ok(serde_json::Value::String(text.to_str()?.to_owned()));
     }
+    // A sequence: the `light` direction ((x, y, z), a list or a numpy array).
+    if let Ok(list) = value.cast::<pyo3::types::PyList>() {
+        return list.iter().map(|item| json_of(&item)).collect();
+    }
+    if let Ok(tuple) = value.cast::<pyo3::types::PyTuple>() {
+        return tuple.iter().map(|item| json_of(&item)).collect();
+    }
+    if value.hasattr("tolist")? && value.hasattr("shape")? {
+        return json_of(&value.call_method0("tolist")?);
+    }
     // A dict: the `layers` opacities ({"skin": 0.3}).
     if let Ok(dict) = value.cast::<pyo3::types::PyDict>() {
         let mut map = serde_json::Map::new();
@@ -174,7 +184,8 @@ fn json_of(value: &Bound<'_, PyAny>) -> PyResult<serde_json::Value> {
         return Ok(serde_json::Value::Object(map));
     }
     Err(PyTypeError::new_err(format!(
-        "a quality option must be a number, a string, a dict (layers) or None, got {}",
+        "a quality option must be a number, a string, a sequence (light), a dict (layers) or \
+         None, got {}",
         value.get_type().name()?
     )))
 }

@@ -1722,3 +1722,117 @@ fn shadows_reach_the_bake_the_reference_and_eval() {
         "--shadows applies to meshes",
     );
 }
+
+#[test]
+fn light_states_relight_through_bake_render_reference_and_info() {
+    let view = write("lights-view.json", VIEW.as_bytes());
+    let asset = path("lights.lfa");
+    let o = lumigraph(&[
+        "bake",
+        "--demo",
+        "--shadows",
+        "--lights",
+        "12",
+        "--cameras",
+        "42",
+        "--resolution",
+        "64",
+        "--no-calibrate",
+        "-o",
+        s(&asset),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let info = lumigraph(&["info", s(&asset)]);
+    let text = String::from_utf8_lossy(&info.stdout);
+    assert!(
+        info.status.success() && text.contains("light states: 12 directions"),
+        "{text}"
+    );
+    let render = |command: &str, file: &Path, light: &str, name: &str| {
+        let png = path(name);
+        let o = lumigraph(&[
+            command,
+            s(file),
+            "--view",
+            s(&view),
+            "--light",
+            light,
+            "-o",
+            s(&png),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        lumigraph_core::image_io::read_png_rgba8(&png)
+            .expect("png")
+            .2
+    };
+    // From above and from the side (+x): the same pixels covered, the shading moved.
+    let above = render("render", &asset, "0,1,0", "lights-above.png");
+    let side = render("render", &asset, "1,0.2,0", "lights-side.png");
+    let (mut changed, mut covered) = (0, 0);
+    for (a, b) in above.chunks_exact(4).zip(side.chunks_exact(4)) {
+        assert_eq!(a[3], b[3], "coverage");
+        covered += usize::from(a[3] > 0);
+        changed += usize::from(a[..3].iter().zip(&b[..3]).any(|(x, y)| x.abs_diff(*y) > 20));
+    }
+    assert!(changed > covered / 4, "{changed} of {covered} changed");
+    // Bad lights and assets without light states are errors, never a panic.
+    for bad in ["0,0,0", "nan,1,0", "1,2"] {
+        assert_fails(
+            &[
+                "render",
+                s(&asset),
+                "--view",
+                s(&view),
+                "--light",
+                bad,
+                "-o",
+                s(&path("x.png")),
+            ],
+            "light",
+        );
+    }
+    let plain = bake_uncalibrated("lights-plain.lfa");
+    assert_fails(
+        &[
+            "render",
+            s(&plain),
+            "--view",
+            s(&view),
+            "--light",
+            "0,1,0",
+            "-o",
+            s(&path("x.png")),
+        ],
+        "no light states",
+    );
+    assert_fails(
+        &["bake", "--demo", "--lights", "13", "-o", s(&path("x.lfa"))],
+        "use 12, 42 or 162",
+    );
+    assert_fails(
+        &[
+            "bake",
+            "--demo",
+            "--lights",
+            "12",
+            "--unlit",
+            "-o",
+            s(&path("x.lfa")),
+        ],
+        "--lights relights a lit bake",
+    );
+    let volume = write("lights-ball.npy", &ball_npy(16));
+    assert_fails(
+        &[
+            "bake",
+            s(&volume),
+            "--tf",
+            "ct-bone",
+            "--lights",
+            "12",
+            "-o",
+            s(&path("x.lfa")),
+        ],
+        "--lights relights meshes",
+    );
+}

@@ -2973,3 +2973,112 @@ async fn a_bake_takes_shadows_in_its_shading() {
         "{asset}"
     );
 }
+
+/// Light states through the service: `POST /v1/bake` takes `lights`, the render body and the
+/// render link take `light` (world direction), the stream takes it as a sticky setting, and a
+/// bad light or an asset without light states is a `422` naming the problem.
+#[tokio::test(flavor = "multi_thread")]
+async fn light_states_bake_and_relight_over_http_and_the_stream() {
+    let (_dir, state) = setup(None, |_| {}).await;
+    let obj = icosahedron_obj();
+    let accepted = post_bake(
+        &state,
+        None,
+        &[
+            ("mesh", Some("ico.obj"), obj.as_bytes()),
+            (
+                "options",
+                None,
+                br#"{"cameras": 12, "resolution": 16, "lights": 12}"#,
+            ),
+            ("calibrate", None, b"false"),
+            ("id", None, b"lit"),
+        ],
+    )
+    .await;
+    assert_eq!(accepted.status, StatusCode::ACCEPTED);
+    let status = finished_job(&state, accepted.header("location")).await;
+    assert_eq!(status["state"], "done", "{status}");
+    let asset = get(&state, "/v1/assets/lit").await.json();
+    assert_eq!(
+        asset["states"].as_array().map(Vec::len),
+        Some(14),
+        "{asset}"
+    );
+    let render = |light: serde_json::Value| {
+        let state = state.clone();
+        async move {
+            post_json(
+                &state,
+                "/v1/assets/lit/render",
+                serde_json::json!({"view": view_json(32, 32), "light": light}).to_string(),
+            )
+            .await
+        }
+    };
+    let above = render(serde_json::json!([0, 1, 0])).await;
+    let below = render(serde_json::json!([0, -1, 0.2])).await;
+    assert_eq!(
+        above.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&above.body)
+    );
+    assert_eq!(below.status, StatusCode::OK);
+    assert_ne!(above.body, below.body, "the light moved the shading");
+    let link = get(&state, "/v1/assets/lit/render?eye=0.3,0.5,3&target=0,0,0&up=0,1,0&yfov_deg=40&width=32&height=32&light=0,1,0").await;
+    assert_eq!(
+        link.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&link.body)
+    );
+    for bad in [serde_json::json!([0, 0, 0]), serde_json::json!([1, 2])] {
+        let reply = render(bad.clone()).await;
+        assert_eq!(reply.status, StatusCode::UNPROCESSABLE_ENTITY, "{bad}");
+    }
+    let streamed = one_png_frame_streamed(
+        state.clone(),
+        "lit",
+        Some(serde_json::json!({"type": "settings", "light": [0, 1, 0]})),
+    )
+    .await;
+    let (_, _, rgba) = lumigraph_core::image_io::decode_png_rgba8(&streamed).expect("png");
+    let (_, _, http) = lumigraph_core::image_io::decode_png_rgba8(
+        &post_json(
+            &state,
+            "/v1/assets/lit/render",
+            serde_json::json!({"view": view_json(48, 48), "light": [0, 1, 0]}).to_string(),
+        )
+        .await
+        .body,
+    )
+    .expect("png");
+    assert_eq!(rgba, http, "the stream relights as the render body does");
+    // An asset baked without light states.
+    let plain = post_bake(
+        &state,
+        None,
+        &[
+            ("mesh", Some("ico.obj"), obj.as_bytes()),
+            ("options", None, br#"{"cameras": 12, "resolution": 16}"#),
+            ("calibrate", None, b"false"),
+            ("id", None, b"plain"),
+        ],
+    )
+    .await;
+    let status = finished_job(&state, plain.header("location")).await;
+    assert_eq!(status["state"], "done", "{status}");
+    let reply = post_json(
+        &state,
+        "/v1/assets/plain/render",
+        serde_json::json!({"view": view_json(32, 32), "light": [0, 1, 0]}).to_string(),
+    )
+    .await;
+    assert_eq!(reply.status, StatusCode::UNPROCESSABLE_ENTITY);
+    assert!(
+        String::from_utf8_lossy(&reply.body).contains("no light states"),
+        "{}",
+        String::from_utf8_lossy(&reply.body)
+    );
+}

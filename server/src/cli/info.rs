@@ -43,6 +43,28 @@ pub(super) fn info(args: &InfoArgs) -> Result<()> {
         h.states.len(),
         describe_bytes(lumigraph_core::render::field_bytes(h))
     );
+    match lumigraph_core::light::LightStates::of(h) {
+        Ok(Some(lights)) => {
+            let stored: u64 = asset
+                .index()
+                .iter()
+                .filter(|e| e.key.state != 0)
+                .map(|e| u64::from(e.length))
+                .sum();
+            let per_camera = h
+                .image_bytes(lumigraph_core::asset::Channel::Color)
+                .unwrap_or(0);
+            println!(
+                "light states: {} directions + ambient (colour only; depth is the base state's): \
+                 {} per light state per camera decoded, {} stored for all of them",
+                lights.count,
+                describe_bytes(per_camera),
+                describe_bytes(stored)
+            );
+        }
+        Ok(None) => {}
+        Err(e) => println!("light states: unusable ({e})"),
+    }
     println!(
         "bounding sphere: centre {:?}, radius {}",
         h.frame.center, h.frame.radius

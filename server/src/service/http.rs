@@ -1152,7 +1152,7 @@ fn check_bake_fits(state: &AppState, options: &BakeOptions) -> Result<(), AppErr
         center: [0.0; 3],
         radius: 1.0,
     };
-    let header = lumigraph_core::asset::AssetHeader::new_spherical(
+    let mut header = lumigraph_core::asset::AssetHeader::new_spherical(
         level,
         options.resolution,
         frame,
@@ -1160,6 +1160,12 @@ fn check_bake_fits(state: &AppState, options: &BakeOptions) -> Result<(), AppErr
         lumigraph_core::asset::Provenance::default(),
     )
     .map_err(|e| AppError::Invalid(format!("invalid bake options: {e}")))?;
+    // Light states are charged too: their maps go to the device with the base state's.
+    if let Some(count) = options.lights {
+        let states = lumigraph_core::light::state_descs(count)
+            .map_err(|e| AppError::Invalid(format!("invalid bake options: {e}")))?;
+        header.states.extend(states);
+    }
     match state.assets().admit(&header) {
         Ok(_charge) => Ok(()),
         Err(LoadError::OverLimit(message)) => Err(AppError::OverLimit(message)),

@@ -295,6 +295,7 @@ pub fn render_error(err: lumigraph_core::render::RenderError) -> AppError {
     match err {
         RenderError::View(e) => AppError::Invalid(e.to_string()),
         RenderError::Option(message) => AppError::Invalid(message),
+        RenderError::Light(e) => AppError::Invalid(e.to_string()),
         other => AppError::Internal(anyhow::Error::new(other).context("render failed")),
     }
 }

@@ -68,6 +68,9 @@ fn quality_value(key: &str, value: &str) -> Result<Value, AppError> {
     if key == "method" || key == "layers" {
         return Ok(Value::String(value.to_owned()));
     }
+    if key == "light" {
+        return Ok(json3(vec3(key, value)?));
+    }
     if let Ok(n) = value.parse::<u64>() {
         return Ok(Value::Number(n.into()));
     }

@@ -40,7 +40,8 @@ pub struct Settings {
     pub max_in_flight: u32,
     /// RGBA8 where nothing is hit (JPEG: the matte colour).
     pub background: [u8; 4],
-    /// Named state of the asset (lighting, animation frame); absent = the base state.
+    /// Named state of the asset (animation frame, deformation); absent = the base state. Light
+    /// states are not rendered by name: the quality key `light` relights from them.
     pub state: Option<String>,
     /// Append each frame's depth and view to its header (the depth extension), so the client
     /// can reproject the frame to a newer camera while the next one is on its way.
@@ -136,6 +137,16 @@ pub(super) fn validate_settings(
                 ));
             }
             Some(0) => {}
+            Some(i)
+                if header.states[i]
+                    .params
+                    .contains_key(lumigraph_core::light::PART_KEY) =>
+            {
+                return Err(format!(
+                    "state {state:?} is one part of the asset's light states: relight with \
+                     `light` ([x, y, z], world space) instead"
+                ));
+            }
             Some(_) => {
                 return Err(format!(
                     "rendering state {state:?} is not supported yet: only the base state renders"
