@@ -27,6 +27,8 @@ step "volume multi light fields (scripts/bench_volume_layers.sh)" "$OUT/volume-l
 bash scripts/bench_volume_layers.sh "$OUT/volume-layers"
 step "shadows (scripts/bench_shadows.sh)" "$OUT/shadows/table.md: 'Shadows'"
 bash scripts/bench_shadows.sh "$OUT/shadows"
+step "light states (scripts/bench_lights.sh)" "$OUT/lights/table.md: 'Light states'"
+bash scripts/bench_lights.sh "$OUT/lights"
 step "still refinement (scripts/bench_refine.sh)" "$OUT/refine/tables.md: 'Still-frame refinement'"
 bash scripts/bench_refine.sh "$OUT/refine"
 step "render service (scripts/bench_service.py)" "$OUT/service.md: 'Render service streaming'"

@@ -36,6 +36,10 @@
 //!   direction between them (DESIGN §9).
 //! - [`scene`] composites light-field instances and meshes, each with its own transform, by depth.
 
+/// The vector types of core's public API (directions, positions), for callers without their own
+/// `glam` dependency.
+pub use glam;
+
 pub mod asset;
 pub mod auto_bake;
 pub mod bake;

@@ -104,6 +104,11 @@ pub enum Blend {
     Spherical,
     /// Planar barycentric weights `w / Σ w` (summing to 1): the baseline DESIGN §9 measures.
     Planar,
+    /// Per texel: [`Blend::Spherical`] where all three proxy lights reach it (each direct part
+    /// above 2/255), else [`Blend::Planar`]. Where a light is shadowed or behind the surface
+    /// for some of the three, the spherical weights (summing to more than 1) would overshoot
+    /// the ghost of the others' light; there the planar ones are the safer guess.
+    Adaptive,
 }
 
 /// The proxy triangle around a light and the weight of each of its directions.
@@ -187,7 +192,7 @@ pub fn blend_for(count: u32, l: DVec3, blend: Blend) -> Result<LightBlend, Light
     // Inside the triangle every weight is ≥ 0; rounding at an edge may leave −1e-16.
     let w = w.map(|x| x.max(0.0));
     let weights = match blend {
-        Blend::Spherical => w,
+        Blend::Spherical | Blend::Adaptive => w,
         Blend::Planar => {
             let sum = w[0] + w[1] + w[2];
             w.map(|x| x / sum)

@@ -31,6 +31,8 @@
     drawing: Promise.resolve(),
     // The state the page's URL asked for, applied once the asset's hello arrives.
     fromUrl: null,
+    // World-space light direction of an asset with light states; null: the baked light.
+    light: null,
     // The last view message sent (tests compare it with the URL's camera).
     lastView: null,
     // Keys the stream settings carry that a later version may add (URL: light, time, focus).
@@ -143,6 +145,7 @@
     if (state.seqOfRequest.size > 256) state.seqOfRequest.delete(state.seqOfRequest.keys().next().value);
     state.lastView = currentView();
     send({ type: "view", id: state.requestId, view: state.lastView, still: !!still });
+    if (state.light) drawLightPad();
     scheduleUrlUpdate();
   }
 
@@ -226,6 +229,82 @@
     sendView(true);
     scheduleUrlUpdate();
   }
+
+  // --- light direction (assets with light states) ----------------------------------------------
+  // A ball: a point on it is where the light comes from as seen from the camera (centre: from
+  // behind the camera, rim: from the side). The direction goes to the server in world space, a
+  // settings message `light` of its own, and into the link as `light=x,y,z`; "Baked light"
+  // clears it. Shown for assets baked with --lights (they have an `ambient` state).
+  function hasLightStates(asset) { return (asset.states || []).includes("ambient"); }
+
+  function cameraBasis() {
+    const v = currentView();
+    const f = norm(sub(v.target, v.eye));
+    const r = norm(cross(f, [0, 1, 0]));
+    return { right: r, up: cross(r, f), back: [-f[0], -f[1], -f[2]] };
+  }
+
+  function drawLightPad() {
+    const pad = $("lightpad");
+    const g = pad.getContext("2d");
+    const c = pad.width / 2, rad = c - 4;
+    g.clearRect(0, 0, pad.width, pad.height);
+    let lx = 0.45, ly = 0.55;
+    if (state.light) {
+      const b = cameraBasis();
+      const dot = (a, d) => a[0] * d[0] + a[1] * d[1] + a[2] * d[2];
+      lx = dot(state.light, b.right); ly = dot(state.light, b.up);
+    }
+    const shade = g.createRadialGradient(c + lx * rad * 0.6, c - ly * rad * 0.6, 2, c, c, rad);
+    shade.addColorStop(0, state.light ? "#fff" : "#aaa");
+    shade.addColorStop(1, "#222");
+    g.fillStyle = shade;
+    g.beginPath(); g.arc(c, c, rad, 0, 2 * Math.PI); g.fill();
+    if (state.light) {
+      g.strokeStyle = "#f80"; g.lineWidth = 2;
+      g.beginPath(); g.arc(c + lx * rad, c - ly * rad, 4, 0, 2 * Math.PI); g.stroke();
+    }
+  }
+
+  function fillLighting(asset, initial) {
+    $("lighting").hidden = !hasLightStates(asset);
+    state.light = !$("lighting").hidden && initial ? initial.slice() : null;
+    if ($("lighting").hidden) delete state.extra.light;
+    drawLightPad();
+  }
+
+  function setLight(light) {
+    state.light = light;
+    if (light) state.extra.light = light.map((x) => String(Number(x.toFixed(4)))).join(",");
+    else delete state.extra.light;
+    send({ type: "settings", light });
+    drawLightPad();
+    sendView(true);
+    scheduleUrlUpdate();
+  }
+
+  function padLight(e) {
+    const pad = $("lightpad");
+    const box = pad.getBoundingClientRect();
+    let x = ((e.clientX - box.left) / box.width) * 2 - 1;
+    let y = 1 - ((e.clientY - box.top) / box.height) * 2;
+    const r2 = x * x + y * y;
+    if (r2 > 1) { const s = 1 / Math.sqrt(r2); x *= s; y *= s; }
+    const z = Math.sqrt(Math.max(0, 1 - x * x - y * y));
+    const b = cameraBasis();
+    return norm([0, 1, 2].map((i) => x * b.right[i] + y * b.up[i] + z * b.back[i]));
+  }
+
+  let lightDrag = false;
+  $("lightpad").addEventListener("pointerdown", (e) => {
+    lightDrag = true;
+    $("lightpad").setPointerCapture(e.pointerId);
+    setLight(padLight(e));
+  });
+  $("lightpad").addEventListener("pointermove", (e) => { if (lightDrag) setLight(padLight(e)); });
+  $("lightpad").addEventListener("pointerup", () => { lightDrag = false; });
+  $("lightpad").addEventListener("pointercancel", () => { lightDrag = false; });
+  $("light_reset").addEventListener("click", () => setLight(null));
 
   // --- the state in the URL ------------------------------------------------------------------
   // Precision (docs/protocol.md, "Viewer links"): angles to 0.001°, distance to 6 significant
@@ -321,8 +400,8 @@
   const URL_KEYS = ["asset", "az", "el", "dist", "target", "yfov_deg", "lod", "method", "step",
     "tolerance", "auto_lod", "still_codec", "interactive", "target_fps", "rest_ms", "background",
     "layers", "state", "light", "time", "focus", "reproject"];
-  // Keys the issue reserves for later renderer features: kept in the link, not yet sent.
-  const LATER_KEYS = ["light", "time", "focus"];
+  // Keys reserved for later renderer features: kept in the link, not yet sent.
+  const LATER_KEYS = ["time", "focus"];
 
   function readUrl() {
     const params = new URLSearchParams(location.search);
@@ -393,6 +472,15 @@
           break;
         }
         case "state": out.settings.state = v; out.extra.state = v; break;
+        case "light": {
+          const l = v.split(",").map((c) => (c.trim() === "" ? NaN : Number(c)));
+          if (l.length !== 3 || !l.every(Number.isFinite) || Math.hypot(l[0], l[1], l[2]) === 0) {
+            bad(k, v, "not a non-zero direction x,y,z");
+          } else {
+            out.settings.light = norm(l); out.extra.light = v;
+          }
+          break;
+        }
         default:
           if (LATER_KEYS.includes(k)) {
             out.extra[k] = v;
@@ -539,6 +627,8 @@
         state.maxPx = msg.max_px;
         fillLod(msg.asset.camera_count);
         fillLayers(msg.asset, fromUrlLayers());
+        // The link's light, else (a reconnect to the same asset) the light already chosen.
+        fillLighting(msg.asset, (state.fromUrl && state.fromUrl.settings.light) || (same ? state.light : null));
         if (!same) resetCamera();
         const fromUrl = state.fromUrl;
         state.fromUrl = null;
@@ -554,6 +644,7 @@
         // Layers and state go in a settings message of their own: one the asset refuses (an
         // error shown below) leaves the other settings applied.
         if (fromUrl && Object.keys(fromUrl.settings).length) send({ type: "settings", ...fromUrl.settings });
+        else if (state.light) send({ type: "settings", light: state.light });
         sendView(true);
       } else if (msg.type === "error") {
         showError(`${msg.kind}: ${msg.message}`);

@@ -75,6 +75,19 @@ fn probe(cam: Camera, k: u32, x: vec3<f32>, edge_aware: bool) -> Probe {
     return Probe(pr.z - depth * pr.w, tc, color_weights);
 }
 
+// The three proxy lights' direct parts at one texel, blended with `params.light_weights.xyz`
+// (core/src/light.rs). Adaptive (`w` = 1): where one of them is dark (its brightest channel at
+// most 2/255: shadowed or facing away from that light), the weights are normalized to sum 1, as
+// planar barycentrics are: the spherical weights, summing to more, would overshoot there.
+fn blend_direct(da: vec3<f32>, db: vec3<f32>, dc: vec3<f32>) -> vec3<f32> {
+    let w = params.light_weights;
+    let brightest = vec3<f32>(max(da.x, max(da.y, da.z)), max(db.x, max(db.y, db.z)), max(dc.x, max(dc.y, dc.z)));
+    let dark = min(brightest.x, min(brightest.y, brightest.z)) <= 2.0 / 255.0;
+    let planar = w.xyz / max(w.x + w.y + w.z, 1e-12);
+    let k = select(w.xyz, planar, dark & (w.w > 0.5));
+    return k.x * da + k.y * db + k.z * dc;
+}
+
 // Texel p of camera k's colour map: the base state's, or in a relit frame (`params.lit`) the
 // light states' blend, ambient + Σ w_i · direct_i (core/src/light.rs), clamped as the bake
 // clamps a colour; its alpha is the ambient map's (1 at hits, as the base colour's).
@@ -82,9 +95,8 @@ fn color_texel(p: vec2<i32>, k: u32) -> vec4<f32> {
     if per_invocation(params.lit == 0u) {
         return textureLoad(color_maps, p, k, 0);
     }
-    let w = params.light_weights;
     let a = textureLoad(ambient_maps, p, k, 0);
-    let c = a.rgb + w.x * textureLoad(light_a_maps, p, k, 0).rgb + w.y * textureLoad(light_b_maps, p, k, 0).rgb + w.z * textureLoad(light_c_maps, p, k, 0).rgb;
+    let c = a.rgb + blend_direct(textureLoad(light_a_maps, p, k, 0).rgb, textureLoad(light_b_maps, p, k, 0).rgb, textureLoad(light_c_maps, p, k, 0).rgb);
     return vec4<f32>(min(c, vec3<f32>(1.0)), a.a);
 }
 
@@ -110,8 +122,7 @@ fn bilinear_color(k: u32, tc: vec2<f32>) -> vec4<f32> {
     if per_invocation(params.lit == 0u) {
         return textureSampleLevel(color_maps, linear_sampler, uv, k, 0.0);
     }
-    let w = params.light_weights;
     let a = textureSampleLevel(ambient_maps, linear_sampler, uv, k, 0.0);
-    let c = a.rgb + w.x * textureSampleLevel(light_a_maps, linear_sampler, uv, k, 0.0).rgb + w.y * textureSampleLevel(light_b_maps, linear_sampler, uv, k, 0.0).rgb + w.z * textureSampleLevel(light_c_maps, linear_sampler, uv, k, 0.0).rgb;
+    let c = a.rgb + blend_direct(textureSampleLevel(light_a_maps, linear_sampler, uv, k, 0.0).rgb, textureSampleLevel(light_b_maps, linear_sampler, uv, k, 0.0).rgb, textureSampleLevel(light_c_maps, linear_sampler, uv, k, 0.0).rgb);
     return vec4<f32>(min(c, vec3<f32>(1.0)), a.a);
 }

@@ -766,7 +766,12 @@ impl Renderer {
         let [a, b, c] = blend.directions.map(|i| &lights.direct[i as usize].1);
         let group = self.field_group(&maps.views[0], &maps.views[1], [&lights.ambient.1, a, b, c]);
         let w = blend.weights.map(|x| x as f32);
-        Ok(Some((group, [w[0], w[1], w[2], 0.0])))
+        let adaptive = if self.switches.light_blend == crate::light::Blend::Adaptive {
+            1.0
+        } else {
+            0.0
+        };
+        Ok(Some((group, [w[0], w[1], w[2], adaptive])))
     }
 
     /// The light-field bind group of `color` and `depth` maps, with the four light-state maps

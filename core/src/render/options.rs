@@ -240,7 +240,8 @@ impl Default for Switches {
             compositing: Compositing::from_env(),
             light_blend: match std::env::var(LIGHT_BLEND_VARIABLE).as_deref() {
                 Ok("planar") => crate::light::Blend::Planar,
-                _ => crate::light::Blend::Spherical,
+                Ok("spherical") => crate::light::Blend::Spherical,
+                _ => crate::light::Blend::Adaptive,
             },
         }
     }

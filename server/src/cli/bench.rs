@@ -29,6 +29,11 @@ pub enum BenchCommand {
     /// Sweep cameras × step × tolerance × method × depth bits × output size against the source
     /// mesh; write tradeoff.csv, tradeoff.json and pareto.png (ms/frame against masked PSNR).
     Tradeoff(TradeoffArgs),
+    /// Relight an asset baked with --lights at proxy directions, proxy-triangle centres and
+    /// random lights against the reference with that light (the error split into the light
+    /// field's and the light interpolation's, planar weights beside), and time relit frames
+    /// against static ones.
+    Lights(super::bench_lights::LightsArgs),
 }
 
 /// `lumigraph bench tradeoff`. Lists are comma-separated; steps accept fractions (`1/32`).

@@ -10,6 +10,7 @@ use clap::{Parser, Subcommand};
 mod args;
 mod bake;
 mod bench;
+mod bench_lights;
 mod common;
 mod eval;
 mod healthcheck;
@@ -71,6 +72,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Info(args) => info::info(&args),
         Command::Bench(args) => match args.command {
             BenchCommand::Tradeoff(args) => bench::bench_tradeoff(&args),
+            BenchCommand::Lights(args) => bench_lights::bench_lights(&args),
         },
         Command::Serve(args) => serve::serve(&args),
         Command::Healthcheck(args) => healthcheck::healthcheck(&args),

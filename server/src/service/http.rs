@@ -1023,6 +1023,13 @@ pub async fn bake(
                 chosen.join(", ")
             )));
         }
+        if map.contains_key("lights") {
+            return Err(AppError::Invalid(
+                "lights: an automatic bake chooses settings for the base state only; bake \
+                 light states without auto"
+                    .to_owned(),
+            ));
+        }
     }
     let mut options: BakeOptions = match options_value {
         None => BakeOptions::default(),
