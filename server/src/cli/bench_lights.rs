@@ -308,7 +308,7 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
         "frame ms: static {s:.2}, relit {r:.2} ({:.3}×); GPU memory {:.1} MiB, {} bytes per \
          light state per camera",
         r / s,
-        report.gpu_bytes as f64 / 1048576.0,
+        report.gpu_bytes as f64 / 1_048_576.0,
         report.bytes_per_light_state_per_camera
     );
     println!(
