@@ -96,6 +96,9 @@ fn shade_hit(o: vec3<f32>, w: vec3<f32>, index: u32, t: f32, b1: f32, b2: f32) -
     let n_interp = normalize(v0.normal * b0 + v1.normal * hit.b1 + v2.normal * hit.b2);
     let uv_hit = vec2<f32>(v0.u, v0.v) * b0 + vec2<f32>(v1.u, v1.v) * hit.b1 + vec2<f32>(v2.u, v2.v) * hit.b2;
     let vc = v0.color.rgb * b0 + v1.color.rgb * hit.b1 + v2.color.rgb * hit.b2;
+    if params.shading.mode == SHADE_NORMAL {
+        return oct_encode16(n_interp);
+    }
     let albedo = albedo_of(materials[tri.material], uv_hit, vc, mesh_texture, mesh_sampler);
     var visibility = 1.0;
     if params.shading.shadows != 0u {
@@ -103,6 +106,19 @@ fn shade_hit(o: vec3<f32>, w: vec3<f32>, index: u32, t: f32, b1: f32, b2: f32) -
     }
     let color = shade(albedo, n_interp, -w, params.shading, visibility);
     return pack4x8unorm(vec4<f32>(color, 1.0));
+}
+
+// Unit vector n as an octahedral map point with 16 bits per coordinate, in the bytes R, G
+// (x: high, low) and B, A (y: high, low) of an RGBA8 texel (docs/format.md §8.6; the renderer's
+// `oct_decode16` inverts it, within 3e-5 rad).
+fn oct_encode16(n: vec3<f32>) -> u32 {
+    var p = n.xy / (abs(n.x) + abs(n.y) + abs(n.z));
+    if n.z < 0.0 {
+        let s = select(vec2<f32>(-1.0), vec2<f32>(1.0), p >= vec2<f32>(0.0));
+        p = (vec2<f32>(1.0) - abs(p.yx)) * s;
+    }
+    let q = vec2<u32>(round(clamp(p * 0.5 + 0.5, vec2<f32>(0.0), vec2<f32>(1.0)) * 65535.0));
+    return (q.x >> 8u) | ((q.x & 255u) << 8u) | ((q.y >> 8u) << 16u) | ((q.y & 255u) << 24u);
 }
 
 // A light state's colour pass: every texel that `cs_main` found a hit for (in `hits`) shaded

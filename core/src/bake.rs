@@ -588,19 +588,22 @@ impl Sink {
 }
 
 /// The colour passes of the light states `options` asks for, with their state index (as
-/// [`crate::light::state_descs`] orders them after the base state): the ambient part, then the
-/// direct part of each proxy direction.
+/// [`crate::light::state_descs`] orders them after the base state): the ambient part, the
+/// shading normal, then the direct part of each proxy direction.
 fn light_passes(options: &BakeOptions) -> Result<Vec<(u16, GpuShading)>, BakeError> {
     let Some(count) = options.lights else {
         return Ok(Vec::new());
     };
-    let mut out = vec![(1, options.shading.part_to_gpu(ShadePart::Ambient))];
+    let mut out = vec![
+        (1, options.shading.part_to_gpu(ShadePart::Ambient)),
+        (2, options.shading.part_to_gpu(ShadePart::Normal)),
+    ];
     for (i, d) in crate::light::proxy_directions(count)?.iter().enumerate() {
         let shading = Shading {
             light: d.as_vec3().to_array(),
             ..options.shading
         };
-        out.push((i as u16 + 2, shading.part_to_gpu(ShadePart::Direct)));
+        out.push((i as u16 + 3, shading.part_to_gpu(ShadePart::Direct)));
     }
     Ok(out)
 }

@@ -34,6 +34,8 @@ pub const PART_KEY: &str = "light_part";
 pub const LIGHT_KEY: &str = "light";
 /// Name of the ambient state.
 pub const AMBIENT_STATE: &str = "ambient";
+/// Name of the shading-normal state.
+pub const NORMAL_STATE: &str = "normal";
 
 /// Errors of light states and light requests.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -99,16 +101,17 @@ impl FromStr for LightDirection {
 /// How a light between the proxy's directions blends their states.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Blend {
-    /// `ambient + Σ w_i direct_i` with `Σ w_i ℓ_i = ℓ` (the default; see the module doc).
+    /// The default: [`Blend::Spherical`]'s sum scaled per texel by the cosine ratio of the
+    /// stored shading normal n, `max(0, n·ℓ) / Σ w_i max(0, n·ℓ_i)` (at most 1). It leaves a
+    /// texel all three lights reach unchanged and makes one some of them face away from exact
+    /// (the terminator); what remains is the shadows' interpolation. Assets without a normal
+    /// state blend as [`Blend::Spherical`].
     #[default]
+    Normal,
+    /// `ambient + Σ w_i direct_i` with `Σ w_i ℓ_i = ℓ` (see the module doc).
     Spherical,
     /// Planar barycentric weights `w / Σ w` (summing to 1): the baseline DESIGN §9 measures.
     Planar,
-    /// Per texel: [`Blend::Spherical`] where all three proxy lights reach it (each direct part
-    /// above 2/255), else [`Blend::Planar`]. Where a light is shadowed or behind the surface
-    /// for some of the three, the spherical weights (summing to more than 1) would overshoot
-    /// the ghost of the others' light; there the planar ones are the safer guess.
-    Adaptive,
 }
 
 /// The proxy triangle around a light and the weight of each of its directions.
@@ -192,7 +195,7 @@ pub fn blend_for(count: u32, l: DVec3, blend: Blend) -> Result<LightBlend, Light
     // Inside the triangle every weight is ≥ 0; rounding at an edge may leave −1e-16.
     let w = w.map(|x| x.max(0.0));
     let weights = match blend {
-        Blend::Spherical | Blend::Adaptive => w,
+        Blend::Spherical | Blend::Normal => w,
         Blend::Planar => {
             let sum = w[0] + w[1] + w[2];
             w.map(|x| x / sum)
@@ -240,16 +243,22 @@ pub fn centroid_darkening(count: u32) -> Result<f64, LightError> {
     Ok(worst)
 }
 
-/// The states a bake with `count` light directions adds after the base state: `ambient`, then
-/// `light_<i>` for proxy direction i.
+/// The states a bake with `count` light directions adds after the base state: `ambient`,
+/// `normal`, then `light_<i>` for proxy direction i.
 ///
 /// # Errors
 /// [`LightError::BadCount`].
 pub fn state_descs(count: u32) -> Result<Vec<StateDesc>, LightError> {
-    let mut out = vec![StateDesc {
-        name: AMBIENT_STATE.to_owned(),
-        params: serde_json::Map::from_iter([(PART_KEY.to_owned(), "ambient".into())]),
-    }];
+    let mut out = vec![
+        StateDesc {
+            name: AMBIENT_STATE.to_owned(),
+            params: serde_json::Map::from_iter([(PART_KEY.to_owned(), "ambient".into())]),
+        },
+        StateDesc {
+            name: NORMAL_STATE.to_owned(),
+            params: serde_json::Map::from_iter([(PART_KEY.to_owned(), "normal".into())]),
+        },
+    ];
     for (i, d) in proxy_directions(count)?.iter().enumerate() {
         out.push(StateDesc {
             name: format!("light_{i}"),
@@ -262,6 +271,19 @@ pub fn state_descs(count: u32) -> Result<Vec<StateDesc>, LightError> {
     Ok(out)
 }
 
+/// The unit normal a normal state's RGBA8 texel holds: an octahedral map point with 16 bits per
+/// coordinate, x in bytes 0 (high) and 1 (low), y in bytes 2 and 3 (docs/format.md §8.6; the
+/// bake's `oct_encode16`, the renderer's `oct_decode16`).
+pub fn decode_normal(texel: [u8; 4]) -> DVec3 {
+    let coord = |hi: u8, lo: u8| f64::from(u16::from_be_bytes([hi, lo])) / 65535.0 * 2.0 - 1.0;
+    let (x, y) = (coord(texel[0], texel[1]), coord(texel[2], texel[3]));
+    let mut n = DVec3::new(x, y, 1.0 - x.abs() - y.abs());
+    let fold = (-n.z).max(0.0);
+    n.x += if n.x >= 0.0 { -fold } else { fold };
+    n.y += if n.y >= 0.0 { -fold } else { fold };
+    n.normalize()
+}
+
 /// Where an asset's light states are: the ambient state and, per proxy direction, its state.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LightStates {
@@ -269,6 +291,8 @@ pub struct LightStates {
     pub count: u32,
     /// Index of the ambient state.
     pub ambient: u16,
+    /// Index of the shading-normal state, if the asset has one.
+    pub normal: Option<u16>,
     /// State index of each proxy direction, in the proxy's order.
     pub direct: Vec<u16>,
 }
@@ -283,6 +307,7 @@ impl LightStates {
     pub fn of(header: &AssetHeader) -> Result<Option<LightStates>, LightError> {
         let bad = |m: String| LightError::BadStates(m);
         let mut ambient = None;
+        let mut normal = None;
         let mut found: Vec<(u16, DVec3)> = Vec::new();
         for (i, s) in header.states.iter().enumerate() {
             let Some(part) = s.params.get(PART_KEY) else {
@@ -292,6 +317,8 @@ impl LightStates {
             match part.as_str() {
                 Some("ambient") if ambient.is_none() => ambient = Some(index),
                 Some("ambient") => return Err(bad("two ambient states".to_owned())),
+                Some("normal") if normal.is_none() => normal = Some(index),
+                Some("normal") => return Err(bad("two normal states".to_owned())),
                 Some("direct") => {
                     let d: [f64; 3] = s
                         .params
@@ -304,13 +331,13 @@ impl LightStates {
                 }
                 _ => {
                     return Err(bad(format!(
-                        "state {:?}: {PART_KEY} must be \"ambient\" or \"direct\"",
+                        "state {:?}: {PART_KEY} must be \"ambient\", \"normal\" or \"direct\"",
                         s.name
                     )));
                 }
             }
         }
-        if ambient.is_none() && found.is_empty() {
+        if ambient.is_none() && normal.is_none() && found.is_empty() {
             return Ok(None);
         }
         let ambient =
@@ -334,6 +361,7 @@ impl LightStates {
         Ok(Some(LightStates {
             count,
             ambient,
+            normal,
             direct: direct.into_iter().flatten().collect(),
         }))
     }
@@ -424,11 +452,11 @@ mod tests {
         header.states.extend(state_descs(12).unwrap());
         let states = LightStates::of(&header).unwrap().unwrap();
         assert_eq!(states.count, 12);
-        assert_eq!(states.ambient, 1);
-        assert_eq!(states.direct, (2..14).collect::<Vec<u16>>());
+        assert_eq!((states.ambient, states.normal), (1, Some(2)));
+        assert_eq!(states.direct, (3..15).collect::<Vec<u16>>());
         // A direction off the proxy.
         let mut off = header.clone();
-        off.states[3].params[LIGHT_KEY] = serde_json::json!([1.0, 0.0, 0.0]);
+        off.states[4].params[LIGHT_KEY] = serde_json::json!([1.0, 0.0, 0.0]);
         assert!(matches!(
             LightStates::of(&off),
             Err(LightError::BadStates(_))

@@ -67,7 +67,8 @@ pub(crate) struct GpuShading {
     pub ambient: f32,
     pub ks: f32,
     pub shininess: f32,
-    /// `SHADE_*` in mesh.wgsl: 0 the whole colour, 1 unlit, 2 the ambient part, 3 the rest.
+    /// `SHADE_*` in mesh.wgsl: 0 the whole colour, 1 unlit, 2 the ambient part, 3 the rest, 4
+    /// the shading normal (encoded).
     pub mode: u32,
     pub shadows: u32,
 }
@@ -81,6 +82,9 @@ pub(crate) enum ShadePart {
     Ambient,
     /// The light's terms alone: `albedo·(1−ambient)·V·max(0, n·ℓ) + ks·V·max(0, n·h)^s`.
     Direct,
+    /// Not a colour: the shading normal, octahedral with 16 bits per coordinate in the RGBA8
+    /// texel (docs/format.md §8.6).
+    Normal,
 }
 const _: () = assert!(std::mem::size_of::<GpuShading>() == 32);
 
@@ -124,6 +128,7 @@ impl Shading {
             (false, ShadePart::Whole) => 0,
             (false, ShadePart::Ambient) => 2,
             (false, ShadePart::Direct) => 3,
+            (false, ShadePart::Normal) => 4,
         };
         GpuShading {
             light: self.light_dir(),

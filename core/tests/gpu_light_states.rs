@@ -18,7 +18,9 @@ use lumigraph_core::view::View;
 
 struct Ctx {
     baker: Baker,
+    /// The default blend ([`Blend::Normal`]).
     renderer: Renderer,
+    spherical: Renderer,
     planar: Renderer,
     reference: ReferenceRenderer,
 }
@@ -34,7 +36,8 @@ fn ctx() -> &'static Ctx {
         };
         Ctx {
             baker: Baker::new(gpu.clone()),
-            renderer: Renderer::with_switches(gpu.clone(), switches(Blend::Spherical)),
+            renderer: Renderer::with_switches(gpu.clone(), switches(Blend::Normal)),
+            spherical: Renderer::with_switches(gpu.clone(), switches(Blend::Spherical)),
             planar: Renderer::with_switches(gpu.clone(), switches(Blend::Planar)),
             reference: ReferenceRenderer::new(gpu),
         }
@@ -75,6 +78,34 @@ fn scene() -> Mesh {
         triangles.push([base + f[0], base + f[2], base + f[3]]);
     }
     Mesh::from_arrays(positions, triangles, None).expect("scene")
+}
+
+/// A UV sphere of radius 1 (smooth normals): convex, so no point shadows another and relighting
+/// errs only at the terminator.
+fn sphere() -> Mesh {
+    let (rings, segments) = (48u32, 96u32);
+    let mut positions = Vec::new();
+    for i in 0..=rings {
+        let theta = std::f32::consts::PI * i as f32 / rings as f32;
+        for j in 0..segments {
+            let phi = std::f32::consts::TAU * j as f32 / segments as f32;
+            positions.push([
+                theta.sin() * phi.cos(),
+                theta.cos(),
+                theta.sin() * phi.sin(),
+            ]);
+        }
+    }
+    let mut triangles = Vec::new();
+    for i in 0..rings {
+        for j in 0..segments {
+            let at = |i: u32, j: u32| i * segments + j % segments;
+            let (a, b, c, d) = (at(i, j), at(i, j + 1), at(i + 1, j), at(i + 1, j + 1));
+            triangles.push([a, b, d]);
+            triangles.push([a, d, c]);
+        }
+    }
+    Mesh::from_arrays(positions, triangles, None).expect("sphere")
 }
 
 fn bake(mesh: &Mesh, options: &BakeOptions) -> AssetFile {
@@ -134,12 +165,15 @@ fn mean_diff(a: &Frame, b: &Frame) -> f64 {
 fn a_bake_with_lights_stores_colour_per_proxy_direction_and_shares_the_base_depth() {
     let asset = shadow_bake(Some(12), [0.3, 1.0, 0.2]);
     let header = asset.header();
-    // base, ambient, 12 directions.
-    assert_eq!(header.states.len(), 14);
+    // base, ambient, normal, 12 directions.
+    assert_eq!(header.states.len(), 15);
     let states = LightStates::of(header)
         .expect("valid")
         .expect("light states");
-    assert_eq!((states.count, states.ambient), (12, 1));
+    assert_eq!(
+        (states.count, states.ambient, states.normal),
+        (12, 1, Some(2))
+    );
     let key = |state, channel| ImageKey::new(0, state, 5, channel);
     assert!(asset.has_image(key(states.direct[3], Channel::Color)));
     assert!(!asset.has_image(key(states.direct[3], Channel::Depth)));
@@ -148,13 +182,18 @@ fn a_bake_with_lights_stores_colour_per_proxy_direction_and_shares_the_base_dept
         Some(12),
         "recorded in the bake options"
     );
-    // The ambient part is albedo · ambient wherever the base state has a hit: 0.8 · 0.25.
-    let mut hits = 0;
+    // The ambient part is albedo · ambient wherever the base state has a hit: 0.8 · 0.25; the
+    // normal state holds the shading normal: the ground's +y (within the 16-bit octahedral
+    // encoding's 1e-4 rad) or a box's smoothed one, unit either way.
+    let (mut hits, mut ground) = (0, 0);
     for camera in 0..header.camera_count() {
         let key = |state, channel| ImageKey::new(0, state, camera, channel);
         let ambient = asset
             .read_image(key(states.ambient, Channel::Color))
             .expect("ambient");
+        let normals = asset
+            .read_image(key(states.normal.expect("normals"), Channel::Color))
+            .expect("normals");
         let base_depth = asset
             .read_image(key(0, Channel::Depth))
             .expect("base depth");
@@ -162,13 +201,26 @@ fn a_bake_with_lights_stores_colour_per_proxy_direction_and_shares_the_base_dept
             let depth = u16::from_le_bytes([base_depth[2 * texel], base_depth[2 * texel + 1]]);
             if depth == u16::MAX {
                 assert_eq!(px, [0, 0, 0, 0]);
-            } else {
-                hits += 1;
-                assert_eq!(px, [51, 51, 51, 255], "camera {camera} texel {texel}");
+                continue;
+            }
+            hits += 1;
+            assert_eq!(px, [51, 51, 51, 255], "camera {camera} texel {texel}");
+            let n = light::decode_normal(
+                normals[4 * texel..4 * texel + 4]
+                    .try_into()
+                    .expect("a texel"),
+            );
+            assert!((n.length() - 1.0).abs() < 1e-9);
+            if (n - DVec3::Y).length() < 1e-3 {
+                ground += 1;
+                assert!((n - DVec3::Y).length() < 1e-4, "{n}");
             }
         }
     }
-    assert!(hits > 50_000, "{hits} hits");
+    assert!(
+        hits > 50_000 && ground > hits / 2,
+        "{hits} hits, {ground} on the ground"
+    );
 }
 
 #[test]
@@ -213,6 +265,7 @@ fn relit_between_proxy_lights_approaches_the_reference_better_than_planar_weight
         let asset = shadow_bake(Some(count), [0.3, 1.0, 0.2]);
         let field = ctx().renderer.upload(&asset).expect("upload");
         let planar_field = ctx().planar.upload(&asset).expect("upload");
+        let spherical_field = ctx().spherical.upload(&asset).expect("upload");
         let dirs = light::proxy_directions(count).expect("proxy");
         let lights: Vec<DVec3> = light::centroid_lights(count)
             .expect("centroids")
@@ -236,6 +289,10 @@ fn relit_between_proxy_lights_approaches_the_reference_better_than_planar_weight
                 .render(&mesh, &view(), &shading)
                 .expect("reference");
             let spherical = ctx()
+                .spherical
+                .render(&spherical_field, &view(), &lit(l))
+                .expect("relit");
+            let normal = ctx()
                 .renderer
                 .render(&field, &view(), &lit(l))
                 .expect("relit");
@@ -250,26 +307,32 @@ fn relit_between_proxy_lights_approaches_the_reference_better_than_planar_weight
                 .renderer
                 .render(&exact_field, &view(), &RenderOptions::default())
                 .expect("exact");
-            let (e0, es, ep) = (
+            let (e0, en, es, ep) = (
                 mean_diff(&exact, &reference),
+                mean_diff(&normal, &reference),
                 mean_diff(&spherical, &reference),
                 mean_diff(&planar, &reference),
             );
             eprintln!(
-                "{count} lights, light {l}: exact bake {e0:.2}, spherical {es:.2}, planar {ep:.2}"
+                "{count} lights, light {l}: exact bake {e0:.2}, normal {en:.2}, spherical \
+                 {es:.2}, planar {ep:.2}"
             );
-            // Beyond the light field's own error, the spherical blend errs where the three
-            // lights' shadows differ from the true one (ghost shadows); planar weights also
-            // darken every lit pixel.
+            // Beyond the light field's own error, the blends err where the three lights'
+            // shadows differ from the true one (ghost shadows); the normal's cosine ratio
+            // removes the terminator's error, planar weights also darken every lit pixel.
             assert!(
-                es > e0 - 0.5,
-                "{count} lights, light {l}: {es:.2} vs {e0:.2}"
+                en > e0 - 0.5,
+                "{count} lights, light {l}: {en:.2} vs {e0:.2}"
             );
             assert!(
-                ep > es + 3.0,
-                "{count} lights, light {l}: spherical {es:.2}, planar {ep:.2}"
+                en < es + 0.2,
+                "{count} lights, light {l}: {en:.2} vs {es:.2}"
             );
-            sum += es - e0;
+            assert!(
+                ep > en + 3.0,
+                "{count} lights, light {l}: normal {en:.2}, planar {ep:.2}"
+            );
+            sum += en - e0;
         }
         mean_error.push(sum / 2.0);
     }
@@ -405,4 +468,74 @@ fn a_scene_instance_relights_with_the_light_carried_into_its_frame() {
         worst(&in_scene, &unturned) > 40,
         "the light turned with the instance"
     );
+}
+
+#[test]
+fn the_normal_blend_relights_a_convex_object_as_a_bake_with_that_light() {
+    // No shadows on a convex sphere: between proxy lights only the terminator can err, where
+    // some of the three lights face away. The stored normal's cosine ratio makes it exact, so
+    // the relit frame is a bake with that light to within the light field's own error; the
+    // spherical weights overshoot there and planar ones also darken the lit side.
+    let view = View::look_at([2.2, 1.2, 2.6], [0.0, 0.0, 0.0], 40.0, 160, 160);
+    let options = |light: [f32; 3], lights| BakeOptions {
+        cameras: 162,
+        resolution: 128,
+        shading: Shading {
+            light,
+            ..Shading::default()
+        },
+        lights,
+        ..Default::default()
+    };
+    let asset = bake(&sphere(), &options([0.3, 1.0, 0.5], Some(12)));
+    let field = ctx().renderer.upload(&asset).expect("upload");
+    let spherical_field = ctx().spherical.upload(&asset).expect("upload");
+    let planar_field = ctx().planar.upload(&asset).expect("upload");
+    for l in light::centroid_lights(12)
+        .expect("centroids")
+        .into_iter()
+        .take(4)
+    {
+        let exact_asset = bake(&sphere(), &options(l.as_vec3().to_array(), None));
+        let exact_field = ctx().renderer.upload(&exact_asset).expect("upload");
+        let exact = ctx()
+            .renderer
+            .render(&exact_field, &view, &RenderOptions::default())
+            .expect("exact");
+        let normal = ctx()
+            .renderer
+            .render(&field, &view, &lit(l))
+            .expect("relit");
+        let spherical = ctx()
+            .spherical
+            .render(&spherical_field, &view, &lit(l))
+            .expect("relit");
+        let planar = ctx()
+            .planar
+            .render(&planar_field, &view, &lit(l))
+            .expect("relit");
+        let (en, es, ep) = (
+            mean_diff(&normal, &exact),
+            mean_diff(&spherical, &exact),
+            mean_diff(&planar, &exact),
+        );
+        let worst = normal
+            .color
+            .iter()
+            .zip(&exact.color)
+            .map(|(a, b)| a.abs_diff(*b))
+            .max()
+            .unwrap_or(0);
+        eprintln!("light {l}: normal {en:.3} (worst {worst}), spherical {es:.3}, planar {ep:.3}");
+        // Rounding of the parts (1 code each) and of the 16-bit normal; texels blended across
+        // the silhouette may differ a little more.
+        assert!(
+            en < 0.3 && worst <= 2,
+            "light {l}: {en:.3} codes, worst {worst}"
+        );
+        assert!(
+            es > en + 0.5 && ep > en + 3.0,
+            "light {l}: {en:.3} {es:.3} {ep:.3}"
+        );
+    }
 }

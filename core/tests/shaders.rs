@@ -94,7 +94,7 @@ fn render_params_match_the_rust_layout() {
         .map(|(name, offset)| (name.to_owned(), offset))
         .collect();
     assert_eq!(wgsl, rust);
-    assert_eq!(span, 224);
+    assert_eq!(span, 288);
 }
 
 #[test]

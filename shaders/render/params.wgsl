@@ -73,7 +73,13 @@ struct RenderParams {
     lit: u32,
     pad1: u32,
     pad2: u32,
+    // w 1: the blend is scaled by the stored normal's cosine ratio (`blend_direct`).
     light_weights: vec4<f32>,
+    // The frame's light and the three proxy lights (unit, asset frame).
+    light_dir: vec4<f32>,
+    light_a: vec4<f32>,
+    light_b: vec4<f32>,
+    light_c: vec4<f32>,
 }
 
 @group(0) @binding(0) var<uniform> params: RenderParams;
@@ -104,12 +110,14 @@ struct RenderParams {
 @group(1) @binding(2) var color_maps: texture_2d_array<f32>;
 @group(1) @binding(3) var footprints: texture_2d_array<u32>;
 @group(1) @binding(4) var linear_sampler: sampler;
-// Light states (`params.lit`): the ambient part and the direct parts of the three proxy lights
-// around the frame's light; the base colour maps stand in for all four otherwise.
+// Light states (`params.lit`): the ambient part, the shading normals and the direct parts of the
+// three proxy lights around the frame's light; the base colour maps stand in for all five
+// otherwise (and for the normals of an asset without them).
 @group(1) @binding(6) var ambient_maps: texture_2d_array<f32>;
-@group(1) @binding(7) var light_a_maps: texture_2d_array<f32>;
-@group(1) @binding(8) var light_b_maps: texture_2d_array<f32>;
-@group(1) @binding(9) var light_c_maps: texture_2d_array<f32>;
+@group(1) @binding(7) var normal_maps: texture_2d_array<f32>;
+@group(1) @binding(8) var light_a_maps: texture_2d_array<f32>;
+@group(1) @binding(9) var light_b_maps: texture_2d_array<f32>;
+@group(1) @binding(10) var light_c_maps: texture_2d_array<f32>;
 
 // Pipeline specialisation: lavapipe runs every branch an 8-lane batch meets, so code a pass
 // cannot use is compiled out instead of skipped (docs/marcher.md). METHODS: the marching

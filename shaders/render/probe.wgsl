@@ -75,29 +75,43 @@ fn probe(cam: Camera, k: u32, x: vec3<f32>, edge_aware: bool) -> Probe {
     return Probe(pr.z - depth * pr.w, tc, color_weights);
 }
 
-// The three proxy lights' direct parts at one texel, blended with `params.light_weights.xyz`
-// (core/src/light.rs). Adaptive (`w` = 1): where one of them is dark (its brightest channel at
-// most 2/255: shadowed or facing away from that light), the weights are normalized to sum 1, as
-// planar barycentrics are: the spherical weights, summing to more, would overshoot there.
-fn blend_direct(da: vec3<f32>, db: vec3<f32>, dc: vec3<f32>) -> vec3<f32> {
-    let w = params.light_weights;
-    let brightest = vec3<f32>(max(da.x, max(da.y, da.z)), max(db.x, max(db.y, db.z)), max(dc.x, max(dc.y, dc.z)));
-    let dark = min(brightest.x, min(brightest.y, brightest.z)) <= 2.0 / 255.0;
-    let planar = w.xyz / max(w.x + w.y + w.z, 1e-12);
-    let k = select(w.xyz, planar, dark & (w.w > 0.5));
-    return k.x * da + k.y * db + k.z * dc;
+// An RGBA8 texel of the normal maps: the octahedral point with 16 bits per coordinate that the
+// bake stores (bake.wgsl `oct_encode16`), as a unit vector.
+fn oct_decode16(t: vec4<f32>) -> vec3<f32> {
+    let b = round(t * 255.0);
+    let p = vec2<f32>(b.x * 256.0 + b.y, b.z * 256.0 + b.w) / 65535.0 * 2.0 - 1.0;
+    var n = vec3<f32>(p, 1.0 - abs(p.x) - abs(p.y));
+    let fold = max(-n.z, 0.0);
+    n.x += select(fold, -fold, n.x >= 0.0);
+    n.y += select(fold, -fold, n.y >= 0.0);
+    return normalize(n);
 }
 
-// Texel p of camera k's colour map: the base state's, or in a relit frame (`params.lit`) the
-// light states' blend, ambient + Σ w_i · direct_i (core/src/light.rs), clamped as the bake
-// clamps a colour; its alpha is the ambient map's (1 at hits, as the base colour's).
+// Texel p of camera k in a relit frame (core/src/light.rs): ambient + Σ w_i · direct_i over the
+// three proxy lights around the frame's light, with `Blend::Normal` (`light_weights.w` 1) scaled
+// by the stored shading normal's cosine ratio max(0, n·ℓ) / Σ w_i max(0, n·ℓ_i), which is at most
+// 1 (w ≥ 0 and Σ w_i ℓ_i = ℓ), 1 where all three lights face the texel, and exact at a
+// terminator (0 where none does); clamped as the bake clamps a colour. Alpha: the ambient map's
+// (1 at hits, as the base colour's).
+fn relit_texel(p: vec2<i32>, k: u32) -> vec4<f32> {
+    let w = params.light_weights;
+    let a = textureLoad(ambient_maps, p, k, 0);
+    let direct = w.x * textureLoad(light_a_maps, p, k, 0).rgb + w.y * textureLoad(light_b_maps, p, k, 0).rgb + w.z * textureLoad(light_c_maps, p, k, 0).rgb;
+    let n = oct_decode16(textureLoad(normal_maps, p, k, 0));
+    let cosines = max(vec3<f32>(0.0), vec3<f32>(dot(n, params.light_a.xyz), dot(n, params.light_b.xyz), dot(n, params.light_c.xyz)));
+    let denominator = dot(w.xyz, cosines);
+    let ratio = select(0.0, min(max(dot(n, params.light_dir.xyz), 0.0) / max(denominator, 1e-6), 1.0), denominator > 1e-6);
+    let c = a.rgb + direct * select(1.0, ratio, w.w > 0.5);
+    return vec4<f32>(min(c, vec3<f32>(1.0)), a.a);
+}
+
+// Texel p of camera k's colour map: the base state's, or in a relit frame (`params.lit`)
+// `relit_texel`.
 fn color_texel(p: vec2<i32>, k: u32) -> vec4<f32> {
     if per_invocation(params.lit == 0u) {
         return textureLoad(color_maps, p, k, 0);
     }
-    let a = textureLoad(ambient_maps, p, k, 0);
-    let c = a.rgb + blend_direct(textureLoad(light_a_maps, p, k, 0).rgb, textureLoad(light_b_maps, p, k, 0).rgb, textureLoad(light_c_maps, p, k, 0).rgb);
-    return vec4<f32>(min(c, vec3<f32>(1.0)), a.a);
+    return relit_texel(p, k);
 }
 
 // Colour of camera k at texel coordinates tc from the footprint texels with the given weights,
@@ -115,14 +129,12 @@ fn layer_color(k: u32, tc: vec2<f32>, bw: vec4<f32>) -> vec4<f32> {
     return sum / max(bw.x + bw.y + bw.z + bw.w, 1e-12);
 }
 
-// The fixed baseline's colour: one bilinear sample (per light state in a relit frame, whose
-// sum is clamped like `color_texel`'s).
+// The fixed baseline's colour: one bilinear sample; in a relit frame, the four texels'
+// `relit_texel`s with bilinear weights (each texel's normal shades its own colour).
 fn bilinear_color(k: u32, tc: vec2<f32>) -> vec4<f32> {
-    let uv = tc / params.resolution;
     if per_invocation(params.lit == 0u) {
-        return textureSampleLevel(color_maps, linear_sampler, uv, k, 0.0);
+        return textureSampleLevel(color_maps, linear_sampler, tc / params.resolution, k, 0.0);
     }
-    let a = textureSampleLevel(ambient_maps, linear_sampler, uv, k, 0.0);
-    let c = a.rgb + blend_direct(textureSampleLevel(light_a_maps, linear_sampler, uv, k, 0.0).rgb, textureSampleLevel(light_b_maps, linear_sampler, uv, k, 0.0).rgb, textureSampleLevel(light_c_maps, linear_sampler, uv, k, 0.0).rgb);
-    return vec4<f32>(min(c, vec3<f32>(1.0)), a.a);
+    let f = fract(tc - 0.5);
+    return layer_color(k, tc, vec4<f32>((1.0 - f.x) * (1.0 - f.y), f.x * (1.0 - f.y), (1.0 - f.x) * f.y, f.x * f.y));
 }

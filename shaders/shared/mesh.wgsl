@@ -40,6 +40,8 @@ const SHADE_FULL: u32 = 0u;
 const SHADE_UNLIT: u32 = 1u;
 const SHADE_AMBIENT: u32 = 2u;
 const SHADE_DIRECT: u32 = 3u;
+// The bake's light states also store the shading normal (bake.wgsl `oct_encode16`).
+const SHADE_NORMAL: u32 = 4u;
 
 // DESIGN §3 with §9's shadow term V (`visibility`, 1 without shadows):
 // color = albedo·(ambient + (1-ambient)·V·max(0, n·light)) + ks·V·max(0, n·h)^shininess,

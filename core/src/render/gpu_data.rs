@@ -63,10 +63,17 @@ pub(super) struct RenderParams {
     pub(super) lit: u32,
     pub(super) pad1: u32,
     pub(super) pad2: u32,
-    /// Weights of the three proxy lights' direct parts (w unused).
+    /// Weights of the three proxy lights' direct parts; w 1: scaled by the stored normal's
+    /// cosine ratio (`Blend::Normal`), 0: as they are.
     pub(super) light_weights: [f32; 4],
+    /// The frame's light (unit, asset frame; w unused).
+    pub(super) light_dir: [f32; 4],
+    /// The three proxy lights' directions (unit, asset frame; w unused).
+    pub(super) light_a: [f32; 4],
+    pub(super) light_b: [f32; 4],
+    pub(super) light_c: [f32; 4],
 }
-const _: () = assert!(std::mem::size_of::<RenderParams>() == 224);
+const _: () = assert!(std::mem::size_of::<RenderParams>() == 288);
 
 /// One setting as the shader takes it: level, step and tolerance in light-field units,
 /// step bound, method.
@@ -316,6 +323,10 @@ pub fn render_params_layout() -> Vec<(&'static str, usize)> {
         pad1,
         pad2,
         light_weights,
+        light_dir,
+        light_a,
+        light_b,
+        light_c,
     ]
 }
 

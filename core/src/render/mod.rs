@@ -101,12 +101,13 @@ struct LayerMaps {
     views: [wgpu::TextureView; 2],
 }
 
-/// A light-state asset's colour maps on the GPU: the ambient part and each proxy direction's
-/// direct part, one texture array (a layer per camera) each.
+/// A light-state asset's maps on the GPU: the ambient part, the shading normals (when the asset
+/// has them) and each proxy direction's direct part, one texture array (a layer per camera) each.
 struct LightMaps {
     /// Proxy directions: 12, 42 or 162.
     count: u32,
     ambient: (wgpu::Texture, wgpu::TextureView),
+    normal: Option<(wgpu::Texture, wgpu::TextureView)>,
     /// In the proxy's order.
     direct: Vec<(wgpu::Texture, wgpu::TextureView)>,
 }
@@ -140,7 +141,10 @@ impl Drop for GpuLightField {
             texture.destroy();
         }
         if let Some(lights) = &self.lights {
-            for (texture, _) in std::iter::once(&lights.ambient).chain(&lights.direct) {
+            for (texture, _) in std::iter::once(&lights.ambient)
+                .chain(&lights.normal)
+                .chain(&lights.direct)
+            {
                 texture.destroy();
             }
         }
@@ -152,6 +156,13 @@ impl Drop for GpuLightField {
             .bytes
             .fetch_sub(self.gpu_bytes, Ordering::AcqRel);
     }
+}
+
+/// A relit frame's light parameters (RenderParams `light_weights`, `light_dir`, `light_a..c`).
+struct Relit {
+    weights: [f32; 4],
+    light: [f32; 4],
+    proxy: [[f32; 4]; 3],
 }
 
 /// The light fields a [`Renderer`] has on the device: uploaded and not yet dropped.
@@ -298,11 +309,12 @@ impl Renderer {
                     },
                     count: None,
                 },
-                // Light states: ambient and three proxy lights' direct parts.
+                // Light states: ambient, normals and three proxy lights' direct parts.
                 texture_entry(6, true),
                 texture_entry(7, true),
                 texture_entry(8, true),
                 texture_entry(9, true),
+                texture_entry(10, true),
             ],
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -743,7 +755,7 @@ impl Renderer {
         ))
     }
 
-    /// The bind group and light weights of a frame relit with `light` (world direction; the
+    /// The bind group and light parameters of a frame relit with `light` (world direction; the
     /// asset frame shares the world's axes), or `None` for the base colour.
     ///
     /// # Errors
@@ -753,7 +765,7 @@ impl Renderer {
         field: &GpuLightField,
         maps: &LayerMaps,
         light: Option<crate::light::LightDirection>,
-    ) -> Result<Option<(wgpu::BindGroup, [f32; 4])>, RenderError> {
+    ) -> Result<Option<(wgpu::BindGroup, Relit)>, RenderError> {
         let Some(light) = light else {
             return Ok(None);
         };
@@ -764,23 +776,41 @@ impl Renderer {
             .ok_or(crate::light::LightError::NoLightStates)?;
         let blend = crate::light::blend_for(lights.count, l, self.switches.light_blend)?;
         let [a, b, c] = blend.directions.map(|i| &lights.direct[i as usize].1);
-        let group = self.field_group(&maps.views[0], &maps.views[1], [&lights.ambient.1, a, b, c]);
-        let w = blend.weights.map(|x| x as f32);
-        let adaptive = if self.switches.light_blend == crate::light::Blend::Adaptive {
-            1.0
-        } else {
-            0.0
+        // Without a normal state the colour maps stand in (never read: the ratio is off).
+        let by_normal = self.switches.light_blend == crate::light::Blend::Normal;
+        let normal = match (&lights.normal, by_normal) {
+            (Some((_, view)), true) => Some(view),
+            _ => None,
         };
-        Ok(Some((group, [w[0], w[1], w[2], adaptive])))
+        let group = self.field_group(
+            &maps.views[0],
+            &maps.views[1],
+            [&lights.ambient.1, normal.unwrap_or(&maps.views[0]), a, b, c],
+        );
+        let w = blend.weights.map(|x| x as f32);
+        let dirs = crate::light::proxy_directions(lights.count)?;
+        let dir = |v: glam::DVec3| {
+            let v = v.as_vec3();
+            [v.x, v.y, v.z, 0.0]
+        };
+        let [da, db, dc] = blend.directions.map(|i| dir(dirs[i as usize]));
+        Ok(Some((
+            group,
+            Relit {
+                weights: [w[0], w[1], w[2], f32::from(u8::from(normal.is_some()))],
+                light: dir(l),
+                proxy: [da, db, dc],
+            },
+        )))
     }
 
-    /// The light-field bind group of `color` and `depth` maps, with the four light-state maps
-    /// (ambient, then three proxy lights; the colour maps themselves when not relit).
+    /// The light-field bind group of `color` and `depth` maps, with the five light-state maps
+    /// (ambient, normals, then three proxy lights; the colour maps themselves when not relit).
     fn field_group(
         &self,
         color: &wgpu::TextureView,
         depth: &wgpu::TextureView,
-        lights: [&wgpu::TextureView; 4],
+        lights: [&wgpu::TextureView; 5],
     ) -> wgpu::BindGroup {
         let texture = |binding, view| wgpu::BindGroupEntry {
             binding,
@@ -811,6 +841,7 @@ impl Renderer {
                     texture(7, lights[1]),
                     texture(8, lights[2]),
                     texture(9, lights[3]),
+                    texture(10, lights[4]),
                 ],
             })
     }
@@ -899,7 +930,11 @@ impl Renderer {
             lit: u32::from(relit.is_some()),
             pad1: 0,
             pad2: 0,
-            light_weights: relit.as_ref().map_or([0.0; 4], |(_, w)| *w),
+            light_weights: relit.as_ref().map_or([0.0; 4], |(_, r)| r.weights),
+            light_dir: relit.as_ref().map_or([0.0; 4], |(_, r)| r.light),
+            light_a: relit.as_ref().map_or([0.0; 4], |(_, r)| r.proxy[0]),
+            light_b: relit.as_ref().map_or([0.0; 4], |(_, r)| r.proxy[1]),
+            light_c: relit.as_ref().map_or([0.0; 4], |(_, r)| r.proxy[2]),
         };
         let field_group = relit.as_ref().map_or(&maps.group, |(group, _)| group);
         // Coarse-to-fine (`guide`, the first setting's): a coarse pass renders every

@@ -221,8 +221,8 @@ pub struct Switches {
     /// Where a multi light field's visible layers composite.
     pub compositing: Compositing,
     /// How a relit frame blends the light states around its light (env
-    /// [`LIGHT_BLEND_VARIABLE`] = `spherical` | `planar` when the switches are made; the
-    /// planar baseline is for measuring).
+    /// [`LIGHT_BLEND_VARIABLE`] = `normal` | `spherical` | `planar` when the switches are made;
+    /// the last two are for measuring).
     pub light_blend: crate::light::Blend,
 }
 
@@ -241,7 +241,7 @@ impl Default for Switches {
             light_blend: match std::env::var(LIGHT_BLEND_VARIABLE).as_deref() {
                 Ok("planar") => crate::light::Blend::Planar,
                 Ok("spherical") => crate::light::Blend::Spherical,
-                _ => crate::light::Blend::Adaptive,
+                _ => crate::light::Blend::Normal,
             },
         }
     }

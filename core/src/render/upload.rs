@@ -17,8 +17,8 @@ use super::{GpuLightField, Renderer};
 /// Texture bytes [`Renderer::upload`] allocates on the device for an asset: one colour
 /// (RGBA8, 4 bytes) and one depth-footprint (RGBA16, 8 bytes) texel per map texel, for every
 /// camera (padded as [`Gpu::padded_layers`] does) and every layer of the base state, plus one
-/// colour texel per map texel and camera for each light-state map (the ambient part and every
-/// proxy direction, [`crate::light`]). The upload stages one layer's worth again on the host
+/// RGBA8 texel per map texel and camera for each light-state map (the ambient part, the normals
+/// and every proxy direction, [`crate::light`]). The upload stages one layer's worth again on the host
 /// while it runs. Saturates instead of overflowing.
 pub fn field_bytes(header: &AssetHeader) -> u64 {
     let side = u64::from(header.geometry.resolution_px);
@@ -33,10 +33,9 @@ pub fn field_bytes(header: &AssetHeader) -> u64 {
     .into_iter()
     .fold(1, u64::saturating_mul);
     // Light states: one RGBA8 map per camera for the ambient part and each proxy direction.
-    let light_maps = LightStates::of(header)
-        .ok()
-        .flatten()
-        .map_or(0, |s| u64::from(s.count) + 1);
+    let light_maps = LightStates::of(header).ok().flatten().map_or(0, |s| {
+        u64::from(s.count) + 1 + u64::from(s.normal.is_some())
+    });
     let lights = [light_maps, layers, side, side, 4]
         .into_iter()
         .fold(1, u64::saturating_mul);
@@ -176,7 +175,7 @@ impl Renderer {
             self.gpu.wait()?;
             let color_view = array_view(&color_tex);
             let depth_view = array_view(&depth_tex);
-            let group = self.field_group(&color_view, &depth_view, [&color_view; 4]);
+            let group = self.field_group(&color_view, &depth_view, [&color_view; 5]);
             let visible_box = visible.finish(n, requantize_8 || depth_encoding == Encoding::R8);
             let (lo, hi) = (
                 glam::Vec3::from(visible_box[0]),
@@ -252,6 +251,7 @@ impl Renderer {
             Ok((texture, view))
         };
         let ambient = upload(states.ambient)?;
+        let normal = states.normal.map(upload).transpose()?;
         let direct = states
             .direct
             .iter()
@@ -260,6 +260,7 @@ impl Renderer {
         Ok(Some(super::LightMaps {
             count: states.count,
             ambient,
+            normal,
             direct,
         }))
     }

@@ -121,59 +121,78 @@ fn lit(l: DVec3) -> RenderOptions {
     }
 }
 
-/// The reference's blend of the proxy lights around `l`, as the light states blend them:
-/// `ambient + Σ w_i (reference_i − ambient)` per pixel, in floating point (with `adaptive`, the
-/// weights normalized where one direct part is dark), with the coverage and depth of `truth`
-/// (all references of a view share them).
+/// The reference's blend of the proxy lights around `l`, as the light states blend them with
+/// `blend`: `ambient + Σ w_i (reference_i − ambient)` per pixel in floating point, for
+/// [`Blend::Normal`] scaled by the cosine ratio `max(0, n·ℓ) / Σ w_i max(0, n·ℓ_i)`, which
+/// unshadowed references with no ambient give per pixel (their albedo cancels), at most 1; with
+/// the coverage and depth of `truth` (all references of a view share them).
 fn reference_blend(
     reference: &ReferenceRenderer,
     mesh: &GpuMesh,
     view: &View,
-    (shading, adaptive): (&Shading, bool),
+    (shading, mode): (&Shading, Blend),
     (count, l): (u32, DVec3),
     truth: &Frame,
 ) -> Result<Frame> {
-    let blend = light::blend_for(count, l, Blend::Spherical)?;
+    let blend = light::blend_for(count, l, mode)?;
     let dirs = light::proxy_directions(count)?;
-    let albedo = reference.render(
-        mesh,
-        view,
-        &Shading {
-            unlit: true,
-            ..*shading
-        },
-    )?;
+    let render = |shading: Shading| reference.render(mesh, view, &shading);
+    let albedo = render(Shading {
+        unlit: true,
+        ..*shading
+    })?;
     let ambient: Vec<f64> = albedo
         .color
         .iter()
         .map(|&c| f64::from(c) * f64::from(shading.ambient))
         .collect();
     let mut parts = Vec::with_capacity(3);
+    let mut cosines = Vec::with_capacity(3);
+    let cosine_shading = |light: DVec3| Shading {
+        light: light.as_vec3().to_array(),
+        ambient: 0.0,
+        shadows: false,
+        specular: None,
+        ..*shading
+    };
     for &d in &blend.directions {
-        let frame = reference.render(
-            mesh,
-            view,
-            &Shading {
-                light: dirs[d as usize].as_vec3().to_array(),
+        let light = dirs[d as usize];
+        parts.push(
+            render(Shading {
+                light: light.as_vec3().to_array(),
                 ..*shading
-            },
-        )?;
-        parts.push(frame.color);
+            })?
+            .color,
+        );
+        if mode == Blend::Normal {
+            cosines.push(render(cosine_shading(light))?.color);
+        }
     }
-    // The direct parts as the light states hold them; blended like the renderer's default
-    // (`Blend::Adaptive`): planar weights on a pixel where one of them is dark.
-    let sum: f64 = blend.weights.iter().sum();
+    let here = if mode == Blend::Normal {
+        render(cosine_shading(l))?.color
+    } else {
+        Vec::new()
+    };
     let mut out = truth.clone();
     for (i, px) in out.color.chunks_exact_mut(4).enumerate() {
-        let direct = |k: usize, c: usize| f64::from(parts[k][4 * i + c]) - ambient[4 * i + c];
-        let dark = (0..3).any(|k| (0..3).all(|c| direct(k, c) <= 2.0));
-        let scale = if dark && adaptive { 1.0 / sum } else { 1.0 };
-        for c in 0..3 {
-            let value = ambient[4 * i + c]
-                + (0..3)
-                    .map(|k| scale * blend.weights[k] * direct(k, c))
-                    .sum::<f64>();
-            px[c] = value.round().clamp(0.0, 255.0) as u8;
+        for (c, value) in px.iter_mut().take(3).enumerate() {
+            let at = 4 * i + c;
+            let direct: f64 = (0..3)
+                .map(|k| blend.weights[k] * (f64::from(parts[k][at]) - ambient[at]))
+                .sum();
+            let scale = if mode == Blend::Normal {
+                let denominator: f64 = (0..3)
+                    .map(|k| blend.weights[k] * f64::from(cosines[k][at]))
+                    .sum();
+                if denominator > 0.5 {
+                    (f64::from(here[at]) / denominator).min(1.0)
+                } else {
+                    0.0
+                }
+            } else {
+                1.0
+            };
+            *value = (ambient[at] + scale * direct).round().clamp(0.0, 255.0) as u8;
         }
     }
     Ok(out)
@@ -260,7 +279,7 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
                     &reference,
                     &gpu_mesh,
                     view,
-                    (&shading, renderer.switches().light_blend == Blend::Adaptive),
+                    (&shading, renderer.switches().light_blend),
                     (count, l),
                     &truth,
                 )?;
