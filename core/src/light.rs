@@ -2,11 +2,12 @@
 //! render time for any direction between them.
 //!
 //! A bake with `lights = N` (12, 42 or 162) stores, next to the base state (the bake's own light,
-//! colour and depth), one state `ambient` holding `albedo · ambient` and one state per direction
-//! `ℓ_i` of a light proxy (the nested icosphere's level with N vertices, in the asset frame)
-//! holding the rest of the DESIGN §9 colour for that light,
-//! `albedo·(1−ambient)·V_i·max(0, n·ℓ_i) + ks·V_i·max(0, n·h_i)^shininess`. The light states hold colour only: depth does not depend on
-//! the light, so they fall back to the base state's depth (docs/format.md).
+//! colour and depth), one state `ambient` holding `albedo · ambient`, one state `normal` holding
+//! the shading normal, and one state per direction `ℓ_i` of a light proxy (the nested
+//! icosphere's level with N vertices, in the asset frame) holding the rest of the DESIGN §9
+//! colour for that light, `albedo·(1−ambient)·V_i·max(0, n·ℓ_i) + ks·V_i·max(0, n·h_i)^s`.
+//! The light states hold colour (or the normal) only: depth does not depend on the light, so
+//! they fall back to the base state's depth (docs/format.md §8.6).
 //!
 //! A light `ℓ` between the proxy's directions renders as `ambient + Σ w_i · direct_i` over the
 //! proxy triangle around `ℓ`, with `w` solving `Σ w_i ℓ_i = ℓ` ([`Blend::Spherical`]): every
@@ -14,7 +15,11 @@
 //! (`n·ℓ_i > 0`, unshadowed) is exact, `n · Σ w_i ℓ_i = n·ℓ`. Planar barycentric weights
 //! ([`Blend::Planar`], `w / Σ w`, summing to 1) blend the whole colour instead; they darken that
 //! diffuse term by `1 − |Σ w_i ℓ_i|`: 20.5 %, 6.8 % and 1.8 % at the centres of 12-, 42- and
-//! 162-direction triangles (DESIGN §9; [`centroid_darkening`]).
+//! 162-direction triangles (DESIGN §9; [`centroid_darkening`]). Where some of the three lights
+//! face away from the point (the terminator), the clamped terms no longer add up to `n·ℓ`; the
+//! default [`Blend::Normal`] scales the sum by `max(0, n·ℓ) / Σ w_i max(0, n·ℓ_i)` from the
+//! stored normal, which makes every unshadowed point exact. What remains is the shadows'
+//! interpolation: three shadows blended where the truth has one.
 
 use std::str::FromStr;
 

@@ -224,9 +224,9 @@ def bake_mesh(
             (DESIGN §9): ``V`` is 0 where it meets a triangle. Recorded in the asset, so
             ``**lf.shading`` and ``lumigraph eval`` shade the reference alike.
         lights: light states (DESIGN §9): also bake the colour for each of 12, 42 or 162 light
-            directions (a nested icosphere) plus the ambient part, sharing one depth per
-            camera, so that ``lf.render(view, light=(x, y, z))`` relights the asset at any
-            direction (with ``shadows``, the shadows move). Costs ``(lights + 1) x cameras x
+            directions (a nested icosphere) plus the ambient part and the shading normals,
+            sharing one depth per camera, so that ``lf.render(view, light=(x, y, z))`` relights the asset at any
+            direction (with ``shadows``, the shadows move). Costs ``(lights + 2) x cameras x
             resolution**2 x 4`` bytes more in memory. Not with ``auto`` or ``unlit``.
         depth_bits: depth precision, 16 (default) or 8. With ``auto=True``, ``cameras``,
             ``resolution`` and ``depth_bits`` are chosen and must not be given.

@@ -49,9 +49,10 @@ pub struct BakeArgs {
     #[command(flatten)]
     pub shading: ShadingArgs,
     /// Light states: also bake the colour for each of N light directions (12, 42 or 162, a
-    /// nested icosphere in the asset frame) and the ambient part alone, sharing the base
-    /// depth, so that `render --light X,Y,Z` relights the asset (DESIGN §9; with --shadows the
-    /// shadows move with the light). Memory: (N + 1) × cameras × resolution² × 4 bytes more.
+    /// nested icosphere in the asset frame), the ambient part alone and the shading normals,
+    /// sharing the base depth, so that `render --light X,Y,Z` relights the asset (DESIGN §9;
+    /// with --shadows the shadows move with the light). Memory: (N + 2) × cameras ×
+    /// resolution² × 4 bytes more.
     #[arg(
         long,
         value_name = "N",

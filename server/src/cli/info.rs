@@ -55,7 +55,7 @@ pub(super) fn info(args: &InfoArgs) -> Result<()> {
                 .image_bytes(lumigraph_core::asset::Channel::Color)
                 .unwrap_or(0);
             println!(
-                "light states: {} directions + ambient (colour only; depth is the base state's): \
+                "light states: {} directions + ambient + normals (colour channel only; depth is the base state's): \
                  {} per light state per camera decoded, {} stored for all of them",
                 lights.count,
                 describe_bytes(per_camera),
