@@ -267,13 +267,13 @@ def test_viewer_url_state_opens_the_view_its_image_link_renders(server: Server, 
 
 def test_viewer_reports_a_bad_link_and_falls_back(server: Server, page: Page) -> None:
     page.goto(f"{server.base_url}/?asset=nope&az=abc&el=95&dist=-1&lod=13&yfov_deg=40"
-              "&interactive=maybe&light=sun&bogus=1")
+              "&interactive=maybe&light=sun&time=3&bogus=1")
     page.wait_for_function(FULL_FRAME, timeout=30_000)
     notice = page.locator("#notice")
     assert notice.is_visible()
     text = notice.inner_text()
     for needle in ("asset=nope", "az=abc", "el=95", "dist=-1", "lod=13", "interactive=maybe",
-                   "light=sun", "bogus"):
+                   "light=sun", "time=3", "bogus"):
         assert needle in text, text
     # The closest valid state: the first asset at its default camera, the valid keys kept.
     assert page.eval_on_selector("#asset", "s => s.value") == "demo"
@@ -287,7 +287,8 @@ def test_viewer_reports_a_bad_link_and_falls_back(server: Server, page: Page) ->
     page.wait_for_function("new URLSearchParams(location.search).get('asset') === 'demo'",
                            timeout=5_000)
     params = page.evaluate("Object.fromEntries(new URLSearchParams(location.search))")
-    assert params["light"] == "sun" and "bogus" not in params and params["az"] != "abc", params
+    assert params["time"] == "3" and "bogus" not in params and params["az"] != "abc", params
+    assert "light" not in params, params
     notice.click()
     assert not notice.is_visible()
 
@@ -420,3 +421,54 @@ def test_viewer_layer_sliders_fade_a_multi_light_field(
         assert not page.errors, page.errors  # type: ignore[attr-defined]
     finally:
         httpx.delete(f"{server.base_url}/v1/assets/layered-ball", timeout=30)
+
+
+def test_viewer_light_ball_relights_an_asset_with_light_states(
+    server: Server, page: Page, tmp_path: Path
+) -> None:
+    """The demo baked with light states (`--lights 12 --shadows`) is uploaded; the viewer shows
+    the light ball, a click on it sends `light` (world space), redraws a differently lit frame
+    and puts the direction in the link; "Baked light" clears it and the first frame returns; a
+    link with `light=` opens relit."""
+    baked = subprocess.run(
+        [str(BIN), "bake", "--demo", "--lights", "12", "--shadows", "--cameras", "12",
+         "--resolution", "48", "--no-calibrate", "-o", str(tmp_path / "lit.lfa")],
+        capture_output=True, text=True, env=runtime_env(), timeout=120, check=False,
+    )
+    assert baked.returncode == 0, baked.stderr
+    created = httpx.post(f"{server.base_url}/v1/assets?id=lit-demo",
+                         content=(tmp_path / "lit.lfa").read_bytes(), timeout=60)
+    assert created.status_code == 201, created.text
+    try:
+        page.goto(server.base_url + "/?asset=lit-demo&interactive=0&still_codec=png")
+        page.wait_for_function(FULL_FRAME, timeout=30_000)
+        assert page.is_visible("#lighting")
+        baked_light = canvas(page)
+        first = last(page)
+        # The ball's left rim: light from the camera's left.
+        page.locator("#lightpad").click(position={"x": 4, "y": 48})
+        page.wait_for_function(
+            f"window.lumigraphViewer.last.requestId > {first['requestId']} && " + FULL_FRAME,
+            timeout=30_000)
+        relit = canvas(page)
+        relit_image = canvas_image(page)
+        assert relit["hash"] != baked_light["hash"]
+        page.wait_for_function("new URLSearchParams(location.search).has('light')", timeout=10_000)
+        link = page.evaluate("location.href")
+        light = [float(c) for c in page.evaluate(
+            "new URLSearchParams(location.search).get('light')").split(",")]
+        assert abs(math.hypot(*light) - 1) < 1e-3, light
+        second = last(page)
+        page.click("#light_reset")
+        page.wait_for_function(
+            f"window.lumigraphViewer.last.requestId > {second['requestId']} && " + FULL_FRAME,
+            timeout=30_000)
+        assert canvas(page)["hash"] == baked_light["hash"], "the baked light is back"
+        page.goto(link)
+        page.wait_for_function(FULL_FRAME, timeout=30_000)
+        # The link rounds the camera (0.001°) and the light (1e-4): the same image to rounding.
+        over, mean = differing(canvas_image(page), relit_image, 8)
+        assert over <= 0.01, (over, mean)
+        assert not page.errors, page.errors  # type: ignore[attr-defined]
+    finally:
+        httpx.delete(f"{server.base_url}/v1/assets/lit-demo", timeout=30)

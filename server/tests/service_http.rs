@@ -3002,7 +3002,7 @@ async fn light_states_bake_and_relight_over_http_and_the_stream() {
     let asset = get(&state, "/v1/assets/lit").await.json();
     assert_eq!(
         asset["states"].as_array().map(Vec::len),
-        Some(14),
+        Some(15),
         "{asset}"
     );
     let render = |light: serde_json::Value| {
