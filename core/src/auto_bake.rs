@@ -665,6 +665,7 @@ fn measure_psnr(
         asset,
         &UploadOptions {
             depth_bits: Some(depth_bits),
+            without_light_states: true,
         },
     )?;
     let mut out = Vec::with_capacity(cameras.len());

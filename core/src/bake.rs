@@ -13,7 +13,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use crate::asset::{
-    AssetError, AssetHeader, AssetWriter, Channel, Encoding, ImageKey, Provenance, encode_asset,
+    AssetError, AssetHeader, AssetWriter, Channel, Encoding, ImageKey, MemoryWriter, Provenance,
 };
 use crate::geometry::{self, CAMERA_COUNTS};
 use crate::gpu::mesh::{GpuMesh, mesh_bind_group, mesh_layout, mesh_sampler, storage_entry};
@@ -209,7 +209,7 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
 /// Where the baked images go.
 enum Sink {
     File(Box<AssetWriter>),
-    Memory(Vec<(ImageKey, Vec<u8>)>),
+    Memory(Box<MemoryWriter>),
 }
 
 impl Baker {
@@ -335,14 +335,14 @@ impl Baker {
         progress: &mut dyn FnMut(u32, u32),
     ) -> Result<Vec<u8>, BakeError> {
         let start = Instant::now();
-        let (mut header, gpu_mesh) = self.prepare(mesh, options, source)?;
-        let mut sink = Sink::Memory(Vec::new());
+        let (header, gpu_mesh) = self.prepare(mesh, options, source)?;
+        let mut sink = Sink::Memory(Box::new(MemoryWriter::new(header)?));
         self.trace_all(&gpu_mesh, options, &mut sink, progress)?;
-        let Sink::Memory(images) = sink else {
+        let Sink::Memory(mut writer) = sink else {
             unreachable!("sink kind is fixed above")
         };
-        header.provenance.bake_ms = start.elapsed().as_secs_f64() * 1e3;
-        Ok(encode_asset(header, images)?)
+        writer.set_bake_ms(start.elapsed().as_secs_f64() * 1e3);
+        Ok(writer.finish()?)
     }
 
     fn prepare(
@@ -554,7 +554,7 @@ impl Baker {
                 let depth_f32: &[f32] = bytemuck::cast_slice(&depths[range]);
                 let depth = encode_depth(depth_f32, options.depth_bits);
                 for (channel, bytes) in [(Channel::Color, color), (Channel::Depth, depth)] {
-                    sink.add(ImageKey::new(0, 0, camera, channel), bytes)?;
+                    sink.add(ImageKey::new(0, 0, camera, channel), &bytes)?;
                 }
             }
             // Light states: colour only, shaded from the hits just traced (one trace per texel
@@ -565,7 +565,7 @@ impl Baker {
                 for c in 0..count {
                     let range = c as usize * image_bytes..(c as usize + 1) * image_bytes;
                     let key = ImageKey::new(0, *state, first + c, Channel::Color);
-                    sink.add(key, colors[range].to_vec())?;
+                    sink.add(key, &colors[range])?;
                 }
             }
             first += count;
@@ -576,13 +576,10 @@ impl Baker {
 }
 
 impl Sink {
-    fn add(&mut self, key: ImageKey, bytes: Vec<u8>) -> Result<(), AssetError> {
+    fn add(&mut self, key: ImageKey, bytes: &[u8]) -> Result<(), AssetError> {
         match self {
-            Sink::File(writer) => writer.add_image(key, &bytes),
-            Sink::Memory(images) => {
-                images.push((key, bytes));
-                Ok(())
-            }
+            Sink::File(writer) => writer.add_image(key, bytes),
+            Sink::Memory(writer) => writer.add_image(key, bytes),
         }
     }
 }

@@ -306,6 +306,8 @@ pub fn sweep(
             inputs.asset,
             &UploadOptions {
                 depth_bits: Some(bits),
+                // The sweep measures the base state only.
+                without_light_states: true,
             },
         )?;
         for &size in &grid.sizes {

@@ -539,3 +539,44 @@ fn the_normal_blend_relights_a_convex_object_as_a_bake_with_that_light() {
         );
     }
 }
+
+#[test]
+fn an_upload_without_light_states_costs_the_base_memory_and_renders_the_base_alike() {
+    use lumigraph_core::render::UploadOptions;
+    let asset = shadow_bake(Some(12), [0.3, 1.0, 0.2]);
+    let full = ctx().renderer.upload(&asset).expect("upload");
+    let base = ctx()
+        .renderer
+        .upload_with(
+            &asset,
+            &UploadOptions {
+                without_light_states: true,
+                ..UploadOptions::default()
+            },
+        )
+        .expect("upload");
+    // Ambient, normals and 12 lights: 14 RGBA8 arrays of 162 cameras (163 layers, padded for
+    // GL) at 128².
+    assert_eq!(full.gpu_bytes - base.gpu_bytes, 14 * 163 * 128 * 128 * 4);
+    let options = RenderOptions::default();
+    assert_eq!(
+        ctx()
+            .renderer
+            .render(&full, &view(), &options)
+            .expect("full")
+            .color,
+        ctx()
+            .renderer
+            .render(&base, &view(), &options)
+            .expect("base")
+            .color
+    );
+    let err = ctx()
+        .renderer
+        .render(&base, &view(), &lit(DVec3::Y))
+        .expect_err("no light states uploaded");
+    assert!(
+        matches!(err, RenderError::Light(LightError::NoLightStates)),
+        "{err}"
+    );
+}

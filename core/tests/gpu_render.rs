@@ -996,6 +996,7 @@ fn stability_depth_precision_8_and_16_bits() {
             &asset,
             &UploadOptions {
                 depth_bits: Some(8),
+                ..UploadOptions::default()
             },
         )
         .expect("upload 8 bits");
@@ -1037,7 +1038,8 @@ fn stability_depth_precision_8_and_16_bits() {
             .upload_with(
                 &asset8,
                 &UploadOptions {
-                    depth_bits: Some(16)
+                    depth_bits: Some(16),
+                    ..UploadOptions::default()
                 }
             )
             .is_err()
@@ -1048,7 +1050,8 @@ fn stability_depth_precision_8_and_16_bits() {
             .upload_with(
                 &asset,
                 &UploadOptions {
-                    depth_bits: Some(12)
+                    depth_bits: Some(12),
+                    ..UploadOptions::default()
                 }
             )
             .is_err()

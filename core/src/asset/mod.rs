@@ -38,7 +38,7 @@ pub use header::{
     StateDesc, camera_count_for_level,
 };
 pub use reader::AssetFile;
-pub use writer::{AssetWriter, encode_asset, write_asset};
+pub use writer::{AssetWriter, MemoryWriter, encode_asset, write_asset};
 
 /// The newest `.lfa` format version this build reads and writes. Version 2 adds the colour
 /// encoding `rgba8_premultiplied` (semi-transparent light fields, e.g. volumes), version 3 the

@@ -143,6 +143,46 @@ pub fn encode_asset(
     Ok(encoder.finish()?.into_inner())
 }
 
+/// Encodes an asset in memory one image at a time: each image's pages are compressed as it is
+/// added, so only the compressed asset is held (a bake kept in memory, light states included,
+/// costs its file size, not its decoded size).
+pub struct MemoryWriter {
+    encoder: Encoder<Cursor<Vec<u8>>>,
+}
+
+impl MemoryWriter {
+    /// A writer for an asset with `header`.
+    ///
+    /// # Errors
+    /// An invalid header.
+    pub fn new(header: AssetHeader) -> Result<Self> {
+        Ok(Self {
+            encoder: Encoder::new(Cursor::new(Vec::new()), header)?,
+        })
+    }
+
+    /// Adds one image, as [`AssetWriter::add_image`] does.
+    ///
+    /// # Errors
+    /// As [`AssetWriter::add_image`].
+    pub fn add_image(&mut self, key: ImageKey, bytes: &[u8]) -> Result<()> {
+        self.encoder.add_image(key, bytes)
+    }
+
+    /// Records the wall-clock bake time in the header's provenance.
+    pub fn set_bake_ms(&mut self, bake_ms: f64) {
+        self.encoder.header.provenance.bake_ms = bake_ms;
+    }
+
+    /// The encoded asset.
+    ///
+    /// # Errors
+    /// If state 0 lacks any layer × camera × channel, or an earlier write failed.
+    pub fn finish(self) -> Result<Vec<u8>> {
+        Ok(self.encoder.finish()?.into_inner())
+    }
+}
+
 /// The format logic of writing, over any seekable sink.
 struct Encoder<W: Write + Seek> {
     sink: W,

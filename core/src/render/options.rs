@@ -116,6 +116,9 @@ pub const DEFAULT_GUIDE: u32 = 4;
 pub struct UploadOptions {
     /// Depth precision to render with: `None` = as stored, `Some(8)` requantizes 16-bit depth.
     pub depth_bits: Option<u8>,
+    /// Leave the asset's light states on the host: for work that never relights (the
+    /// trade-off sweep, the bake-time calibration), which then costs the base state's memory.
+    pub without_light_states: bool,
 }
 
 /// The resolved settings a render used.

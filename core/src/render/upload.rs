@@ -23,15 +23,7 @@ use super::{GpuLightField, Renderer};
 pub fn field_bytes(header: &AssetHeader) -> u64 {
     let side = u64::from(header.geometry.resolution_px);
     let layers = u64::from(Gpu::padded_layers(header.geometry.camera_count));
-    let base = [
-        layers,
-        header.layers.len() as u64,
-        side,
-        side,
-        FIELD_TEXEL_BYTES,
-    ]
-    .into_iter()
-    .fold(1, u64::saturating_mul);
+    let base = base_field_bytes(header);
     // Light states: one RGBA8 map per camera for the ambient part and each proxy direction.
     let light_maps = LightStates::of(header).ok().flatten().map_or(0, |s| {
         u64::from(s.count) + 1 + u64::from(s.normal.is_some())
@@ -40,6 +32,21 @@ pub fn field_bytes(header: &AssetHeader) -> u64 {
         .into_iter()
         .fold(1, u64::saturating_mul);
     base.saturating_add(lights)
+}
+
+/// [`field_bytes`] without the light states: what an upload that leaves them out allocates.
+fn base_field_bytes(header: &AssetHeader) -> u64 {
+    let side = u64::from(header.geometry.resolution_px);
+    let layers = u64::from(Gpu::padded_layers(header.geometry.camera_count));
+    [
+        layers,
+        header.layers.len() as u64,
+        side,
+        side,
+        FIELD_TEXEL_BYTES,
+    ]
+    .into_iter()
+    .fold(1, u64::saturating_mul)
 }
 
 /// Bytes per map texel on the device: RGBA8 colour plus RGBA16 depth footprint.
@@ -192,8 +199,16 @@ impl Renderer {
                 views: [color_view, depth_view],
             });
         }
-        let lights = self.upload_lights(asset)?;
-        let gpu_bytes = field_bytes(header);
+        let lights = if options.without_light_states {
+            None
+        } else {
+            self.upload_lights(asset)?
+        };
+        let gpu_bytes = if lights.is_some() {
+            field_bytes(header)
+        } else {
+            base_field_bytes(header)
+        };
         let frame = &header.frame;
         // Decremented by the field's drop.
         self.resident.fields.fetch_add(1, Ordering::AcqRel);
