@@ -124,6 +124,8 @@ pub enum Blend {
 pub struct LightBlend {
     /// Proxy direction indices of the triangle's corners.
     pub directions: [u32; 3],
+    /// Those directions (unit, asset frame).
+    pub vectors: [DVec3; 3],
     /// Their weights (≥ 0).
     pub weights: [f64; 3],
 }
@@ -208,6 +210,7 @@ pub fn blend_for(count: u32, l: DVec3, blend: Blend) -> Result<LightBlend, Light
     };
     Ok(LightBlend {
         directions,
+        vectors: directions.map(|i| dirs[i as usize]),
         weights,
     })
 }
@@ -236,13 +239,10 @@ pub fn centroid_lights(count: u32) -> Result<Vec<DVec3>, LightError> {
 /// # Errors
 /// [`LightError::BadCount`].
 pub fn centroid_darkening(count: u32) -> Result<f64, LightError> {
-    let dirs = proxy_directions(count)?;
     let mut worst = 0.0_f64;
     for l in centroid_lights(count)? {
         let b = blend_for(count, l, Blend::Planar)?;
-        let blended: DVec3 = (0..3)
-            .map(|i| b.weights[i] * dirs[b.directions[i] as usize])
-            .sum();
+        let blended: DVec3 = (0..3).map(|i| b.weights[i] * b.vectors[i]).sum();
         worst = worst.max(1.0 - blended.length());
     }
     Ok(worst)

@@ -2,6 +2,8 @@
 //! directions, relit renders at and between them checked against bakes and reference renders
 //! with the same light.
 
+mod common;
+
 use std::sync::{Arc, OnceLock};
 
 use glam::DVec3;
@@ -44,40 +46,10 @@ fn ctx() -> &'static Ctx {
     })
 }
 
-/// A ground quad (y = 0, ±2) under a box floating at y ∈ [0.5, 1]: shadows on the ground move
-/// with the light.
+/// The ground quad under a floating box of the shadow tests: shadows on the ground move with
+/// the light.
 fn scene() -> Mesh {
-    let mut positions = vec![
-        [-2.0, 0.0, -2.0],
-        [-2.0, 0.0, 2.0],
-        [2.0, 0.0, 2.0],
-        [2.0, 0.0, -2.0],
-    ];
-    let mut triangles = vec![[0, 1, 2], [0, 2, 3]];
-    let (lo, hi) = ([-0.4f32, 0.5, -0.3], [0.3f32, 1.0, 0.4]);
-    let base = positions.len() as u32;
-    for i in 0..8u32 {
-        let pick = |axis: usize| {
-            if i & (1 << axis) == 0 {
-                lo[axis]
-            } else {
-                hi[axis]
-            }
-        };
-        positions.push([pick(0), pick(1), pick(2)]);
-    }
-    for f in [
-        [0, 2, 3, 1],
-        [4, 5, 7, 6],
-        [0, 1, 5, 4],
-        [2, 6, 7, 3],
-        [0, 4, 6, 2],
-        [1, 3, 7, 5],
-    ] {
-        triangles.push([base + f[0], base + f[1], base + f[2]]);
-        triangles.push([base + f[0], base + f[2], base + f[3]]);
-    }
-    Mesh::from_arrays(positions, triangles, None).expect("scene")
+    common::shadow_scene().0
 }
 
 /// A UV sphere of radius 1 (smooth normals): convex, so no point shadows another and relighting
@@ -243,13 +215,7 @@ fn relit_at_a_proxy_direction_matches_a_bake_with_that_light() {
         // Same depth maps, so the same surface per pixel; the colour is the sum of two
         // rounded parts instead of one rounded whole: at most 1 code per texel, blended.
         assert_eq!(relit.depth, plain.depth, "light {d}");
-        let worst = relit
-            .color
-            .iter()
-            .zip(&plain.color)
-            .map(|(a, b)| a.abs_diff(*b))
-            .max()
-            .unwrap_or(0);
+        let worst = common::max_code_diff(&relit.color, &plain.color);
         assert!(worst <= 1, "light {d}: {worst} codes");
     }
 }
@@ -450,14 +416,7 @@ fn a_scene_instance_relights_with_the_light_carried_into_its_frame() {
         .renderer
         .render(&field, &local_view, &lit(DVec3::from(world_light)))
         .expect("unturned");
-    let worst = |a: &Frame, b: &Frame| {
-        a.color
-            .iter()
-            .zip(&b.color)
-            .map(|(x, y)| x.abs_diff(*y))
-            .max()
-            .unwrap_or(0)
-    };
+    let worst = |a: &Frame, b: &Frame| common::max_code_diff(&a.color, &b.color);
     // Compositing one opaque layer keeps its colours (one code of rounding).
     assert!(
         worst(&in_scene, &alone) <= 1,
@@ -519,13 +478,7 @@ fn the_normal_blend_relights_a_convex_object_as_a_bake_with_that_light() {
             mean_diff(&spherical, &exact),
             mean_diff(&planar, &exact),
         );
-        let worst = normal
-            .color
-            .iter()
-            .zip(&exact.color)
-            .map(|(a, b)| a.abs_diff(*b))
-            .max()
-            .unwrap_or(0);
+        let worst = common::max_code_diff(&normal.color, &exact.color);
         eprintln!("light {l}: normal {en:.3} (worst {worst}), spherical {es:.3}, planar {ep:.3}");
         // Rounding of the parts (1 code each) and of the 16-bit normal; texels blended across
         // the silhouette may differ a little more.

@@ -40,40 +40,10 @@ fn ctx() -> &'static Ctx {
     })
 }
 
-/// Appends the axis-aligned box [lo, hi] (8 corners, 12 outward triangles) to a mesh's arrays.
-fn push_box(
-    (positions, triangles): (&mut Vec<[f32; 3]>, &mut Vec<[u32; 3]>),
-    lo: [f32; 3],
-    hi: [f32; 3],
-) {
-    let base = u32::try_from(positions.len()).expect("few corners");
-    for i in 0..8u32 {
-        let pick = |axis: usize| {
-            if i & (1 << axis) == 0 {
-                lo[axis]
-            } else {
-                hi[axis]
-            }
-        };
-        positions.push([pick(0), pick(1), pick(2)]);
-    }
-    for f in [
-        [0, 2, 3, 1],
-        [4, 5, 7, 6],
-        [0, 1, 5, 4],
-        [2, 6, 7, 3],
-        [0, 4, 6, 2],
-        [1, 3, 7, 5],
-    ] {
-        triangles.push([base + f[0], base + f[1], base + f[2]]);
-        triangles.push([base + f[0], base + f[2], base + f[3]]);
-    }
-}
-
 /// Axis-aligned cube [-h, h]³ around `center`, outward winding.
 fn cube(center: [f32; 3], h: f32) -> Mesh {
     let (mut positions, mut triangles) = (Vec::new(), Vec::new());
-    push_box(
+    common::push_box(
         (&mut positions, &mut triangles),
         center.map(|c| c - h),
         center.map(|c| c + h),
@@ -1947,7 +1917,7 @@ fn slit_plates(gap: f32) -> Mesh {
     let (w, h, t) = (1.0f32, 1.0f32, 0.02f32);
     let (mut positions, mut triangles) = (Vec::new(), Vec::new());
     for (x0, x1) in [(-0.5 * gap - w, -0.5 * gap), (0.5 * gap, 0.5 * gap + w)] {
-        push_box(
+        common::push_box(
             (&mut positions, &mut triangles),
             [x0, -0.5 * h, -t],
             [x1, 0.5 * h, t],
@@ -2259,23 +2229,6 @@ fn opaque_layers_composite_alike_on_the_gpu_and_the_cpu() {
     }
 }
 
-/// A ground quad (y = 0, ±2, normal +y) under a box floating at y ∈ [0.5, 1]: the scene of the
-/// shadow tests, with the box's corners.
-fn shadow_scene() -> (Mesh, (DVec3, DVec3)) {
-    let mut positions = vec![
-        [-2.0, 0.0, -2.0],
-        [-2.0, 0.0, 2.0],
-        [2.0, 0.0, 2.0],
-        [2.0, 0.0, -2.0],
-    ];
-    let mut triangles = vec![[0, 1, 2], [0, 2, 3]];
-    let (lo, hi) = ([-0.4f32, 0.5, -0.3], [0.3f32, 1.0, 0.4]);
-    push_box((&mut positions, &mut triangles), lo, hi);
-    let mesh = Mesh::from_arrays(positions, triangles, None).expect("scene");
-    let corner = |c: [f32; 3]| DVec3::from(c.map(f64::from));
-    (mesh, (corner(lo), corner(hi)))
-}
-
 /// The shadow tests' shading: the light from above, a little to the side, with shadows.
 fn shadow_shading() -> Shading {
     Shading {
@@ -2341,7 +2294,7 @@ fn ground_truth(
 
 #[test]
 fn shadows_darken_what_the_light_cannot_reach_in_the_reference_and_the_bake() {
-    let (mesh, corners) = shadow_scene();
+    let (mesh, corners) = common::shadow_scene();
     let shading = shadow_shading();
     let light = DVec3::from(shading.light.map(f64::from)).normalize();
     let view = View::look_at([3.0, 3.5, 4.0], [0.0, 0.0, 0.0], 40.0, 192, 192);
@@ -2456,7 +2409,7 @@ fn shadows_do_not_depend_on_the_scene_scale() {
     // the light-field frame first), so the shadow scene scaled by 1e-4 and by 1e4, seen from
     // the scaled eye, gives the same frame: no acne on a tiny scene, no light leaking under
     // the box of a huge one (one code for f32 rounding of the scaled geometry).
-    let (mesh, _) = shadow_scene();
+    let (mesh, _) = common::shadow_scene();
     let shading = shadow_shading();
     let render = |scale: f32| {
         let mut scaled = mesh.clone();

@@ -709,10 +709,7 @@
     drag.x = e.clientX; drag.y = e.clientY;
     if (drag.pan) {
       // Move the target in the view plane, scaled so the object follows the pointer.
-      const v = currentView();
-      const f = norm(sub(v.target, v.eye));
-      const r = norm(cross(f, [0, 1, 0]));
-      const u = cross(r, f);
+      const { right: r, up: u } = cameraBasis();
       const perPx = (2 * state.distance * Math.tan((state.yfovDeg * Math.PI) / 360)) / Math.max(1, canvas.clientHeight);
       for (let i = 0; i < 3; i++) state.target[i] += (-dx * r[i] + dy * u[i]) * perPx;
     } else {

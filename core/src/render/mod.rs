@@ -788,12 +788,11 @@ impl Renderer {
             [&lights.ambient.1, normal.unwrap_or(&maps.views[0]), a, b, c],
         );
         let w = blend.weights.map(|x| x as f32);
-        let dirs = crate::light::proxy_directions(lights.count)?;
         let dir = |v: glam::DVec3| {
             let v = v.as_vec3();
             [v.x, v.y, v.z, 0.0]
         };
-        let [da, db, dc] = blend.directions.map(|i| dir(dirs[i as usize]));
+        let [da, db, dc] = blend.vectors.map(dir);
         Ok(Some((
             group,
             Relit {

@@ -6,6 +6,9 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::Mutex;
 
+use glam::DVec3;
+use lumigraph_core::mesh::Mesh;
+
 /// Serializes fetches between the threads of one test binary (the file lock below serializes
 /// test binaries).
 static FETCH: Mutex<()> = Mutex::new(());
@@ -80,4 +83,51 @@ pub fn max_code_diff(a: &[u8], b: &[u8]) -> u8 {
         .map(|(x, y)| x.abs_diff(*y))
         .max()
         .unwrap_or(0)
+}
+
+/// Appends the axis-aligned box [lo, hi] (8 corners, 12 outward triangles) to a mesh's arrays.
+pub fn push_box(
+    (positions, triangles): (&mut Vec<[f32; 3]>, &mut Vec<[u32; 3]>),
+    lo: [f32; 3],
+    hi: [f32; 3],
+) {
+    let base = u32::try_from(positions.len()).expect("few corners");
+    for i in 0..8u32 {
+        let pick = |axis: usize| {
+            if i & (1 << axis) == 0 {
+                lo[axis]
+            } else {
+                hi[axis]
+            }
+        };
+        positions.push([pick(0), pick(1), pick(2)]);
+    }
+    for f in [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ] {
+        triangles.push([base + f[0], base + f[1], base + f[2]]);
+        triangles.push([base + f[0], base + f[2], base + f[3]]);
+    }
+}
+
+/// A ground quad (y = 0, ±2, normal +y) under a box floating at y ∈ [0.5, 1]: the scene of the
+/// shadow tests, with the box's corners.
+pub fn shadow_scene() -> (Mesh, (DVec3, DVec3)) {
+    let mut positions = vec![
+        [-2.0, 0.0, -2.0],
+        [-2.0, 0.0, 2.0],
+        [2.0, 0.0, 2.0],
+        [2.0, 0.0, -2.0],
+    ];
+    let mut triangles = vec![[0, 1, 2], [0, 2, 3]];
+    let (lo, hi) = ([-0.4f32, 0.5, -0.3], [0.3f32, 1.0, 0.4]);
+    push_box((&mut positions, &mut triangles), lo, hi);
+    let mesh = Mesh::from_arrays(positions, triangles, None).expect("scene");
+    let corner = |c: [f32; 3]| DVec3::from(c.map(f64::from));
+    (mesh, (corner(lo), corner(hi)))
 }

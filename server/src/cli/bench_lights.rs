@@ -135,7 +135,6 @@ fn reference_blend(
     truth: &Frame,
 ) -> Result<Frame> {
     let blend = light::blend_for(count, l, mode)?;
-    let dirs = light::proxy_directions(count)?;
     let render = |shading: Shading| reference.render(mesh, view, &shading);
     let albedo = render(Shading {
         unlit: true,
@@ -155,8 +154,7 @@ fn reference_blend(
         specular: None,
         ..*shading
     };
-    for &d in &blend.directions {
-        let light = dirs[d as usize];
+    for &light in &blend.vectors {
         parts.push(
             render(Shading {
                 light: light.as_vec3().to_array(),
