@@ -665,7 +665,7 @@ fn measure_psnr(
         asset,
         &UploadOptions {
             depth_bits: Some(depth_bits),
-            without_light_states: true,
+            base_state_only: true,
         },
     )?;
     let mut out = Vec::with_capacity(cameras.len());

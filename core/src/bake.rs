@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 use crate::asset::{
     AssetError, AssetHeader, AssetWriter, Channel, Encoding, ImageKey, MemoryWriter, Provenance,
 };
+use crate::deform::{DEFAULT_TOLERANCE, StateMesh, Tolerance};
 use crate::geometry::{self, CAMERA_COUNTS};
 use crate::gpu::mesh::{GpuMesh, mesh_bind_group, mesh_layout, mesh_sampler, storage_entry};
 use crate::gpu::{Gpu, GpuError, storage_buffer};
@@ -46,6 +47,15 @@ pub enum BakeError {
     /// Light states asked of an unlit bake, whose colour does not depend on the light.
     #[error("--lights relights a lit bake: drop --unlit or --lights")]
     LightsUnlit,
+    /// Bad deformation states.
+    #[error(transparent)]
+    Deform(#[from] crate::deform::DeformError),
+    /// Light states and deformation states in one asset.
+    #[error(
+        "--lights and --state in one bake: light states relight the base state only; bake the \
+         deformation states into an asset of their own"
+    )]
+    StatesWithLights,
     /// The device failed.
     #[error(transparent)]
     Gpu(#[from] GpuError),
@@ -206,6 +216,28 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
     })
 }
 
+/// The deformation states of a bake ([`crate::deform`]).
+#[derive(Clone, Copy, Debug)]
+pub struct StateBake<'a> {
+    /// The state meshes, in state order after the base state.
+    pub meshes: &'a [StateMesh<'a>],
+    /// Largest difference a page may have from the base state and still be left out.
+    pub tolerance: Tolerance,
+    /// Page side of an asset with states (the unit a state stores; the base state's pages
+    /// too): [`crate::deform::DEFAULT_STATE_PAGE`] unless set.
+    pub page_size: u32,
+}
+
+impl Default for StateBake<'_> {
+    fn default() -> Self {
+        Self {
+            meshes: &[],
+            tolerance: DEFAULT_TOLERANCE,
+            page_size: crate::deform::DEFAULT_STATE_PAGE,
+        }
+    }
+}
+
 /// Where the baked images go.
 enum Sink {
     File(Box<AssetWriter>),
@@ -303,10 +335,37 @@ impl Baker {
         path: &Path,
         progress: &mut dyn FnMut(u32, u32),
     ) -> Result<BakeReport, BakeError> {
+        self.bake_states_to_file(mesh, &StateBake::default(), options, source, path, progress)
+    }
+
+    /// [`Self::bake_to_file`] with deformation states ([`crate::deform`]): each state mesh is
+    /// traced in the base mesh's frame, and only its pages that differ from the base state by
+    /// more than the tolerance are stored (pages of `states.page_size` texels).
+    ///
+    /// # Errors
+    /// [`BakeError`]: also [`BakeError::Deform`] for a state outside the base's bounding
+    /// sphere or a bad name, [`BakeError::StatesWithLights`]. On error nothing is left at
+    /// `path`.
+    pub fn bake_states_to_file(
+        &self,
+        mesh: &Mesh,
+        states: &StateBake<'_>,
+        options: &BakeOptions,
+        source: &Provenance,
+        path: &Path,
+        progress: &mut dyn FnMut(u32, u32),
+    ) -> Result<BakeReport, BakeError> {
         let start = Instant::now();
-        let (header, gpu_mesh) = self.prepare(mesh, options, source)?;
+        let (header, gpu_mesh, state_meshes) = self.prepare(mesh, states, options, source)?;
         let mut sink = Sink::File(Box::new(AssetWriter::create(path, header)?));
-        self.trace_all(&gpu_mesh, options, &mut sink, progress)?;
+        self.trace_all(
+            &gpu_mesh,
+            &state_meshes,
+            states.tolerance,
+            options,
+            &mut sink,
+            progress,
+        )?;
         let Sink::File(mut writer) = sink else {
             unreachable!("sink kind is fixed above")
         };
@@ -334,10 +393,32 @@ impl Baker {
         source: &Provenance,
         progress: &mut dyn FnMut(u32, u32),
     ) -> Result<Vec<u8>, BakeError> {
+        self.bake_states_to_bytes(mesh, &StateBake::default(), options, source, progress)
+    }
+
+    /// [`Self::bake_to_bytes`] with deformation states, as [`Self::bake_states_to_file`].
+    ///
+    /// # Errors
+    /// As [`Self::bake_states_to_file`].
+    pub fn bake_states_to_bytes(
+        &self,
+        mesh: &Mesh,
+        states: &StateBake<'_>,
+        options: &BakeOptions,
+        source: &Provenance,
+        progress: &mut dyn FnMut(u32, u32),
+    ) -> Result<Vec<u8>, BakeError> {
         let start = Instant::now();
-        let (header, gpu_mesh) = self.prepare(mesh, options, source)?;
+        let (header, gpu_mesh, state_meshes) = self.prepare(mesh, states, options, source)?;
         let mut sink = Sink::Memory(Box::new(MemoryWriter::new(header)?));
-        self.trace_all(&gpu_mesh, options, &mut sink, progress)?;
+        self.trace_all(
+            &gpu_mesh,
+            &state_meshes,
+            states.tolerance,
+            options,
+            &mut sink,
+            progress,
+        )?;
         let Sink::Memory(mut writer) = sink else {
             unreachable!("sink kind is fixed above")
         };
@@ -345,14 +426,25 @@ impl Baker {
         Ok(writer.finish()?)
     }
 
+    #[allow(clippy::type_complexity)]
     fn prepare(
         &self,
         mesh: &Mesh,
+        states: &StateBake<'_>,
         options: &BakeOptions,
         source: &Provenance,
-    ) -> Result<(AssetHeader, GpuMesh), BakeError> {
+    ) -> Result<(AssetHeader, GpuMesh, Vec<GpuMesh>), BakeError> {
         let level = options.validate()?;
+        if !states.meshes.is_empty() && options.lights.is_some() {
+            return Err(BakeError::StatesWithLights);
+        }
         let gpu_mesh = GpuMesh::upload(&self.gpu, mesh)?;
+        crate::deform::check_states(&gpu_mesh.frame, states.meshes)?;
+        let state_meshes = states
+            .meshes
+            .iter()
+            .map(|s| GpuMesh::upload_in(&self.gpu, s.mesh, gpu_mesh.frame.clone()))
+            .collect::<Result<Vec<_>, _>>()?;
         let provenance = Provenance {
             lumigraph_version: env!("CARGO_PKG_VERSION").to_owned(),
             bake_options: serde_json::to_value(options).unwrap_or_default(),
@@ -379,12 +471,22 @@ impl Baker {
             header.states.extend(crate::light::state_descs(count)?);
             header.validate()?;
         }
-        Ok((header, gpu_mesh))
+        if !states.meshes.is_empty() {
+            header
+                .states
+                .extend(crate::deform::state_descs(states.meshes));
+            header.page_size = states.page_size;
+            header.validate()?;
+        }
+        Ok((header, gpu_mesh, state_meshes))
     }
 
+    #[allow(clippy::too_many_arguments, clippy::too_many_lines)]
     fn trace_all(
         &self,
         mesh: &GpuMesh,
+        state_meshes: &[GpuMesh],
+        tolerance: Tolerance,
         options: &BakeOptions,
         sink: &mut Sink,
         progress: &mut dyn FnMut(u32, u32),
@@ -433,17 +535,22 @@ impl Baker {
             mapped_at_creation: false,
         });
         let mesh_group = mesh_bind_group(gpu, &self.mesh_layout, mesh, &self.sampler);
+        let state_groups: Vec<wgpu::BindGroup> = state_meshes
+            .iter()
+            .map(|m| mesh_bind_group(gpu, &self.mesh_layout, m, &self.sampler))
+            .collect();
+        let grid = sink.page_grid()?;
         let shading = options.shading.to_gpu();
         progress(0, total);
         let mut first = 0;
         while first < total {
             let count = per_batch.min(total - first);
-            let frame_group = |shading: GpuShading| {
+            let frame_group = |shading: GpuShading, store_hits: bool| {
                 let params = BakeParams {
                     resolution: n,
                     first_camera: first,
                     camera_count: count,
-                    store_hits: u32::from(!light_passes.is_empty()),
+                    store_hits: u32::from(store_hits),
                     shading,
                 };
                 let uniform = {
@@ -482,8 +589,9 @@ impl Baker {
                     ],
                 })
             };
-            let base_group = frame_group(shading);
+            let base_group = frame_group(shading, !light_passes.is_empty());
             let dispatch = |pipeline: &wgpu::ComputePipeline,
+                            mesh_group: &wgpu::BindGroup,
                             frame_group: &wgpu::BindGroup,
                             edge_group: Option<&wgpu::BindGroup>,
                             groups: (u32, u32, u32)| {
@@ -499,7 +607,7 @@ impl Baker {
                     });
                     pass.set_pipeline(pipeline);
                     pass.set_bind_group(0, frame_group, &[]);
-                    pass.set_bind_group(1, &mesh_group, &[]);
+                    pass.set_bind_group(1, mesh_group, &[]);
                     if let Some(group) = edge_group {
                         pass.set_bind_group(2, group, &[]);
                     }
@@ -508,64 +616,136 @@ impl Baker {
                 gpu.queue.submit([encoder.finish()]);
             };
             let map_groups = (n.div_ceil(8), n.div_ceil(8), count);
-            dispatch(&self.pipeline, &base_group, None, map_groups);
             let used = u64::from(count) * texels * 4;
-            let depths = gpu.read_buffer(&out_depth, used)?;
-            let pairs = edge_pairs(bytemuck::cast_slice(&depths), n as usize);
-            let mut colors = gpu.read_buffer(&out_color, used)?;
-            if !pairs.is_empty() {
-                let list = storage_buffer(
-                    gpu,
-                    "bake edge pairs",
-                    bytemuck::cast_slice(&pairs),
-                    wgpu::BufferUsages::empty(),
-                );
-                let crossings_bytes = pairs.len() as u64 * 8;
-                let crossings = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some("bake edge crossings"),
-                    size: crossings_bytes,
-                    usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-                    mapped_at_creation: false,
-                });
-                let edge_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("bake edge pairs"),
-                    layout: &self.edge_layout,
-                    entries: &[
-                        wgpu::BindGroupEntry {
-                            binding: 0,
-                            resource: list.as_entire_binding(),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 1,
-                            resource: crossings.as_entire_binding(),
-                        },
-                    ],
-                });
-                let groups = u32::try_from(pairs.len().div_ceil(64)).unwrap_or(u32::MAX);
-                dispatch(&self.edges, &base_group, Some(&edge_group), (groups, 1, 1));
-                let found = gpu.read_buffer(&crossings, crossings_bytes)?;
-                store_edges(&mut colors, &pairs, bytemuck::cast_slice(&found));
-            }
+            // Colours (with sub-texel silhouettes) and float depths of the batch, for one mesh.
+            let trace = |mesh_group: &wgpu::BindGroup,
+                         frame_group: &wgpu::BindGroup|
+             -> Result<(Vec<u8>, Vec<u8>), BakeError> {
+                dispatch(&self.pipeline, mesh_group, frame_group, None, map_groups);
+                let depths = gpu.read_buffer(&out_depth, used)?;
+                let pairs = edge_pairs(bytemuck::cast_slice(&depths), n as usize);
+                let mut colors = gpu.read_buffer(&out_color, used)?;
+                if !pairs.is_empty() {
+                    let list = storage_buffer(
+                        gpu,
+                        "bake edge pairs",
+                        bytemuck::cast_slice(&pairs),
+                        wgpu::BufferUsages::empty(),
+                    );
+                    let crossings_bytes = pairs.len() as u64 * 8;
+                    let crossings = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                        label: Some("bake edge crossings"),
+                        size: crossings_bytes,
+                        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+                        mapped_at_creation: false,
+                    });
+                    let edge_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                        label: Some("bake edge pairs"),
+                        layout: &self.edge_layout,
+                        entries: &[
+                            wgpu::BindGroupEntry {
+                                binding: 0,
+                                resource: list.as_entire_binding(),
+                            },
+                            wgpu::BindGroupEntry {
+                                binding: 1,
+                                resource: crossings.as_entire_binding(),
+                            },
+                        ],
+                    });
+                    let groups = u32::try_from(pairs.len().div_ceil(64)).unwrap_or(u32::MAX);
+                    dispatch(
+                        &self.edges,
+                        mesh_group,
+                        frame_group,
+                        Some(&edge_group),
+                        (groups, 1, 1),
+                    );
+                    let found = gpu.read_buffer(&crossings, crossings_bytes)?;
+                    store_edges(&mut colors, &pairs, bytemuck::cast_slice(&found));
+                }
+                Ok((colors, depths))
+            };
+            let (colors, depths) = trace(&mesh_group, &base_group)?;
             let image_bytes = (texels * 4) as usize;
+            let mut base_images = Vec::with_capacity(if state_groups.is_empty() {
+                0
+            } else {
+                count as usize
+            });
             for c in 0..count {
                 let camera = first + c;
                 let range = c as usize * image_bytes..(c as usize + 1) * image_bytes;
                 let color = colors[range.clone()].to_vec();
                 let depth_f32: &[f32] = bytemuck::cast_slice(&depths[range]);
                 let depth = encode_depth(depth_f32, options.depth_bits);
-                for (channel, bytes) in [(Channel::Color, color), (Channel::Depth, depth)] {
-                    sink.add(ImageKey::new(0, 0, camera, channel), &bytes)?;
+                sink.add(ImageKey::new(0, 0, camera, Channel::Color), &color)?;
+                sink.add(ImageKey::new(0, 0, camera, Channel::Depth), &depth)?;
+                if !state_groups.is_empty() {
+                    base_images.push((color, depth));
                 }
             }
             // Light states: colour only, shaded from the hits just traced (one trace per texel
             // serves every light); their depth is the base state's.
             for (state, shading) in &light_passes {
-                dispatch(&self.shade, &frame_group(*shading), None, map_groups);
+                dispatch(
+                    &self.shade,
+                    &mesh_group,
+                    &frame_group(*shading, true),
+                    None,
+                    map_groups,
+                );
                 let colors = gpu.read_buffer(&out_color, used)?;
                 for c in 0..count {
                     let range = c as usize * image_bytes..(c as usize + 1) * image_bytes;
                     let key = ImageKey::new(0, *state, first + c, Channel::Color);
                     sink.add(key, &colors[range])?;
+                }
+            }
+            // Deformation states: the same cameras traced through each state mesh, keeping the
+            // pages that differ from the base state.
+            let state_frame = if state_groups.is_empty() {
+                None
+            } else {
+                Some(frame_group(shading, false))
+            };
+            let depth_bpp = if options.depth_bits == 8 { 1 } else { 2 };
+            for (i, group) in state_groups.iter().enumerate() {
+                let Some(state_frame) = &state_frame else {
+                    break;
+                };
+                let state = i as u16 + 1;
+                let (colors, depths) = trace(group, state_frame)?;
+                for (c, (base_color, base_depth)) in base_images.iter().enumerate() {
+                    let camera = first + c as u32;
+                    let range = c * image_bytes..(c + 1) * image_bytes;
+                    let color = &colors[range.clone()];
+                    let depth_f32: &[f32] = bytemuck::cast_slice(&depths[range]);
+                    let depth = encode_depth(depth_f32, options.depth_bits);
+                    let pages = crate::deform::changed_pages(
+                        &grid,
+                        base_color,
+                        color,
+                        4,
+                        u16::from(tolerance.color),
+                    );
+                    sink.add_pages(
+                        ImageKey::new(0, state, camera, Channel::Color),
+                        color,
+                        &pages,
+                    )?;
+                    let pages = crate::deform::changed_pages(
+                        &grid,
+                        base_depth,
+                        &depth,
+                        depth_bpp,
+                        tolerance.depth,
+                    );
+                    sink.add_pages(
+                        ImageKey::new(0, state, camera, Channel::Depth),
+                        &depth,
+                        &pages,
+                    )?;
                 }
             }
             first += count;
@@ -576,10 +756,24 @@ impl Baker {
 }
 
 impl Sink {
+    fn page_grid(&self) -> Result<crate::asset::PageGrid, AssetError> {
+        match self {
+            Sink::File(writer) => writer.page_grid(),
+            Sink::Memory(writer) => Ok(writer.page_grid()),
+        }
+    }
+
     fn add(&mut self, key: ImageKey, bytes: &[u8]) -> Result<(), AssetError> {
         match self {
             Sink::File(writer) => writer.add_image(key, bytes),
             Sink::Memory(writer) => writer.add_image(key, bytes),
+        }
+    }
+
+    fn add_pages(&mut self, key: ImageKey, bytes: &[u8], pages: &[u32]) -> Result<(), AssetError> {
+        match self {
+            Sink::File(writer) => writer.add_pages(key, bytes, pages),
+            Sink::Memory(writer) => writer.add_pages(key, bytes, pages),
         }
     }
 }

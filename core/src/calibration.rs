@@ -100,8 +100,33 @@ pub fn bake_calibrated(
     source: &crate::asset::Provenance,
     progress: &mut dyn FnMut(u32, u32),
 ) -> Result<CalibratedBake, CalibrationError> {
+    bake_states_calibrated(
+        baker,
+        renderer,
+        reference,
+        (mesh, &crate::bake::StateBake::default()),
+        options,
+        source,
+        progress,
+    )
+}
+
+/// [`bake_calibrated`] with deformation states ([`crate::bake::Baker::bake_states_to_bytes`]);
+/// the calibration measures the base state.
+///
+/// # Errors
+/// As [`bake_calibrated`].
+pub fn bake_states_calibrated(
+    baker: &crate::bake::Baker,
+    renderer: &Renderer,
+    reference: &ReferenceRenderer,
+    (mesh, states): (&crate::mesh::Mesh, &crate::bake::StateBake<'_>),
+    options: &crate::bake::BakeOptions,
+    source: &crate::asset::Provenance,
+    progress: &mut dyn FnMut(u32, u32),
+) -> Result<CalibratedBake, CalibrationError> {
     let start = std::time::Instant::now();
-    let bytes = baker.bake_to_bytes(mesh, options, source, progress)?;
+    let bytes = baker.bake_states_to_bytes(mesh, states, options, source, progress)?;
     let bake_ms = start.elapsed().as_secs_f64() * 1e3;
     let asset = AssetFile::from_bytes(bytes)?;
     let gpu_mesh = reference.upload(mesh)?;
@@ -254,6 +279,7 @@ impl Choice {
             method: Method::Default,
             guide: Some(CALIBRATION_GUIDE),
             light: None,
+            state: None,
         }
     }
 }
@@ -350,14 +376,7 @@ impl Calibration {
             serde_json::to_value(self).map_err(|e| AssetError::Header(e.to_string()))?,
         );
         header.quality = Some(serde_json::Value::Object(quality));
-        let mut keys: Vec<crate::asset::ImageKey> = asset.index().iter().map(|e| e.key).collect();
-        keys.sort_unstable();
-        keys.dedup();
-        let images = keys
-            .into_iter()
-            .map(|k| asset.read_image(k).map(|bytes| (k, bytes)))
-            .collect::<Result<Vec<_>, _>>()?;
-        crate::asset::encode_asset(header, images)
+        crate::asset::with_header(asset, header)
     }
 
     /// The calibration in an asset's quality report, if any.

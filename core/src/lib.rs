@@ -44,6 +44,7 @@ pub mod asset;
 pub mod auto_bake;
 pub mod bake;
 pub mod calibration;
+pub mod deform;
 pub mod frame;
 mod fsutil;
 pub mod geometry;

@@ -453,6 +453,7 @@ impl Ladder {
             method: Method::Default,
             guide: self.guide,
             light: None,
+            state: None,
         }
     }
 

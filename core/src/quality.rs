@@ -70,6 +70,9 @@ pub enum QualityError {
     /// Layer opacities out of range, or naming a layer the asset does not have.
     #[error("layers: {0}")]
     Layers(String),
+    /// An unknown state, or a light state asked for by name.
+    #[error("state: {0}")]
+    State(String),
     /// The request is not a JSON object of quality fields.
     #[error("invalid quality options: {0}")]
     Json(String),
@@ -198,6 +201,12 @@ pub struct Quality {
     )]
     #[cfg_attr(feature = "openapi", schema(value_type = Option<[f64; 3]>))]
     pub light: Option<crate::light::LightDirection>,
+    /// Render this named state of the asset: a deformation state (baked with `--state
+    /// NAME=MESH2`). Absent or `base`: the base state. Light states are not chosen by name:
+    /// `light` relights from them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(feature = "clap", arg(long, value_name = "NAME"))]
+    pub state: Option<String>,
 }
 
 impl Quality {
@@ -218,6 +227,7 @@ impl Quality {
         "refine",
         "layers",
         "light",
+        "state",
     ];
 
     /// The request of a JSON object holding only quality keys (`null` = absent).
@@ -271,6 +281,7 @@ impl Quality {
             method: self.method.unwrap_or_default(),
             guide: self.guide,
             light: self.light,
+            state: None,
         }
     }
 
@@ -410,7 +421,10 @@ impl Quality {
             .unwrap_or_default()
             .resolve(&header.layers)
             .map_err(QualityError::Layers)?;
+        let state = crate::deform::state_index(header, self.state.as_deref())
+            .map_err(QualityError::State)?;
         Ok(Plan {
+            state,
             strategy,
             opacities,
             quality: self.clone(),
@@ -445,6 +459,8 @@ pub struct Plan {
     strategy: Strategy,
     /// Opacity of every layer of the asset, in its order.
     opacities: Vec<f32>,
+    /// The deformation state rendered (`None`: the base state).
+    state: Option<u16>,
     quality: Quality,
     max_level: u32,
     max_cameras: u32,
@@ -535,9 +551,10 @@ impl Plan {
 
     /// The decision for `view` and the render it asks for.
     fn job(&self, view: &View) -> Result<(Decision, Job), QualityError> {
-        // The light applies whatever the strategy chose.
+        // The light and the state apply whatever the strategy chose.
         let light = |mut options: RenderOptions| {
             options.light = self.quality.light;
+            options.state = self.state;
             options
         };
         let (decision, job) = self.job_unlit(view)?;
@@ -684,6 +701,7 @@ mod tests {
             refine: Some(4),
             layers: Some("skin=0.5".parse().expect("opacities")),
             light: Some(crate::light::LightDirection([0.0, 1.0, 0.0])),
+            state: Some("dent".to_owned()),
         }
     }
 

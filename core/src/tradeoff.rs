@@ -236,6 +236,7 @@ impl Setting {
             method: self.method,
             guide: Some(self.guide),
             light: None,
+            state: None,
         }
     }
 }
@@ -307,7 +308,7 @@ pub fn sweep(
             &UploadOptions {
                 depth_bits: Some(bits),
                 // The sweep measures the base state only.
-                without_light_states: true,
+                base_state_only: true,
             },
         )?;
         for &size in &grid.sizes {

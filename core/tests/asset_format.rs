@@ -14,7 +14,7 @@ use std::path::Path;
 
 use lumigraph_core::asset::{
     AssetError, AssetFile, AssetHeader, AssetWriter, Channel, Codec, Encoding, ImageKey, LayerDesc,
-    LfFrame, Provenance, StateDesc, encode_asset, write_asset,
+    LfFrame, MemoryWriter, Provenance, StateDesc, encode_asset, write_asset,
 };
 use proptest::prelude::*;
 use serde_json::{Value, json};
@@ -485,7 +485,7 @@ fn layers_and_states_with_fallback_to_the_base_state() {
                         key.in_base_state()
                     };
                     assert_eq!(asset.has_image(key), owner == key);
-                    assert_eq!(asset.resolve(key).unwrap(), owner);
+                    assert_eq!(asset.stored_pages(key), if owner == key { 4 } else { 0 });
                     assert_eq!(asset.read_image(key).unwrap(), stored[&owner], "{key}");
                     assert_eq!(asset.read_page(key, 3).unwrap().len(), 8 * 8 * 4);
                 }
@@ -496,6 +496,108 @@ fn layers_and_states_with_fallback_to_the_base_state() {
     assert!(matches!(
         asset.read_image(ImageKey::new(0, 3, 0, Channel::Color)),
         Err(AssetError::KeyOutOfRange { .. })
+    ));
+}
+
+#[test]
+fn a_state_may_store_some_pages_from_version_4_and_the_rest_read_from_state_0() {
+    // 40 px, 16 px pages: 3 × 3 pages of 16, 16 and 8 texels a side.
+    let mut header = header(0, 40, 16, Encoding::R16);
+    header.states.push(StateDesc {
+        name: "dent".to_owned(),
+        params: serde_json::Map::new(),
+    });
+    assert_eq!(header.format_version, 1);
+    let base = images_for(&header, &base_keys(&header), 1);
+    let color = ImageKey::new(0, 1, 4, Channel::Color);
+    let depth = ImageKey::new(0, 1, 4, Channel::Depth);
+    let new_color = content(&header, color, 2);
+    let new_depth = content(&header, depth, 3);
+    let mut writer = MemoryWriter::new(header.clone()).unwrap();
+    for (key, bytes) in &base {
+        writer.add_image(*key, bytes).unwrap();
+    }
+    // Refused: part of a base image, pages out of order or out of the grid.
+    let base_color = ImageKey::new(0, 0, 4, Channel::Color);
+    for (key, pages) in [
+        (base_color, vec![0]),
+        (color, vec![3, 1]),
+        (color, vec![1, 1]),
+        (color, vec![9]),
+    ] {
+        let err = writer.add_pages(key, &new_color, &pages).unwrap_err();
+        assert!(matches!(err, AssetError::PartialImage { .. }), "{err}");
+    }
+    writer.add_pages(color, &new_color, &[1, 8]).unwrap();
+    writer.add_pages(depth, &new_depth, &[4]).unwrap();
+    // No pages: nothing stored, not an error.
+    writer
+        .add_pages(ImageKey::new(0, 1, 5, Channel::Color), &new_color, &[])
+        .unwrap();
+    let bytes = writer.finish().unwrap();
+    let asset = AssetFile::from_bytes(bytes.clone()).unwrap();
+    assert_eq!(asset.header().format_version, 4);
+    assert_eq!(raw_preamble(&bytes).version, 4);
+    assert_eq!(asset.index().len(), 12 * 2 * 9 + 3);
+    assert_eq!(asset.stored_pages(color), 2);
+    assert_eq!(asset.stored_pages(depth), 1);
+    assert!(!asset.has_image(ImageKey::new(0, 1, 5, Channel::Color)));
+
+    // Each page reads from the state where it is stored, else from state 0.
+    let grid = asset.header().page_grid().unwrap();
+    let expect = |key: ImageKey, new: &[u8], stored: &[u32]| {
+        let bpp = if key.channel == Channel::Color { 4 } else { 2 };
+        let old = &base
+            .iter()
+            .find(|(k, _)| *k == key.in_base_state())
+            .unwrap()
+            .1;
+        let mut want = old.clone();
+        for &page in stored {
+            let r = grid.page_rect(page).unwrap();
+            for y in r.y..r.y + r.height {
+                let at = (y as usize * 40 + r.x as usize) * bpp;
+                let len = r.width as usize * bpp;
+                want[at..at + len].copy_from_slice(&new[at..at + len]);
+            }
+        }
+        assert_eq!(asset.read_image(key).unwrap(), want, "{key}");
+        for page in 0..9 {
+            let r = grid.page_rect(page).unwrap();
+            let mut rows = Vec::new();
+            for y in r.y..r.y + r.height {
+                let at = (y as usize * 40 + r.x as usize) * bpp;
+                rows.extend_from_slice(&want[at..at + r.width as usize * bpp]);
+            }
+            assert_eq!(
+                asset.read_page(key, page).unwrap(),
+                rows,
+                "{key} page {page}"
+            );
+        }
+    };
+    expect(color, &new_color, &[1, 8]);
+    expect(depth, &new_depth, &[4]);
+    asset.verify_all().unwrap();
+
+    // The same index under version 3, where images are whole: refused, naming the rule.
+    let v3 = with_header_json(&bytes, |h| h["format_version"] = json!(3));
+    let v3 = patch_preamble(&v3, |p| p.version = 3);
+    let err = AssetFile::from_bytes(v3).unwrap_err();
+    assert!(
+        matches!(&err, AssetError::Index(m) if m.contains("whole")),
+        "{err}"
+    );
+    // A partial image in state 0 is refused in version 4 too.
+    let missing_base_page = with_index(&bytes, |ix| {
+        // Drop entry 0 (state 0's first page) and fix the count.
+        ix.drain(4..4 + 36);
+        let count = u32::from_le_bytes(ix[..4].try_into().unwrap()) - 1;
+        ix[..4].copy_from_slice(&count.to_le_bytes());
+    });
+    assert!(matches!(
+        AssetFile::from_bytes(missing_base_page),
+        Err(AssetError::Index(_))
     ));
 }
 
@@ -848,12 +950,12 @@ fn hostile_preamble_values_are_typed_errors_without_big_allocations() {
         ("flags", Box::new(|p| p.flags = 1), |e| {
             matches!(e, AssetError::Preamble(_))
         }),
-        ("version 4", Box::new(|p| p.version = 4), |e| {
+        ("version 5", Box::new(|p| p.version = 5), |e| {
             matches!(
                 e,
                 AssetError::UnsupportedVersion {
-                    found: 4,
-                    supported: 3
+                    found: 5,
+                    supported: 4
                 }
             )
         }),
@@ -1277,10 +1379,10 @@ fn hostile_page_data_is_a_typed_error_on_read() {
 #[test]
 fn error_messages_say_what_is_wrong() {
     let bytes = tiny_asset();
-    let v4 = patch_preamble(&bytes, |p| p.version = 4);
-    let msg = AssetFile::from_bytes(v4).unwrap_err().to_string();
+    let v5 = patch_preamble(&bytes, |p| p.version = 5);
+    let msg = AssetFile::from_bytes(v5).unwrap_err().to_string();
     assert!(
-        msg.contains("version 4") && msg.contains("reads versions 1 to 3"),
+        msg.contains("version 5") && msg.contains("reads versions 1 to 4"),
         "{msg}"
     );
     let msg = AssetFile::from_bytes(b"GIF89a".to_vec())

@@ -503,7 +503,7 @@ fn an_upload_without_light_states_costs_the_base_memory_and_renders_the_base_ali
         .upload_with(
             &asset,
             &UploadOptions {
-                without_light_states: true,
+                base_state_only: true,
                 ..UploadOptions::default()
             },
         )

@@ -554,6 +554,7 @@ fn seed_000_tolerance_below_half_step_leaves_gaps() {
             lod: None,
             guide: None,
             light: None,
+            state: None,
         };
         interior_holes(
             &ctx()
@@ -1051,6 +1052,7 @@ fn stability_step_and_tolerance_at_their_limits() {
                     lod: None,
                     guide: None,
                     light: None,
+                    state: None,
                 },
             )
             .unwrap_or_else(|e| panic!("{method} step {step} tol {tolerance}: {e}"));

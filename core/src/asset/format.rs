@@ -326,6 +326,8 @@ pub(crate) struct Layout {
     pub cameras: u32,
     pub color_bpp: u32,
     pub depth_bpp: u32,
+    /// Whether states other than 0 may store some pages of an image (version 4 and later).
+    pub partial_images: bool,
 }
 
 impl Layout {
@@ -345,6 +347,7 @@ impl Layout {
             cameras: header.camera_count(),
             color_bpp: bpp(Channel::Color)?,
             depth_bpp: bpp(Channel::Depth)?,
+            partial_images: header.format_version >= super::PARTIAL_IMAGES_SINCE,
         })
     }
 
@@ -442,9 +445,12 @@ pub(crate) fn parse_index(
 
     // Entries are sorted, unique and in range, so an image is complete exactly when it has
     // `pages` entries, and state 0 is complete exactly when it holds `base_images` images.
+    // From version 4 an image of another state may hold any of its pages (the others read
+    // from state 0).
     let mut base_images = 0u64;
     for group in entries.chunk_by(|a, b| a.key == b.key) {
-        if group.len() as u64 != pages {
+        let partial_allowed = layout.partial_images && group[0].key.state != 0;
+        if group.len() as u64 != pages && !partial_allowed {
             return Err(index_err(format!(
                 "{} has {} of its {pages} pages; an image is stored whole or not at all",
                 group[0].key,

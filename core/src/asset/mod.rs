@@ -38,14 +38,17 @@ pub use header::{
     StateDesc, camera_count_for_level,
 };
 pub use reader::AssetFile;
-pub use writer::{AssetWriter, MemoryWriter, encode_asset, write_asset};
+pub use writer::{AssetWriter, MemoryWriter, encode_asset, with_header, write_asset};
 
 /// The newest `.lfa` format version this build reads and writes. Version 2 adds the colour
 /// encoding `rgba8_premultiplied` (semi-transparent light fields, e.g. volumes), version 3 the
 /// header field `layer_order` (depth layers composited in ray order); a writer writes the
 /// lowest version that can express its asset ([`AssetHeader::required_version`]), so assets
-/// without them stay version 1 or 2.
-pub const FORMAT_VERSION: u32 = 3;
+/// without them stay version 1 or 2. Version 4 lets a state other than 0 store only some pages
+/// of an image (deformation states store the pages that changed); the others read from state 0.
+pub const FORMAT_VERSION: u32 = 4;
+/// The first version whose non-base states may store part of an image.
+pub const PARTIAL_IMAGES_SINCE: u32 = 4;
 /// The oldest version this build reads.
 pub const MIN_FORMAT_VERSION: u32 = 1;
 
@@ -225,6 +228,14 @@ pub enum AssetError {
     IncompleteBaseState {
         /// The first missing image.
         missing: ImageKey,
+    },
+    /// Some pages of an image asked of the base state, or a bad page list.
+    #[error("cannot store part of {key}: {reason}")]
+    PartialImage {
+        /// The image.
+        key: ImageKey,
+        /// Why.
+        reason: String,
     },
     /// The header could not be serialized to JSON.
     #[error("the header could not be encoded as JSON")]

@@ -201,30 +201,44 @@ impl AssetFile {
         self.file_len
     }
 
-    /// Whether the image is stored under exactly this key (no state fallback).
+    /// Whether any page of the image is stored under exactly this key (no state fallback).
     pub fn has_image(&self, key: ImageKey) -> bool {
-        self.first_entry(key).is_some()
+        !self.entries_of(key).is_empty()
     }
 
-    /// The key whose pages serve `key`: `key` itself if stored, else the same image in state 0.
-    pub fn resolve(&self, key: ImageKey) -> Result<ImageKey> {
+    /// How many of the image's pages are stored under exactly this key: all of them in state
+    /// 0; in another state from 0 (the image reads from state 0) to all (from version 4 a
+    /// state may store only the pages that differ from state 0).
+    pub fn stored_pages(&self, key: ImageKey) -> u32 {
+        self.entries_of(key).len() as u32
+    }
+
+    /// The index entry serving each page of `key`: the page stored under `key` if there is
+    /// one, else the same page of state 0.
+    fn page_entries(&self, key: ImageKey) -> Result<Vec<&IndexEntry>> {
         self.layout.check_key(key)?;
-        [key, key.in_base_state()]
-            .into_iter()
-            .find(|&k| self.has_image(k))
-            .ok_or(AssetError::MissingImage { key })
+        let page_count = self.layout.grid.page_count() as usize;
+        let own = self.entries_of(key);
+        if own.len() == page_count {
+            return Ok(own.iter().collect());
+        }
+        let base = self.entries_of(key.in_base_state());
+        if base.len() != page_count {
+            // Validated at open (state 0 is complete), so unreachable in practice.
+            return Err(AssetError::MissingImage { key });
+        }
+        let mut own = own.iter().peekable();
+        Ok(base
+            .iter()
+            .map(|b| own.next_if(|e| e.page == b.page).unwrap_or(b))
+            .collect())
     }
 
-    /// Reads the whole image for `key` (falling back to state 0 if the state omits it):
-    /// `resolution_px²` texels, row-major, top row first, in the channel's encoding.
-    /// Every page's checksum and decoded size are verified.
+    /// Reads the whole image for `key` (each page falling back to state 0 where the state
+    /// omits it): `resolution_px²` texels, row-major, top row first, in the channel's
+    /// encoding. Every page's checksum and decoded size are verified.
     pub fn read_image(&self, key: ImageKey) -> Result<Vec<u8>> {
-        let stored = self.resolve(key)?;
-        let first = self
-            .first_entry(stored)
-            .ok_or(AssetError::MissingImage { key })?;
-        let page_count = self.layout.grid.page_count() as usize;
-        let entries = &self.index[first..first + page_count];
+        let entries = self.page_entries(key)?;
         let bpp = self.layout.bytes_per_texel(key.channel) as usize;
         let side = self.layout.grid.resolution_px() as usize;
         // Validated header: ≤ 8192² × 4 bytes.
@@ -245,35 +259,25 @@ impl AssetFile {
             Ok(())
         };
 
-        // The writer stores an image's pages back to back: then one read fetches them all.
-        let contiguous = entries
-            .windows(2)
-            .all(|w| w[0].offset + u64::from(w[0].length) == w[1].offset);
-        if contiguous {
-            let start = entries[0].offset;
-            let span: u64 = entries.iter().map(|e| u64::from(e.length)).sum();
+        // The writer stores an image's pages back to back: then one read fetches each run.
+        for run in entries.chunk_by(|a, b| a.offset + u64::from(a.length) == b.offset) {
+            let start = run[0].offset;
+            let span: u64 = run.iter().map(|e| u64::from(e.length)).sum();
             self.source.with_range(start, span as usize, |bytes| {
-                for entry in entries {
+                for entry in run {
                     let at = (entry.offset - start) as usize;
                     put_page(entry, &bytes[at..at + entry.length as usize])?;
                 }
                 Ok(())
             })?;
-        } else {
-            for entry in entries {
-                self.source
-                    .with_range(entry.offset, entry.length as usize, |bytes| {
-                        put_page(entry, bytes)
-                    })?;
-            }
         }
         Ok(image)
     }
 
-    /// Reads one page of the image for `key` (with the state fallback): the page's rectangle
-    /// ([`super::PageGrid::page_rect`]) row-major in the channel's encoding.
+    /// Reads one page of the image for `key` (with the state fallback, per page): the page's
+    /// rectangle ([`super::PageGrid::page_rect`]) row-major in the channel's encoding.
     pub fn read_page(&self, key: ImageKey, page: u32) -> Result<Vec<u8>> {
-        let stored = self.resolve(key)?;
+        self.layout.check_key(key)?;
         let page_count = self.layout.grid.page_count();
         if page >= page_count {
             return Err(AssetError::MissingPage {
@@ -282,11 +286,10 @@ impl AssetFile {
                 page_count,
             });
         }
-        let at = self
-            .first_entry(stored)
-            .ok_or(AssetError::MissingImage { key })?
-            + page as usize;
-        let entry = &self.index[at];
+        let find = |k: ImageKey| self.entries_of(k).iter().find(|e| e.page == page);
+        let entry = find(key)
+            .or_else(|| find(key.in_base_state()))
+            .ok_or(AssetError::MissingImage { key })?;
         let mut decoder = PageDecoder::new()?;
         self.source
             .with_range(entry.offset, entry.length as usize, |bytes| {
@@ -306,13 +309,22 @@ impl AssetFile {
         Ok(())
     }
 
-    /// Position in the index of page 0 of `key`, if stored.
-    fn first_entry(&self, key: ImageKey) -> Option<usize> {
-        let at = self.index.partition_point(|e| e.sort_key() < (key, 0));
-        self.index
-            .get(at)
-            .is_some_and(|e| e.sort_key() == (key, 0))
-            .then_some(at)
+    /// The stored (encoded) bytes of an index entry of this asset, checked against its CRC.
+    pub(crate) fn stored_bytes(&self, entry: &IndexEntry) -> Result<Vec<u8>> {
+        let bytes = self.source.read_at(entry.offset, entry.length as usize)?;
+        if !super::format::crc_matches(&bytes, entry.crc32) {
+            return Err(AssetError::Checksum {
+                what: format!("page {} of {}", entry.page, entry.key),
+            });
+        }
+        Ok(bytes)
+    }
+
+    /// The entries stored under exactly `key` (sorted by page; empty if none).
+    fn entries_of(&self, key: ImageKey) -> &[IndexEntry] {
+        let from = self.index.partition_point(|e| e.key < key);
+        let to = from + self.index[from..].partition_point(|e| e.key == key);
+        &self.index[from..to]
     }
 }
 

@@ -73,6 +73,30 @@ impl AssetWriter {
             .add_image(key, bytes)
     }
 
+    /// Adds some pages of an image of a state other than 0 (`pages` strictly increasing page
+    /// numbers); the image's other pages read from state 0. `bytes` is the whole image, as for
+    /// [`Self::add_image`]. An image with fewer than all its pages makes the file version 4
+    /// ([`super::PARTIAL_IMAGES_SINCE`]); no pages adds nothing.
+    pub fn add_pages(&mut self, key: ImageKey, bytes: &[u8], pages: &[u32]) -> Result<()> {
+        self.encoder
+            .as_mut()
+            .ok_or(AssetError::WriterFailed)?
+            .add_pages(key, bytes, pages)
+    }
+
+    /// The page grid of the asset being written.
+    ///
+    /// # Errors
+    /// [`AssetError::WriterFailed`] after a failed write.
+    pub fn page_grid(&self) -> Result<super::PageGrid> {
+        Ok(self
+            .encoder
+            .as_ref()
+            .ok_or(AssetError::WriterFailed)?
+            .layout
+            .grid)
+    }
+
     /// Sets the header's quality report (replacing any earlier one).
     pub fn set_quality(&mut self, value: serde_json::Value) {
         if let Some(encoder) = self.encoder.as_mut() {
@@ -143,6 +167,44 @@ pub fn encode_asset(
     Ok(encoder.finish()?.into_inner())
 }
 
+/// Re-encodes `asset` in memory with another header of the same layout (a new quality report,
+/// say), copying every stored page as it is: no decoding, no recompression, and the states'
+/// partial images stay partial.
+///
+/// # Errors
+/// A header whose layout (page grid, layers, states, cameras, encodings) differs from the
+/// asset's, or a page whose checksum fails.
+pub fn with_header(asset: &super::AssetFile, header: AssetHeader) -> Result<Vec<u8>> {
+    let layout = Layout::new(&header)?;
+    let old = Layout::new(asset.header())?;
+    if (layout.grid, layout.layers, layout.states, layout.cameras)
+        != (old.grid, old.layers, old.states, old.cameras)
+        || (layout.color_bpp, layout.depth_bpp) != (old.color_bpp, old.depth_bpp)
+        || header.format_version < asset.header().format_version
+    {
+        return Err(AssetError::Header(
+            "a new header must keep the asset's layout and format version".to_owned(),
+        ));
+    }
+    let mut encoder = Encoder::new(Cursor::new(Vec::new()), header)?;
+    for entry in asset.index() {
+        let bytes = asset.stored_bytes(entry)?;
+        encoder.sink.write_all(&bytes)?;
+        encoder.entries.push(IndexEntry::new(
+            entry.key,
+            entry.page,
+            entry.codec,
+            encoder.position,
+            entry.length,
+            entry.raw_length,
+            entry.crc32,
+        ));
+        encoder.position += u64::from(entry.length);
+        encoder.added.insert(entry.key);
+    }
+    Ok(encoder.finish()?.into_inner())
+}
+
 /// Encodes an asset in memory one image at a time: each image's pages are compressed as it is
 /// added, so only the compressed asset is held (a bake kept in memory, light states included,
 /// costs its file size, not its decoded size).
@@ -167,6 +229,19 @@ impl MemoryWriter {
     /// As [`AssetWriter::add_image`].
     pub fn add_image(&mut self, key: ImageKey, bytes: &[u8]) -> Result<()> {
         self.encoder.add_image(key, bytes)
+    }
+
+    /// Adds some pages of an image, as [`AssetWriter::add_pages`] does.
+    ///
+    /// # Errors
+    /// As [`AssetWriter::add_pages`].
+    pub fn add_pages(&mut self, key: ImageKey, bytes: &[u8], pages: &[u32]) -> Result<()> {
+        self.encoder.add_pages(key, bytes, pages)
+    }
+
+    /// The page grid of the asset being written.
+    pub fn page_grid(&self) -> super::PageGrid {
+        self.encoder.layout.grid
     }
 
     /// Records the wall-clock bake time in the header's provenance.
@@ -221,6 +296,35 @@ impl<W: Write + Seek> Encoder<W> {
     }
 
     fn add_image(&mut self, key: ImageKey, bytes: &[u8]) -> Result<()> {
+        let all: Vec<u32> = (0..self.layout.grid.page_count()).collect();
+        self.add_pages_unchecked(key, bytes, &all)
+    }
+
+    fn add_pages(&mut self, key: ImageKey, bytes: &[u8], pages: &[u32]) -> Result<()> {
+        let bad = |reason: &str| {
+            Err(AssetError::PartialImage {
+                key,
+                reason: reason.to_owned(),
+            })
+        };
+        let count = self.layout.grid.page_count();
+        if key.state == 0 && pages.len() != count as usize {
+            return bad("state 0 stores every page of every image");
+        }
+        if !pages.windows(2).all(|w| w[0] < w[1]) {
+            return bad("page numbers must be strictly increasing");
+        }
+        if pages.last().is_some_and(|&p| p >= count) {
+            return bad(&format!("an image has {count} pages"));
+        }
+        if pages.is_empty() {
+            return Ok(());
+        }
+        self.add_pages_unchecked(key, bytes, pages)
+    }
+
+    /// Stores `pages` (strictly increasing, in range) of `key`'s image.
+    fn add_pages_unchecked(&mut self, key: ImageKey, bytes: &[u8], pages: &[u32]) -> Result<()> {
         if self.failed {
             return Err(AssetError::WriterFailed);
         }
@@ -236,10 +340,10 @@ impl<W: Write + Seek> Encoder<W> {
         if self.added.contains(&key) {
             return Err(AssetError::DuplicateImage { key });
         }
-        let pages = compress_image(&self.layout, key, bytes)?;
+        let stored_pages = compress_image(&self.layout, key, bytes, pages)?;
 
         self.failed = true;
-        for (page, stored) in (0u32..).zip(pages) {
+        for (&page, stored) in pages.iter().zip(stored_pages) {
             self.sink.write_all(&stored.bytes)?;
             self.entries.push(IndexEntry::new(
                 key,
@@ -254,6 +358,10 @@ impl<W: Write + Seek> Encoder<W> {
         }
         self.failed = false;
         self.added.insert(key);
+        if pages.len() != self.layout.grid.page_count() as usize {
+            self.header.format_version =
+                self.header.format_version.max(super::PARTIAL_IMAGES_SINCE);
+        }
         Ok(())
     }
 
@@ -302,24 +410,26 @@ impl<W: Write + Seek> Encoder<W> {
     }
 }
 
-/// Cuts `bytes` into pages and compresses each, in parallel for large images.
-fn compress_image(layout: &Layout, key: ImageKey, bytes: &[u8]) -> Result<Vec<StoredPage>> {
-    let page_count = layout.grid.page_count();
+/// Cuts `pages` out of `bytes` and compresses each, in parallel for large images.
+fn compress_image(
+    layout: &Layout,
+    key: ImageKey,
+    bytes: &[u8],
+    pages: &[u32],
+) -> Result<Vec<StoredPage>> {
+    let page_count = pages.len() as u32;
     let threads = std::thread::available_parallelism()
         .map_or(1, std::num::NonZero::get)
         .min(MAX_THREADS)
         .min(page_count as usize);
     if threads <= 1 || bytes.len() < PARALLEL_MIN_BYTES {
-        return compress_pages(layout, key, bytes, 0..page_count);
+        return compress_pages(layout, key, bytes, pages);
     }
-    let per_thread = page_count.div_ceil(threads as u32);
+    let per_thread = page_count.div_ceil(threads as u32) as usize;
     let chunks: Vec<Result<Vec<StoredPage>>> = std::thread::scope(|scope| {
-        let handles: Vec<_> = (0..page_count)
-            .step_by(per_thread as usize)
-            .map(|start| {
-                let end = (start + per_thread).min(page_count);
-                scope.spawn(move || compress_pages(layout, key, bytes, start..end))
-            })
+        let handles: Vec<_> = pages
+            .chunks(per_thread)
+            .map(|chunk| scope.spawn(move || compress_pages(layout, key, bytes, chunk)))
             .collect();
         handles
             .into_iter()
@@ -340,15 +450,18 @@ fn compress_pages(
     layout: &Layout,
     key: ImageKey,
     bytes: &[u8],
-    pages: std::ops::Range<u32>,
+    pages: &[u32],
 ) -> Result<Vec<StoredPage>> {
     let encode_err = |page, source| AssetError::Encode { key, page, source };
-    let mut compressor =
-        zstd::bulk::Compressor::new(ZSTD_LEVEL).map_err(|e| encode_err(pages.start, e))?;
+    let mut compressor = zstd::bulk::Compressor::new(ZSTD_LEVEL)
+        .map_err(|e| encode_err(pages.first().copied().unwrap_or(0), e))?;
     let bpp = layout.bytes_per_texel(key.channel) as usize;
     let side = layout.grid.resolution_px() as usize;
     let mut out = Vec::with_capacity(pages.len());
-    for (page, rect) in pages.filter_map(|page| Some((page, layout.grid.page_rect(page)?))) {
+    for (page, rect) in pages
+        .iter()
+        .filter_map(|&page| Some((page, layout.grid.page_rect(page)?)))
+    {
         let row_bytes = rect.width as usize * bpp;
         let mut raw = Vec::with_capacity(row_bytes * rect.height as usize);
         for y in rect.y as usize..(rect.y + rect.height) as usize {

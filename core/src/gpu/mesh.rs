@@ -76,8 +76,18 @@ impl GpuMesh {
             center: sphere.center.to_array(),
             radius: sphere.radius,
         };
+        Self::upload_in(gpu, mesh, frame)
+    }
+
+    /// Uploads `mesh` normalized by a given frame rather than its own bounding sphere (a
+    /// deformation state is baked in its base mesh's frame); geometry outside the frame's
+    /// sphere is the caller's to refuse.
+    ///
+    /// # Errors
+    /// As [`Self::upload`].
+    pub fn upload_in(gpu: &Gpu, mesh: &Mesh, frame: LfFrame) -> Result<GpuMesh, super::GpuError> {
         let inv_scale = 1.0 / frame.world_from_lf_scale();
-        let center = sphere.center;
+        let center = DVec3::from(frame.center);
         let lf_pos = |p: [f32; 3]| ((DVec3::from(p.map(f64::from)) - center) * inv_scale).as_vec3();
         let vertices: Vec<GpuVertex> = (0..mesh.positions.len())
             .map(|i| {

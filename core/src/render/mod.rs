@@ -82,6 +82,8 @@ pub struct GpuLightField {
     pub translucent: Option<f32>,
     /// Every layer's maps, in the asset's layer order (one for most assets).
     maps: Vec<LayerMaps>,
+    /// Each deformation state's maps ([`crate::deform`]), in state order.
+    deformations: Vec<StateMaps>,
     /// The light states' colour maps, when the asset has them ([`crate::light`]).
     lights: Option<LightMaps>,
     /// The device, polled on drop so that wgpu reclaims the textures at once.
@@ -99,6 +101,14 @@ struct LayerMaps {
     textures: [wgpu::Texture; 2],
     /// Views of `textures`, for a relit frame's bind group.
     views: [wgpu::TextureView; 2],
+}
+
+/// A deformation state's maps on the GPU: every layer, whole (the pages the state leaves out
+/// are the base state's).
+struct StateMaps {
+    /// Index into the asset's states.
+    state: u16,
+    maps: Vec<LayerMaps>,
 }
 
 /// A light-state asset's maps on the GPU: the ambient part, the shading normals (when the asset
@@ -123,6 +133,29 @@ impl GpuLightField {
         self.layers.iter().map(|l| l.default_opacity).collect()
     }
 
+    /// The deformation states uploaded with the field (indices into the asset's states).
+    pub fn deformation_states(&self) -> Vec<u16> {
+        self.deformations.iter().map(|d| d.state).collect()
+    }
+
+    /// The maps of `state` (`None` or 0: the base state), one per layer.
+    fn layer_maps(&self, state: Option<u16>) -> Result<&[LayerMaps], RenderError> {
+        match state {
+            None | Some(0) => Ok(&self.maps),
+            Some(s) => self
+                .deformations
+                .iter()
+                .find(|d| d.state == s)
+                .map(|d| d.maps.as_slice())
+                .ok_or_else(|| {
+                    RenderError::Option(format!(
+                        "state {s} is not a deformation state of this light field (or was not \
+                         uploaded)"
+                    ))
+                }),
+        }
+    }
+
     /// The `τ_d` its layers composite with: the bake's for a translucent field, else DESIGN
     /// §9's default.
     pub fn depth_threshold(&self) -> f32 {
@@ -137,7 +170,12 @@ impl Drop for GpuLightField {
         // only when some later frame is submitted: an asset deleted on an idle service would
         // stay resident. `destroy` frees the textures now, or as soon as the last submission
         // that reads them completes, whoever else still holds a handle to them.
-        for texture in self.maps.iter().flat_map(|m| &m.textures) {
+        for texture in self
+            .maps
+            .iter()
+            .chain(self.deformations.iter().flat_map(|d| &d.maps))
+            .flat_map(|m| &m.textures)
+        {
             texture.destroy();
         }
         if let Some(lights) = &self.lights {
@@ -520,7 +558,8 @@ impl Renderer {
         jitter: [f32; 2],
         opacities: &[f32],
     ) -> Result<Frame, RenderError> {
-        if opacities.len() != field.maps.len()
+        let layer_maps = field.layer_maps(a.state)?;
+        if opacities.len() != layer_maps.len()
             || !opacities
                 .iter()
                 .all(|o| o.is_finite() && (0.0..=1.0).contains(o))
@@ -528,7 +567,7 @@ impl Renderer {
             return Err(RenderError::Option(format!(
                 "layer opacities {opacities:?}: the light field has {} layers, each opacity in \
                  [0, 1]",
-                field.maps.len()
+                layer_maps.len()
             )));
         }
         let visible: Vec<(usize, f32)> = opacities
@@ -541,7 +580,7 @@ impl Renderer {
         if let [(only, o)] = visible[..]
             && o >= 1.0
         {
-            let maps = &field.maps[only];
+            let maps = &layer_maps[only];
             let mut frame = self.render_maps(field, maps, view, a, b, weight, jitter)?;
             if let Some(tau) = field.translucent {
                 straighten(&mut frame.color, &mut frame.depth, tau);
@@ -591,8 +630,9 @@ impl Renderer {
         jitter: [f32; 2],
         opacities: &[f32],
     ) -> Result<Vec<crate::layers::LayerImage>, RenderError> {
-        let mut out = Vec::with_capacity(field.maps.len());
-        for (i, maps) in field.maps.iter().enumerate() {
+        let layer_maps = field.layer_maps(a.state)?;
+        let mut out = Vec::with_capacity(layer_maps.len());
+        for (i, maps) in layer_maps.iter().enumerate() {
             if opacities.get(i).is_some_and(|&o| o <= 0.0) {
                 let pixels = view.width as usize * view.height as usize;
                 out.push(crate::layers::LayerImage {
@@ -727,7 +767,7 @@ impl Renderer {
             field.layer_order,
         );
         for (slot, &(index, _)) in visible.iter().enumerate() {
-            let Some(maps) = field.maps.get(index) else {
+            let Some(maps) = field.layer_maps(settings.0.state)?.get(index) else {
                 return Err(RenderError::Option(format!("no layer {index}")));
             };
             // Each layer's passes are submitted as soon as they are recorded (its parameters

@@ -103,6 +103,11 @@ pub struct RenderOptions {
     /// ([`crate::light`]); `None`: the base colour (the bake's own light).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub light: Option<crate::light::LightDirection>,
+    /// Render this deformation state (an index into the asset's states, [`crate::deform`]);
+    /// `None`: the base state. Set from a state name by [`crate::quality::Plan`]; not part of
+    /// the JSON form.
+    #[serde(skip)]
+    pub state: Option<u16>,
 }
 
 /// Largest coarse-to-fine factor ([`RenderOptions::guide`]).
@@ -116,9 +121,10 @@ pub const DEFAULT_GUIDE: u32 = 4;
 pub struct UploadOptions {
     /// Depth precision to render with: `None` = as stored, `Some(8)` requantizes 16-bit depth.
     pub depth_bits: Option<u8>,
-    /// Leave the asset's light states on the host: for work that never relights (the
-    /// trade-off sweep, the bake-time calibration), which then costs the base state's memory.
-    pub without_light_states: bool,
+    /// Upload the base state only, leaving light and deformation states on the host: for work
+    /// that never relights or deforms (the trade-off sweep, the bake-time calibration), which
+    /// then costs the base state's memory.
+    pub base_state_only: bool,
 }
 
 /// The resolved settings a render used.

@@ -23,7 +23,11 @@ use super::{GpuLightField, Renderer};
 pub fn field_bytes(header: &AssetHeader) -> u64 {
     let side = u64::from(header.geometry.resolution_px);
     let layers = u64::from(Gpu::padded_layers(header.geometry.camera_count));
-    let base = base_field_bytes(header);
+    // Deformation states: a whole copy of the base state's maps each.
+    let deformations = (0..header.states.len())
+        .filter(|&s| crate::deform::is_deformation(header, s))
+        .count() as u64;
+    let base = base_field_bytes(header).saturating_mul(1 + deformations);
     // Light states: one RGBA8 map per camera for the ambient part and each proxy direction.
     let light_maps = LightStates::of(header).ok().flatten().map_or(0, |s| {
         u64::from(s.count) + 1 + u64::from(s.normal.is_some())
@@ -34,7 +38,8 @@ pub fn field_bytes(header: &AssetHeader) -> u64 {
     base.saturating_add(lights)
 }
 
-/// [`field_bytes`] without the light states: what an upload that leaves them out allocates.
+/// [`field_bytes`] of the base state alone: what an upload that leaves the other states out
+/// allocates.
 fn base_field_bytes(header: &AssetHeader) -> u64 {
     let side = u64::from(header.geometry.resolution_px);
     let layers = u64::from(Gpu::padded_layers(header.geometry.camera_count));
@@ -106,8 +111,74 @@ impl Renderer {
         self.gpu.check_layers(Gpu::padded_layers(cameras))?;
         let translucent = (header.encoding(Channel::Color) == Some(Encoding::Rgba8Premultiplied))
             .then(|| translucent_depth_threshold(header));
+        let (maps, mut union) =
+            self.upload_state(asset, 0, depth_encoding, requantize_8, translucent)?;
+        let mut deformations = Vec::new();
+        if !options.base_state_only {
+            for state in 1..header.states.len() {
+                if crate::deform::is_deformation(header, state) {
+                    let state = state as u16;
+                    let (maps, boxed) =
+                        self.upload_state(asset, state, depth_encoding, requantize_8, translucent)?;
+                    // The field's box holds every state's surface (scenes cull by it).
+                    for axis in 0..3 {
+                        union[0][axis] = union[0][axis].min(boxed[0][axis]);
+                        union[1][axis] = union[1][axis].max(boxed[1][axis]);
+                    }
+                    deformations.push(super::StateMaps { state, maps });
+                }
+            }
+        }
+        let lights = if options.base_state_only {
+            None
+        } else {
+            self.upload_lights(asset)?
+        };
+        let gpu_bytes = if options.base_state_only {
+            base_field_bytes(header)
+        } else {
+            field_bytes(header)
+        };
+        let frame = &header.frame;
+        // Decremented by the field's drop.
+        self.resident.fields.fetch_add(1, Ordering::AcqRel);
+        self.resident.bytes.fetch_add(gpu_bytes, Ordering::AcqRel);
+        Ok(GpuLightField {
+            scale: frame.world_from_lf_scale(),
+            center: DVec3::from(frame.center),
+            radius: frame.radius,
+            max_level,
+            resolution: n,
+            gpu_bytes,
+            visible_box: union,
+            layers: header.layers.clone(),
+            layer_order: header.layer_order,
+            translucent,
+            maps,
+            deformations,
+            lights,
+            gpu: Arc::clone(&self.gpu),
+            resident: Arc::clone(&self.resident),
+        })
+    }
+}
+
+impl Renderer {
+    /// One state's maps (every layer; pages the state leaves out read from state 0), with the
+    /// union of the layers' visible boxes.
+    fn upload_state(
+        &self,
+        asset: &AssetFile,
+        state: u16,
+        depth_encoding: Encoding,
+        requantize_8: bool,
+        translucent: Option<f32>,
+    ) -> Result<(Vec<super::LayerMaps>, [[f32; 3]; 2]), RenderError> {
+        let header = asset.header();
         let layer_count = u16::try_from(header.layers.len())
             .map_err(|_| AssetError::Header("too many layers".to_owned()))?;
+        let n = header.geometry.resolution_px;
+        let cameras = header.geometry.camera_count;
         let mut maps = Vec::with_capacity(header.layers.len());
         let mut union = VisibleBox::default();
         for layer in 0..layer_count {
@@ -116,8 +187,8 @@ impl Renderer {
             let mut visible = VisibleBox::default();
             let positions = &geometry::camera_set().positions;
             for k in 0..cameras {
-                colors.push(asset.read_image(ImageKey::new(layer, 0, k, Channel::Color))?);
-                let raw = asset.read_image(ImageKey::new(layer, 0, k, Channel::Depth))?;
+                colors.push(asset.read_image(ImageKey::new(layer, state, k, Channel::Color))?);
+                let raw = asset.read_image(ImageKey::new(layer, state, k, Channel::Depth))?;
                 let codes: Vec<u16> = match depth_encoding {
                     Encoding::R16 => raw
                         .chunks_exact(2)
@@ -199,40 +270,12 @@ impl Renderer {
                 views: [color_view, depth_view],
             });
         }
-        let lights = if options.without_light_states {
-            None
+        let union = if union.lo.cmple(union.hi).all() {
+            [union.lo.to_array(), union.hi.to_array()]
         } else {
-            self.upload_lights(asset)?
+            maps[0].visible_box
         };
-        let gpu_bytes = if lights.is_some() {
-            field_bytes(header)
-        } else {
-            base_field_bytes(header)
-        };
-        let frame = &header.frame;
-        // Decremented by the field's drop.
-        self.resident.fields.fetch_add(1, Ordering::AcqRel);
-        self.resident.bytes.fetch_add(gpu_bytes, Ordering::AcqRel);
-        Ok(GpuLightField {
-            scale: frame.world_from_lf_scale(),
-            center: DVec3::from(frame.center),
-            radius: frame.radius,
-            max_level,
-            resolution: n,
-            gpu_bytes,
-            visible_box: if union.lo.cmple(union.hi).all() {
-                [union.lo.to_array(), union.hi.to_array()]
-            } else {
-                maps[0].visible_box
-            },
-            layers: header.layers.clone(),
-            layer_order: header.layer_order,
-            translucent,
-            maps,
-            lights,
-            gpu: Arc::clone(&self.gpu),
-            resident: Arc::clone(&self.resident),
-        })
+        Ok((maps, union))
     }
 }
 

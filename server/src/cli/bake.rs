@@ -9,8 +9,9 @@ use clap::Args;
 use indicatif::ProgressBar;
 use lumigraph_core::asset::Provenance;
 use lumigraph_core::auto_bake::{self, AutoEngines, AutoStage, AutoTarget};
-use lumigraph_core::bake::{BakeOptions, Baker};
+use lumigraph_core::bake::{BakeOptions, Baker, StateBake};
 use lumigraph_core::calibration;
+use lumigraph_core::deform::StateMesh;
 use lumigraph_core::gpu::Gpu;
 use lumigraph_core::mesh::Mesh;
 use lumigraph_core::reference::ReferenceRenderer;
@@ -60,6 +61,16 @@ pub struct BakeArgs {
         conflicts_with = "auto"
     )]
     pub lights: Option<u32>,
+    /// A deformation state: MESH2 (any topology, inside the base mesh's bounding sphere) baked
+    /// in the base's frame, storing only the pages whose colour or depth differ from the base
+    /// (exactly: the bake is deterministic). Repeat for more states; render with `--state
+    /// NAME`; `info` lists what each stores.
+    #[arg(
+        long = "state",
+        value_name = "NAME=MESH2",
+        conflicts_with_all = ["auto", "lights", "demo"]
+    )]
+    pub states: Vec<String>,
     /// Skip the calibration (error against cost of this scene, stored in the asset's quality
     /// report for `render --target-psnr / --budget-ms`; a few seconds on lavapipe).
     #[arg(long)]
@@ -101,6 +112,9 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
         return bake_volume(path, args);
     }
     if args.volume.given() || args.layers.is_some() {
+        if !args.states.is_empty() {
+            anyhow::bail!("--state bakes deformation states of meshes, not of volumes");
+        }
         if args.lights.is_some() {
             anyhow::bail!("--lights relights meshes; volumes take one light (--shade)");
         }
@@ -121,14 +135,38 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
     };
     options.validate()?;
     let (mesh, provenance) = load_source(args.mesh.as_deref(), args.demo)?;
+    let state_sources = load_states(&args.states)?;
+    let state_meshes: Vec<StateMesh<'_>> = state_sources
+        .iter()
+        .map(|(name, mesh, source)| StateMesh {
+            name,
+            mesh,
+            source_name: &source.source_name,
+            source_sha256: &source.source_sha256,
+        })
+        .collect();
+    let states = StateBake {
+        meshes: &state_meshes,
+        ..StateBake::default()
+    };
     let gpu = gpu()?;
     let baker = Baker::new(gpu.clone());
     let bar = progress_bar(u64::from(options.cameras), "baking cameras");
     if !args.no_calibrate {
-        return bake_calibrated(args, &options, &mesh, &provenance, &baker, &gpu, &bar);
+        bake_calibrated(
+            args,
+            &options,
+            (&mesh, &states),
+            &provenance,
+            &baker,
+            &gpu,
+            &bar,
+        )?;
+        return print_states(&args.output);
     }
-    let report = baker.bake_to_file(
+    let report = baker.bake_states_to_file(
         &mesh,
+        &states,
         &options,
         &provenance,
         &args.output,
@@ -144,6 +182,40 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
         args.output.display(),
         report.asset_bytes as f64 / (1024.0 * 1024.0)
     );
+    print_states(&args.output)
+}
+
+/// The meshes of `--state NAME=MESH2` flags, with their provenance.
+fn load_states(flags: &[String]) -> Result<Vec<(String, Mesh, Provenance)>> {
+    flags
+        .iter()
+        .map(|flag| {
+            let Some((name, path)) = flag.split_once('=') else {
+                anyhow::bail!("--state {flag:?}: give NAME=MESH2");
+            };
+            if name.is_empty() || path.is_empty() {
+                anyhow::bail!("--state {flag:?}: give NAME=MESH2 with a name and a mesh file");
+            }
+            let (mesh, source) = load_source(Some(std::path::Path::new(path)), false)
+                .with_context(|| format!("state {name:?}"))?;
+            Ok((name.to_owned(), mesh, source))
+        })
+        .collect()
+}
+
+/// Prints what each deformation state of the asset at `path` stores.
+fn print_states(path: &std::path::Path) -> Result<()> {
+    let asset = lumigraph_core::asset::AssetFile::open(path)
+        .with_context(|| format!("cannot reopen {}", path.display()))?;
+    for state in lumigraph_core::deform::storage(&asset)? {
+        println!(
+            "state {:?}: stores {:.2} % of the pages ({} of {} cameras touched)",
+            state.name,
+            100.0 * state.fraction,
+            state.cameras,
+            asset.header().geometry.camera_count
+        );
+    }
     Ok(())
 }
 
@@ -152,7 +224,7 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
 fn bake_calibrated(
     args: &BakeArgs,
     options: &BakeOptions,
-    mesh: &Mesh,
+    (mesh, states): (&Mesh, &StateBake<'_>),
     provenance: &Provenance,
     baker: &Baker,
     gpu: &Arc<Gpu>,
@@ -160,11 +232,11 @@ fn bake_calibrated(
 ) -> Result<()> {
     let renderer = Renderer::new(gpu.clone());
     let reference = ReferenceRenderer::new(gpu.clone());
-    let baked = calibration::bake_calibrated(
+    let baked = calibration::bake_states_calibrated(
         baker,
         &renderer,
         &reference,
-        mesh,
+        (mesh, states),
         options,
         provenance,
         &mut |done, total| {

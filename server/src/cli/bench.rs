@@ -34,6 +34,10 @@ pub enum BenchCommand {
     /// field's and the light interpolation's, planar weights beside), and time relit frames
     /// against static ones.
     Lights(super::bench_lights::LightsArgs),
+    /// Dent a mesh by given depths and bake the dents as deformation states: the fraction of
+    /// pages each stores (with the bake-noise controls: the mesh unchanged and reordered), and
+    /// each state's quality against the dented mesh beside a plain bake of it.
+    States(super::bench_states::StatesArgs),
 }
 
 /// `lumigraph bench tradeoff`. Lists are comma-separated; steps accept fractions (`1/32`).

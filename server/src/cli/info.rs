@@ -65,6 +65,24 @@ pub(super) fn info(args: &InfoArgs) -> Result<()> {
         Ok(None) => {}
         Err(e) => println!("light states: unusable ({e})"),
     }
+    for state in lumigraph_core::deform::storage(&asset)? {
+        let stored: u64 = asset
+            .index()
+            .iter()
+            .filter(|e| e.key.state == state.index)
+            .map(|e| u64::from(e.length))
+            .sum();
+        println!(
+            "state {:?}: deformation, stores {:.2} % of the pages ({} of {}, {} of {} cameras), {}",
+            state.name,
+            100.0 * state.fraction,
+            state.stored_pages,
+            state.total_pages,
+            state.cameras,
+            h.geometry.camera_count,
+            describe_bytes(stored)
+        );
+    }
     println!(
         "bounding sphere: centre {:?}, radius {}",
         h.frame.center, h.frame.radius

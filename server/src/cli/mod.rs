@@ -11,6 +11,7 @@ mod args;
 mod bake;
 mod bench;
 mod bench_lights;
+mod bench_states;
 mod common;
 mod eval;
 mod healthcheck;
@@ -73,6 +74,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(args) => match args.command {
             BenchCommand::Tradeoff(args) => bench::bench_tradeoff(&args),
             BenchCommand::Lights(args) => bench_lights::bench_lights(&args),
+            BenchCommand::States(args) => bench_states::bench_states(&args),
         },
         Command::Serve(args) => serve::serve(&args),
         Command::Healthcheck(args) => healthcheck::healthcheck(&args),
