@@ -193,6 +193,50 @@ def test_shadows_reach_the_bake_and_the_reference(demo_mesh: lg.Mesh, demo_views
     assert lg.metrics.masked_psnr(frame, shadowed) > lg.metrics.masked_psnr(frame, lit) + 1.0
 
 
+def _yard(box_x: float) -> tuple[np.ndarray, np.ndarray]:
+    """A ground quad (±2) with a 0.5 box standing on it at x in [box_x, box_x + 0.5]."""
+    ground = np.array([[-2, 0, -2], [-2, 0, 2], [2, 0, 2], [2, 0, -2]], dtype=np.float32)
+    lo, hi = np.array([box_x, 0.0, -0.25]), np.array([box_x + 0.5, 0.5, 0.25])
+    corners = np.array(
+        [[(hi if i & (1 << a) else lo)[a] for a in range(3)] for i in range(8)], dtype=np.float32
+    )
+    faces = [[0, 1, 2], [0, 2, 3]]
+    for f in ([0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]):
+        g = [4 + i for i in f]
+        faces += [[g[0], g[1], g[2]], [g[0], g[2], g[3]]]
+    return np.vstack([ground, corners]), np.array(faces, dtype=np.uint32)
+
+
+def test_deformation_states_store_what_changed_and_render_by_name() -> None:
+    base, moved = _yard(-0.8), _yard(0.6)
+    lf = lg.bake_mesh(
+        base, cameras=42, resolution=128, shadows=True, states={"moved": moved, "same": base},
+        progress=False,
+    )
+    assert lf.info["format_version"] == 4
+    by_name = {d["name"]: d for d in lf.deformations}
+    assert set(by_name) == {"moved", "same"}
+    assert by_name["same"]["stored_pages"] == 0  # a deterministic bake: nothing differs
+    assert 0.0 < by_name["moved"]["fraction"] < 0.5
+    view = lg.View(eye=(0.0, 4.0, 4.5), target=(0.0, 0.2, 0.0), yfov_deg=40.0, width=128, height=128)
+    frame = lf.render(view, state="moved")
+    truth = lg.reference_render(moved, view, **lf.shading)
+    truth_base = lg.reference_render(base, view, **lf.shading)
+    plain = lf.render(view)
+    # Each state is closer to its own mesh's reference (the box is a small part of the view).
+    assert lg.metrics.masked_psnr(frame, truth) > lg.metrics.masked_psnr(plain, truth) + 1.0
+    assert lg.metrics.masked_psnr(plain, truth_base) > lg.metrics.masked_psnr(frame, truth_base) + 1.0
+    np.testing.assert_array_equal(lf.render(view, state="base").color, lf.render(view).color)
+    with pytest.raises(ValueError, match="unknown state"):
+        lf.render(view, state="dent")
+    with pytest.raises(ValueError, match="bounding sphere"):
+        lg.bake_mesh(base, cameras=12, resolution=16, states={"big": (base[0] * 3.0, base[1])}, progress=False)
+    with pytest.raises(ValueError, match="base"):
+        lg.bake_mesh(base, cameras=12, resolution=16, states={"base": base}, progress=False)
+    with pytest.raises(ValueError, match="lights"):
+        lg.bake_mesh(base, cameras=12, resolution=16, lights=12, states={"s": base}, progress=False)
+
+
 def test_light_states_relight_at_any_direction(
     demo_mesh: lg.Mesh, demo_views: list[lg.View]
 ) -> None:

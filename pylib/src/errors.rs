@@ -101,7 +101,9 @@ pub fn bake(error: &CoreBakeError) -> PyErr {
         CoreBakeError::BadResolution(_)
         | CoreBakeError::BadDepthBits(_)
         | CoreBakeError::Lights(_)
-        | CoreBakeError::LightsUnlit => PyValueError::new_err(error.to_string()),
+        | CoreBakeError::LightsUnlit
+        | CoreBakeError::Deform(_)
+        | CoreBakeError::StatesWithLights => PyValueError::new_err(error.to_string()),
         CoreBakeError::Shading(e) => shading(e),
         other => BakeError::new_err(chain(other)),
     }

@@ -6,8 +6,9 @@ use std::sync::{Arc, Mutex};
 
 use lumigraph_core::asset::{AssetFile, Provenance};
 use lumigraph_core::auto_bake::{self, AutoEngines, AutoStage, AutoTarget};
-use lumigraph_core::bake::BakeOptions;
+use lumigraph_core::bake::{BakeOptions, StateBake};
 use lumigraph_core::calibration;
+use lumigraph_core::deform::StateMesh;
 use lumigraph_core::frame::Frame;
 use lumigraph_core::lod::LodError;
 use lumigraph_core::quality::{Plan, Quality, QualityError};
@@ -289,6 +290,18 @@ impl PyLightField {
         json_to_py(py, self.asset.header())
     }
 
+    /// The deformation states (``bake_mesh(states=...)``), each ``{"name", "fraction",
+    /// "stored_pages", "total_pages", "cameras"}``: the share of the pages (colour and depth,
+    /// every camera) it stores, the rest reading from the base state.
+    #[getter]
+    fn deformations<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let storage =
+            lumigraph_core::deform::storage(&self.asset).map_err(|e| errors::asset(&e, None))?;
+        let text =
+            serde_json::to_string(&storage).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        py.import("json")?.call_method1("loads", (text,))
+    }
+
     /// Number of cameras baked (12, 42, 162 or 642).
     #[getter]
     fn cameras(&self) -> u32 {
@@ -341,10 +354,12 @@ impl PyLightField {
     ///         silhouette error, pixels) with ``lod_min_psnr``, ``lod_max_psnr_drop`` and
     ///         ``lod_blend`` (see :meth:`choose_lod`). ``light=(x, y, z)`` relights an asset
     ///         baked with ``lights=`` at that world-space direction (DESIGN §9).
+    ///         ``state="NAME"`` renders a deformation state (baked with ``states=``).
     ///
     /// Raises:
     ///     ValueError: a bad view, an unknown or bad quality option, or a conflict between
-    ///         them; a zero or NaN light, or a light for an asset without light states.
+    ///         them; a zero or NaN light, or a light for an asset without light states; an
+    ///         unknown state.
     ///         TypeError: an argument of the wrong type. AssetError: a corrupt page.
     ///     RenderError: the device failed.
     #[pyo3(signature = (view, *, background = None, **quality))]
@@ -512,7 +527,7 @@ impl PyLightField {
 
 /// Native bake on a `Mesh` (the Python `bake_mesh` converts other inputs and the progress flag).
 #[pyfunction]
-#[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress, calibrate = false, auto = false, target_psnr = None, max_bytes = None, shadows = false, lights = None))]
+#[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress, calibrate = false, auto = false, target_psnr = None, max_bytes = None, shadows = false, lights = None, states = None))]
 // Python's keyword-only flags, one parameter each (the Python signature is the interface).
 #[allow(clippy::fn_params_excessive_bools)]
 pub fn bake(
@@ -532,6 +547,7 @@ pub fn bake(
     max_bytes: Option<u64>,
     shadows: bool,
     lights: Option<u32>,
+    states: Option<Vec<(String, Bound<'_, PyMesh>)>>,
 ) -> PyResult<PyLightField> {
     if let Some(callback) = &progress
         && !callback.bind(py).is_callable()
@@ -555,6 +571,25 @@ pub fn bake(
              states without auto",
         ));
     }
+    let states: Vec<(String, Arc<lumigraph_core::mesh::Mesh>, String, String)> = states
+        .unwrap_or_default()
+        .iter()
+        .map(|(name, m)| {
+            let m = m.get();
+            (
+                name.clone(),
+                m.mesh.clone(),
+                m.source_name.clone(),
+                m.source_sha256.clone(),
+            )
+        })
+        .collect();
+    if auto && !states.is_empty() {
+        return Err(PyValueError::new_err(
+            "states: an automatic bake chooses settings for the base state only; bake \
+             deformation states without auto",
+        ));
+    }
     let options = BakeOptions {
         cameras,
         resolution,
@@ -571,6 +606,19 @@ pub fn bake(
     };
     let core_mesh = mesh.mesh.clone();
     let (bytes, callback_error) = py.detach(|| {
+        let state_meshes: Vec<StateMesh<'_>> = states
+            .iter()
+            .map(|(name, mesh, source_name, source_sha256)| StateMesh {
+                name,
+                mesh,
+                source_name,
+                source_sha256,
+            })
+            .collect();
+        let state_bake = StateBake {
+            meshes: &state_meshes,
+            ..StateBake::default()
+        };
         let baker = engines::baker().map_err(|e| errors::BakeError::new_err(e.to_string()))?;
         // The callback runs with the GIL re-acquired; its first exception is raised after the
         // bake (the bake itself cannot be interrupted half-way).
@@ -610,11 +658,11 @@ pub fn bake(
         } else if calibrate {
             let renderer = engines::renderer().map_err(|e| errors::gpu_for_render(&e))?;
             let reference = engines::reference().map_err(|e| errors::gpu_for_render(&e))?;
-            calibration::bake_calibrated(
+            calibration::bake_states_calibrated(
                 baker,
                 renderer,
                 reference,
-                &core_mesh,
+                (&core_mesh, &state_bake),
                 &options,
                 &provenance,
                 &mut report,
@@ -626,7 +674,7 @@ pub fn bake(
             .bytes
         } else {
             baker
-                .bake_to_bytes(&core_mesh, &options, &provenance, &mut report)
+                .bake_states_to_bytes(&core_mesh, &state_bake, &options, &provenance, &mut report)
                 .map_err(|e| errors::bake(&e))?
         };
         PyResult::Ok((bytes, callback_error))

@@ -472,3 +472,72 @@ def test_viewer_light_ball_relights_an_asset_with_light_states(
         assert not page.errors, page.errors  # type: ignore[attr-defined]
     finally:
         httpx.delete(f"{server.base_url}/v1/assets/lit-demo", timeout=30)
+
+
+def _yard_off(box_x: float) -> str:
+    """OFF text: a ground quad (±2) with a 0.5 box on it at x in [box_x, box_x + 0.5]."""
+    verts = [(-2, 0, -2), (-2, 0, 2), (2, 0, 2), (2, 0, -2)]
+    lo, hi = (box_x, 0.0, -0.25), (box_x + 0.5, 0.5, 0.25)
+    verts += [tuple(hi[a] if i & (1 << a) else lo[a] for a in range(3)) for i in range(8)]
+    faces = [(0, 1, 2), (0, 2, 3)]
+    for q in ((0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)):
+        faces += [(4 + q[0], 4 + q[1], 4 + q[2]), (4 + q[0], 4 + q[2], 4 + q[3])]
+    lines = ["OFF", f"{len(verts)} {len(faces)} 0"]
+    lines += [" ".join(str(c) for c in v) for v in verts]
+    lines += ["3 " + " ".join(str(i) for i in f) for f in faces]
+    return "\n".join(lines) + "\n"
+
+
+def test_viewer_state_picker_shows_a_deformation_state(
+    server: Server, page: Page, tmp_path: Path
+) -> None:
+    """An asset with a deformation state (`bake --state moved=...`) shows the state picker;
+    choosing the state sends it, redraws another frame and puts `state=` in the link; the base
+    state brings the first frame back; the link opens on the state."""
+    (tmp_path / "yard.off").write_text(_yard_off(-0.8))
+    (tmp_path / "moved.off").write_text(_yard_off(0.6))
+    baked = subprocess.run(
+        [str(BIN), "bake", str(tmp_path / "yard.off"), "--state",
+         f"moved={tmp_path / 'moved.off'}", "--cameras", "12", "--resolution", "48",
+         "--no-calibrate", "-o", str(tmp_path / "yard.lfa")],
+        capture_output=True, text=True, env=runtime_env(), timeout=120, check=False,
+    )
+    assert baked.returncode == 0, baked.stderr
+    created = httpx.post(f"{server.base_url}/v1/assets?id=yard",
+                         content=(tmp_path / "yard.lfa").read_bytes(), timeout=60)
+    assert created.status_code == 201, created.text
+    try:
+        page.goto(server.base_url + "/?asset=yard&interactive=0&still_codec=png")
+        page.wait_for_function(FULL_FRAME, timeout=30_000)
+        assert page.is_visible("#states")
+        assert page.eval_on_selector_all("#state option", "os => os.map(o => o.value)") == [
+            "base", "moved"]
+        base = canvas(page)
+        first = last(page)
+        page.select_option("#state", "moved")
+        page.wait_for_function(
+            f"window.lumigraphViewer.last.requestId > {first['requestId']} && " + FULL_FRAME,
+            timeout=30_000)
+        moved = canvas(page)
+        moved_image = canvas_image(page)
+        assert moved["hash"] != base["hash"], "the state moved the box"
+        page.wait_for_function(
+            "new URLSearchParams(location.search).get('state') === 'moved'", timeout=10_000)
+        link = page.evaluate("location.href")
+        second = last(page)
+        page.select_option("#state", "base")
+        page.wait_for_function(
+            f"window.lumigraphViewer.last.requestId > {second['requestId']} && " + FULL_FRAME,
+            timeout=30_000)
+        assert canvas(page)["hash"] == base["hash"], "the base state is back"
+        page.wait_for_function(
+            "!new URLSearchParams(location.search).has('state')", timeout=10_000)
+        page.goto(link)
+        page.wait_for_function(FULL_FRAME, timeout=30_000)
+        assert page.eval_on_selector("#state", "s => s.value") == "moved"
+        # The link rounds the camera (0.001°): the same image to rounding.
+        over, mean = differing(canvas_image(page), moved_image, 8)
+        assert over <= 0.01, (over, mean)
+        assert not page.errors, page.errors  # type: ignore[attr-defined]
+    finally:
+        httpx.delete(f"{server.base_url}/v1/assets/yard", timeout=30)

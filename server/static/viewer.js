@@ -230,6 +230,34 @@
     scheduleUrlUpdate();
   }
 
+  // --- deformation states -----------------------------------------------------------------------
+  // A picker of the asset's deformation states (`bake --state NAME=MESH2`), shown when it has
+  // any; a choice sends `state` in a settings message of its own and goes into the link as
+  // `state=NAME` (left out for the base state).
+  function fillStates(asset, initial) {
+    const box = $("states");
+    const sel = $("state");
+    const names = asset.deformations || [];
+    box.hidden = names.length === 0;
+    sel.innerHTML = "";
+    for (const name of ["base", ...names]) {
+      const o = document.createElement("option");
+      o.value = name;
+      o.textContent = name;
+      sel.appendChild(o);
+    }
+    sel.value = initial && names.includes(initial) ? initial : "base";
+  }
+
+  function sendState() {
+    const name = $("state").value;
+    if (name === "base") delete state.extra.state;
+    else state.extra.state = name;
+    send({ type: "settings", state: name === "base" ? null : name });
+    sendView(true);
+    scheduleUrlUpdate();
+  }
+
   // --- light direction (assets with light states) ----------------------------------------------
   // A ball: a point on it is where the light comes from as seen from the camera (centre: from
   // behind the camera, rim: from the side). The direction goes to the server in world space, a
@@ -627,6 +655,7 @@
         state.maxPx = msg.max_px;
         fillLod(msg.asset.camera_count);
         fillLayers(msg.asset, fromUrlLayers());
+        fillStates(msg.asset, (state.fromUrl && state.fromUrl.settings.state) || (same ? state.extra.state : null));
         // The link's light, else (a reconnect to the same asset) the light already chosen.
         fillLighting(msg.asset, (state.fromUrl && state.fromUrl.settings.light) || (same ? state.light : null));
         if (!same) resetCamera();
@@ -644,7 +673,13 @@
         // Layers and state go in a settings message of their own: one the asset refuses (an
         // error shown below) leaves the other settings applied.
         if (fromUrl && Object.keys(fromUrl.settings).length) send({ type: "settings", ...fromUrl.settings });
-        else if (state.light) send({ type: "settings", light: state.light });
+        else {
+          // A reconnect keeps the light and state already chosen.
+          const again = {};
+          if (state.light) again.light = state.light;
+          if (state.extra.state) again.state = state.extra.state;
+          if (Object.keys(again).length) send({ type: "settings", ...again });
+        }
         sendView(true);
       } else if (msg.type === "error") {
         showError(`${msg.kind}: ${msg.message}`);
@@ -734,6 +769,7 @@
     $(id).addEventListener("change", () => { sendSettings(); requestView(false); });
   }
   $("asset").addEventListener("change", (e) => { state.extra = {}; connect(e.target.value); });
+  $("state").addEventListener("change", sendState);
   $("notice").addEventListener("click", () => showNotice([]));
 
   // Copy buttons: the clipboard where the page may use it, else the text is selected in a

@@ -1836,3 +1836,175 @@ fn light_states_relight_through_bake_render_reference_and_info() {
         "--lights relights meshes",
     );
 }
+
+/// An OFF file of a ground quad (±2) with a 0.5 box on it at x ∈ [box_x, box_x + 0.5], scaled.
+fn yard_off(box_x: f32, scale: f32) -> Vec<u8> {
+    use std::fmt::Write;
+    let mut v: Vec<[f32; 3]> = vec![
+        [-2.0, 0.0, -2.0],
+        [-2.0, 0.0, 2.0],
+        [2.0, 0.0, 2.0],
+        [2.0, 0.0, -2.0],
+    ];
+    let mut f: Vec<[u32; 3]> = vec![[0, 1, 2], [0, 2, 3]];
+    let (lo, hi) = ([box_x, 0.0, -0.25], [box_x + 0.5, 0.5, 0.25]);
+    for i in 0..8u32 {
+        v.push(std::array::from_fn(|a| {
+            if i & (1 << a) == 0 { lo[a] } else { hi[a] }
+        }));
+    }
+    for q in [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ] {
+        f.push([4 + q[0], 4 + q[1], 4 + q[2]]);
+        f.push([4 + q[0], 4 + q[2], 4 + q[3]]);
+    }
+    let mut out = format!("OFF\n{} {} 0\n", v.len(), f.len());
+    for p in &v {
+        let _ = writeln!(out, "{} {} {}", p[0] * scale, p[1] * scale, p[2] * scale);
+    }
+    for t in &f {
+        let _ = writeln!(out, "3 {} {} {}", t[0], t[1], t[2]);
+    }
+    out.into_bytes()
+}
+
+#[test]
+fn deformation_states_bake_list_render_by_name_and_refuse_bad_input() {
+    let base = write("yard.off", &yard_off(-0.8, 1.0));
+    let moved = write("yard-moved.off", &yard_off(0.6, 1.0));
+    let asset = path("yard.lfa");
+    let o = lumigraph(&[
+        "bake",
+        s(&base),
+        "--state",
+        &format!("moved={}", s(&moved)),
+        "--state",
+        &format!("same={}", s(&base)),
+        "--shadows",
+        "--cameras",
+        "42",
+        "--resolution",
+        "64",
+        "-o",
+        s(&asset),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("state \"same\": stores 0.00 %"), "{stdout}");
+    let info = lumigraph(&["info", s(&asset)]);
+    let text = String::from_utf8_lossy(&info.stdout);
+    assert!(
+        info.status.success()
+            && text.contains("lumigraph asset v4")
+            && text.contains("state \"moved\": deformation, stores")
+            && text.contains("state \"same\": deformation, stores 0.00 %"),
+        "{text}"
+    );
+    let view = write(
+        "yard-view.json",
+        br#"{"eye":[0,4,4.5],"target":[0,0.2,0],"up":[0,1,0],"yfov_deg":40,"width":64,"height":48}"#,
+    );
+    let render = |state: Option<&str>, name: &str| {
+        let png = path(name);
+        let mut args = vec!["render", s(&asset), "--view", s(&view), "-o", s(&png)];
+        if let Some(state) = state {
+            args.extend(["--state", state]);
+        }
+        let o = lumigraph(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        lumigraph_core::image_io::read_png_rgba8(&png)
+            .expect("png")
+            .2
+    };
+    let (plain, named_base, moved_frame) = (
+        render(None, "yard-base.png"),
+        render(Some("base"), "yard-named-base.png"),
+        render(Some("moved"), "yard-moved.png"),
+    );
+    assert_eq!(plain, named_base);
+    let changed = plain
+        .chunks_exact(4)
+        .zip(moved_frame.chunks_exact(4))
+        .filter(|(a, b)| a != b)
+        .count();
+    assert!(changed > 50, "the box moved: {changed} pixels changed");
+
+    let x = path("x.lfa");
+    for (args, needle) in [
+        (
+            vec![
+                "render",
+                s(&asset),
+                "--view",
+                s(&view),
+                "--state",
+                "dent",
+                "-o",
+                "x.png",
+            ],
+            "unknown state \"dent\": this asset has base, moved, same",
+        ),
+        (
+            vec!["bake", s(&base), "--state", "moved", "-o", s(&x)],
+            "NAME=MESH2",
+        ),
+        (
+            vec![
+                "bake",
+                s(&base),
+                "--state",
+                &format!("base={}", s(&moved)),
+                "--no-calibrate",
+                "-o",
+                s(&x),
+            ],
+            "base state",
+        ),
+        (
+            vec![
+                "bake",
+                s(&base),
+                "--state",
+                "gone=/nonexistent/mesh.off",
+                "-o",
+                s(&x),
+            ],
+            "state \"gone\"",
+        ),
+    ] {
+        assert_fails(&args, needle);
+    }
+    let big = write("yard-big.off", &yard_off(-0.8, 3.0));
+    assert_fails(
+        &[
+            "bake",
+            s(&base),
+            "--state",
+            &format!("big={}", s(&big)),
+            "--no-calibrate",
+            "-o",
+            s(&x),
+        ],
+        "outside its bounding sphere",
+    );
+    assert_fails(
+        &[
+            "bake",
+            s(&base),
+            "--lights",
+            "12",
+            "--state",
+            &format!("moved={}", s(&moved)),
+            "-o",
+            s(&x),
+        ],
+        "--lights",
+    );
+    assert!(!x.exists(), "a refused bake leaves nothing behind");
+}

@@ -3082,3 +3082,113 @@ async fn light_states_bake_and_relight_over_http_and_the_stream() {
         String::from_utf8_lossy(&reply.body)
     );
 }
+
+/// A ground quad (±2) with a 0.5 box on it at x ∈ [box_x, box_x + 0.5].
+fn yard_mesh(box_x: f32) -> lumigraph_core::mesh::Mesh {
+    let mut v: Vec<[f32; 3]> = vec![
+        [-2.0, 0.0, -2.0],
+        [-2.0, 0.0, 2.0],
+        [2.0, 0.0, 2.0],
+        [2.0, 0.0, -2.0],
+    ];
+    let mut f: Vec<[u32; 3]> = vec![[0, 1, 2], [0, 2, 3]];
+    let (lo, hi) = ([box_x, 0.0, -0.25], [box_x + 0.5, 0.5, 0.25]);
+    for i in 0..8u32 {
+        v.push(std::array::from_fn(|a| {
+            if i & (1 << a) == 0 { lo[a] } else { hi[a] }
+        }));
+    }
+    for q in [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ] {
+        f.push([4 + q[0], 4 + q[1], 4 + q[2]]);
+        f.push([4 + q[0], 4 + q[2], 4 + q[3]]);
+    }
+    lumigraph_core::mesh::Mesh::from_arrays(v, f, None).expect("yard")
+}
+
+/// A deformation state through the service: the summary lists it, the render body and the
+/// render link take `state`, the stream's `state` setting renders the same frame, and an
+/// unknown state is a 422 naming the asset's states.
+#[tokio::test(flavor = "multi_thread")]
+async fn deformation_states_render_by_name_over_http_and_the_stream() {
+    use lumigraph_core::bake::{BakeOptions, Baker, StateBake};
+    use lumigraph_core::deform::StateMesh;
+    let (dir, state) = setup(None, |_| {}).await;
+    let (base, moved) = (yard_mesh(-0.8), yard_mesh(0.6));
+    let baker = Baker::new(lumigraph_core::gpu::Gpu::shared().expect("gpu"));
+    let bytes = baker
+        .bake_states_to_bytes(
+            &base,
+            &StateBake {
+                meshes: &[StateMesh {
+                    name: "moved",
+                    mesh: &moved,
+                    source_name: "moved",
+                    source_sha256: "",
+                }],
+                ..StateBake::default()
+            },
+            &BakeOptions {
+                cameras: 12,
+                resolution: 32,
+                ..BakeOptions::default()
+            },
+            &lumigraph_core::asset::Provenance::default(),
+            &mut |_, _| {},
+        )
+        .expect("bake");
+    std::fs::write(dir.path().join("yard.lfa"), bytes).expect("write");
+    state.load_assets().await.expect("loading assets");
+    let summary = get(&state, "/v1/assets/yard").await.json();
+    assert_eq!(
+        summary["deformations"],
+        serde_json::json!(["moved"]),
+        "{summary}"
+    );
+    let render = |body: serde_json::Value| {
+        let state = state.clone();
+        async move { post_json(&state, "/v1/assets/yard/render", body.to_string()).await }
+    };
+    let plain = render(serde_json::json!({"view": view_json(48, 48)})).await;
+    let moved_reply =
+        render(serde_json::json!({"view": view_json(48, 48), "state": "moved"})).await;
+    assert_eq!(
+        moved_reply.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&moved_reply.body)
+    );
+    assert_ne!(plain.body, moved_reply.body, "the state moved the box");
+    let named_base = render(serde_json::json!({"view": view_json(48, 48), "state": "base"})).await;
+    assert_eq!(named_base.body, plain.body);
+    let link = get(&state, "/v1/assets/yard/render?eye=0.3,0.5,3&target=0,0,0&up=0,1,0&yfov_deg=40&width=48&height=48&state=moved").await;
+    assert_eq!(link.status, StatusCode::OK);
+    assert_eq!(
+        lumigraph_core::image_io::decode_png_rgba8(&link.body).expect("png"),
+        lumigraph_core::image_io::decode_png_rgba8(&moved_reply.body).expect("png")
+    );
+    let unknown = render(serde_json::json!({"view": view_json(48, 48), "state": "dent"})).await;
+    assert_eq!(unknown.status, StatusCode::UNPROCESSABLE_ENTITY);
+    let text = String::from_utf8_lossy(&unknown.body);
+    assert!(
+        text.contains("unknown state") && text.contains("base, moved"),
+        "{text}"
+    );
+    let streamed = one_png_frame_streamed(
+        state.clone(),
+        "yard",
+        Some(serde_json::json!({"type": "settings", "state": "moved"})),
+    )
+    .await;
+    assert_eq!(
+        lumigraph_core::image_io::decode_png_rgba8(&streamed).expect("png"),
+        lumigraph_core::image_io::decode_png_rgba8(&moved_reply.body).expect("png"),
+        "the stream renders the state as the render body does"
+    );
+}

@@ -200,6 +200,7 @@ def bake_mesh(
     max_bytes: int | None = None,
     shadows: bool = False,
     lights: int | None = None,
+    states: Mapping[str, MeshLike] | None = None,
 ) -> LightField:
     """Bakes a mesh into a spherical light field on the GPU (GIL released).
 
@@ -228,6 +229,11 @@ def bake_mesh(
             sharing one depth per camera, so that ``lf.render(view, light=(x, y, z))`` relights the asset at any
             direction (with ``shadows``, the shadows move). Costs ``(lights + 2) x cameras x
             resolution**2 x 4`` bytes more in memory. Not with ``auto`` or ``unlit``.
+        states: deformation states ``{"name": mesh}`` (any :func:`as_mesh` input, any topology,
+            inside ``mesh``'s bounding sphere): each is baked in ``mesh``'s frame and stores
+            only the pages whose colour or depth differ from the base (exactly: the bake is
+            deterministic); ``lf.render(view, state="name")`` renders it and
+            ``lf.deformations`` says what each stores. Not with ``auto`` or ``lights``.
         depth_bits: depth precision, 16 (default) or 8. With ``auto=True``, ``cameras``,
             ``resolution`` and ``depth_bits`` are chosen and must not be given.
         progress: True prints "baking cameras k/n" to stderr; a callable gets
@@ -256,7 +262,8 @@ def bake_mesh(
 
     Raises:
         ValueError: an option out of range (the message names it), a NaN/infinite/out-of-range
-            target, both targets, or a target or chosen knob with(out) ``auto``; MeshError:
+            target, both targets, or a target or chosen knob with(out) ``auto``; a state mesh
+            outside the base's bounding sphere, a state named ``base`` or twice; MeshError:
             invalid mesh.
         TypeError: an argument of the wrong type.
         BakeError: the GPU device failed or is missing (the message names the driver package).
@@ -296,6 +303,7 @@ def bake_mesh(
         max_bytes=max_bytes,
         shadows=shadows,
         lights=lights,
+        states=None if states is None else [(name, as_mesh(m)) for name, m in states.items()],
     )
 
 

@@ -32,6 +32,7 @@ class _Quality(TypedDict, total=False):
     refine: int | None
     layers: Mapping[str, float] | str | None
     light: Sequence[float] | None
+    state: str | None
 
 _Image = Frame | npt.ArrayLike
 
@@ -138,6 +139,8 @@ class LightField:
     @property
     def info(self) -> dict[str, Any]: ...
     @property
+    def deformations(self) -> list[dict[str, Any]]: ...
+    @property
     def cameras(self) -> int: ...
     @property
     def resolution(self) -> int: ...
@@ -206,6 +209,7 @@ def bake(
     max_bytes: int | None = None,
     shadows: bool = False,
     lights: int | None = None,
+    states: Sequence[tuple[str, Mesh]] | None = None,
 ) -> LightField: ...
 def reference_render(
     mesh: Mesh,

@@ -105,6 +105,9 @@ pub struct AssetSummary {
     pub layer_opacities: Vec<f32>,
     /// State names.
     pub states: Vec<String>,
+    /// The deformation states among them (`bake --state NAME=MESH2`): what the `state` render
+    /// option takes besides `base`.
+    pub deformations: Vec<String>,
     /// Bounding sphere centre in world units (a good orbit target).
     pub center: [f64; 3],
     /// Bounding sphere radius in world units.
@@ -130,6 +133,13 @@ impl LoadedAsset {
             layers: h.layers.iter().map(|l| l.name.clone()).collect(),
             layer_opacities: h.layers.iter().map(|l| l.default_opacity).collect(),
             states: h.states.iter().map(|s| s.name.clone()).collect(),
+            deformations: h
+                .states
+                .iter()
+                .enumerate()
+                .filter(|&(i, _)| lumigraph_core::deform::is_deformation(h, i))
+                .map(|(_, s)| s.name.clone())
+                .collect(),
             center: h.frame.center,
             radius: h.frame.radius,
             file_bytes: self.file_bytes,

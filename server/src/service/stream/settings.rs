@@ -40,9 +40,6 @@ pub struct Settings {
     pub max_in_flight: u32,
     /// RGBA8 where nothing is hit (JPEG: the matte colour).
     pub background: [u8; 4],
-    /// Named state of the asset (animation frame, deformation); absent = the base state. Light
-    /// states are not rendered by name: the quality key `light` relights from them.
-    pub state: Option<String>,
     /// Append each frame's depth and view to its header (the depth extension), so the client
     /// can reproject the frame to a newer camera while the next one is on its way.
     pub depth: bool,
@@ -68,7 +65,6 @@ impl Settings {
             rest_ms: u32::try_from(rest.as_millis()).unwrap_or(u32::MAX),
             max_in_flight: 2,
             background: [0; 4],
-            state: None,
             depth: false,
             quality: serde_json::Map::new(),
         }
@@ -127,32 +123,6 @@ pub(super) fn validate_settings(
             "max_in_flight must be 1 or 2, got {}",
             s.max_in_flight
         ));
-    }
-    if let Some(state) = &s.state {
-        match header.states.iter().position(|st| &st.name == state) {
-            None => {
-                let names: Vec<&str> = header.states.iter().map(|st| st.name.as_str()).collect();
-                return Err(format!(
-                    "the asset has no state {state:?} (states: {names:?})"
-                ));
-            }
-            Some(0) => {}
-            Some(i)
-                if header.states[i]
-                    .params
-                    .contains_key(lumigraph_core::light::PART_KEY) =>
-            {
-                return Err(format!(
-                    "state {state:?} is one part of the asset's light states: relight with \
-                     `light` ([x, y, z], world space) instead"
-                ));
-            }
-            Some(_) => {
-                return Err(format!(
-                    "rendering state {state:?} is not supported yet: only the base state renders"
-                ));
-            }
-        }
     }
     let quality = Quality::from_json_map(s.quality.clone()).map_err(|e| e.to_string())?;
     let still = quality.plan(header).map_err(|e| e.to_string())?;
