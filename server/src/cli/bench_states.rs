@@ -98,6 +98,12 @@ struct QualityRow {
 #[derive(Debug, Serialize)]
 struct Report {
     source: String,
+    /// GPU memory of the asset with every state (32-px pages), and of its base state alone.
+    gpu_bytes: u64,
+    base_gpu_bytes: u64,
+    /// Median frame times of the base state and of a state, interleaved on the same views.
+    base_ms: f64,
+    state_ms: f64,
     adapter: String,
     cameras: u32,
     resolution: u32,
@@ -253,6 +259,35 @@ pub(super) fn bench_states(args: &StatesArgs) -> Result<()> {
         args.seed,
         args.size,
     );
+    // Frame time: the base state and the deepest dent, interleaved, the medians.
+    let deepest = Some(meshes.len() as u16);
+    let (mut base_ms, mut state_ms) = (Vec::new(), Vec::new());
+    for view in &views {
+        for _ in 0..6 {
+            for (state, out) in [(None, &mut base_ms), (deepest, &mut state_ms)] {
+                let options = RenderOptions {
+                    state,
+                    ..RenderOptions::default()
+                };
+                let t = std::time::Instant::now();
+                renderer.render(&field, view, &options)?;
+                out.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+        }
+    }
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+    };
+    let base_only = renderer.upload_with(
+        &asset,
+        &lumigraph_core::render::UploadOptions {
+            base_state_only: true,
+            ..Default::default()
+        },
+    )?;
+    let (gpu_bytes, base_gpu_bytes) = (field.gpu_bytes, base_only.gpu_bytes);
+    drop(base_only);
     let mut quality = Vec::new();
     for (i, (name, dented)) in meshes.iter().enumerate().skip(2) {
         let plain = bake(&StateBake::default(), dented)?;
@@ -284,6 +319,10 @@ pub(super) fn bench_states(args: &StatesArgs) -> Result<()> {
     bar.finish_and_clear();
     let report = Report {
         source: source.source_name,
+        gpu_bytes,
+        base_gpu_bytes,
+        base_ms: median(base_ms),
+        state_ms: median(state_ms),
         adapter: gpu.adapter_summary(),
         cameras: args.cameras,
         resolution: args.resolution,
@@ -304,6 +343,13 @@ pub(super) fn bench_states(args: &StatesArgs) -> Result<()> {
         report.dent_at,
         report.footprint,
         report.adapter
+    );
+    println!(
+        "frame ms: base {:.2}, state {:.2}; GPU memory {:.1} MiB with the states, {:.1} MiB the base alone",
+        report.base_ms,
+        report.state_ms,
+        report.gpu_bytes as f64 / 1_048_576.0,
+        report.base_gpu_bytes as f64 / 1_048_576.0
     );
     println!(
         "state          page  stored %  cameras  colour only  stored KiB (base {:.0} KiB)",
