@@ -5,7 +5,9 @@ struct BakeParams {
     first_camera: u32,
     camera_count: u32,
     // 1: `cs_main` records each texel's hit in `hits` for the light states' `cs_shade` passes.
-    store_hits: u32,
+    // Bit 0: record each texel's hit (light states shade from them); bit 1: trace front faces
+    // only (depth reliefs of imported views).
+    flags: u32,
     shading: Shading,
 }
 
@@ -66,18 +68,18 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let w = ray.w;
     out_color[out_index] = 0u;
     out_depth[out_index] = 1.0;
-    if params.store_hits != 0u {
+    if (params.flags & 1u) != 0u {
         hits[out_index] = vec4<u32>(0xffffffffu, 0u, 0u, 0u);
     }
     if chord <= 0.0 {
         return;
     }
     let o = cam.position.xyz;
-    let hit = trace(o, w, chord, false);
+    let hit = trace(o, w, chord, false, (params.flags & 2u) != 0u);
     if hit.triangle == 0xffffffffu {
         return;
     }
-    if params.store_hits != 0u {
+    if (params.flags & 1u) != 0u {
         hits[out_index] = vec4<u32>(hit.triangle, bitcast<u32>(hit.t), bitcast<u32>(hit.b1), bitcast<u32>(hit.b2));
     }
     out_color[out_index] = shade_hit(o, w, hit.triangle, hit.t, hit.b1, hit.b2);
@@ -152,7 +154,7 @@ fn covered_depth(cam: BakeCamera, uv: vec2<f32>) -> f32 {
     if ray.chord <= 0.0 {
         return -1.0;
     }
-    let hit = trace(cam.position.xyz, ray.w, ray.chord, false);
+    let hit = trace(cam.position.xyz, ray.w, ray.chord, false, (params.flags & 2u) != 0u);
     return select(hit.t / ray.chord, -1.0, hit.triangle == 0xffffffffu);
 }
 

@@ -346,6 +346,7 @@ impl Prediction {
             shading,
             depth_bits: self.depth_bits,
             lights: None,
+            one_sided: false,
         }
     }
 }
@@ -773,6 +774,7 @@ pub fn calibrate(
             shading: *shading,
             depth_bits,
             lights: None,
+            one_sided: false,
         };
         let bytes = baker.bake_to_bytes(mesh, &options, source, &mut |done, cameras| {
             progress(AutoStage::CalibrationBake {

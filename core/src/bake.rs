@@ -81,6 +81,11 @@ pub struct BakeOptions {
     /// relight the asset; `None`: the base state only (left out of the JSON).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lights: Option<u32>,
+    /// Trace only the front of triangles (counter-clockwise seen from the camera), as for the
+    /// depth reliefs of imported views ([`crate::import_views`]), whose backs are other views'
+    /// business; `false` (the default, left out of the JSON): both sides.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub one_sided: bool,
 }
 
 impl Default for BakeOptions {
@@ -91,6 +96,7 @@ impl Default for BakeOptions {
             shading: Shading::default(),
             depth_bits: 16,
             lights: None,
+            one_sided: false,
         }
     }
 }
@@ -170,7 +176,8 @@ struct BakeParams {
     resolution: u32,
     first_camera: u32,
     camera_count: u32,
-    store_hits: u32,
+    /// Bit 0: record hits (light states); bit 1: front faces only ([`BakeOptions::one_sided`]).
+    flags: u32,
     shading: GpuShading,
 }
 const _: () = assert!(std::mem::size_of::<BakeParams>() == 48);
@@ -550,7 +557,7 @@ impl Baker {
                     resolution: n,
                     first_camera: first,
                     camera_count: count,
-                    store_hits: u32::from(store_hits),
+                    flags: u32::from(store_hits) | (u32::from(options.one_sided) << 1),
                     shading,
                 };
                 let uniform = {

@@ -50,6 +50,7 @@ mod fsutil;
 pub mod geometry;
 pub mod gpu;
 pub mod image_io;
+pub mod import_views;
 pub mod layers;
 pub mod light;
 pub mod lod;

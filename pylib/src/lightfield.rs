@@ -596,6 +596,7 @@ pub fn bake(
         shading: shading(light, ambient, specular, unlit, shadows)?,
         depth_bits,
         lights,
+        one_sided: false,
     };
     options.validate().map_err(|e| errors::bake(&e))?;
     let mesh = mesh.get();

@@ -2008,3 +2008,137 @@ fn deformation_states_bake_list_render_by_name_and_refuse_bad_input() {
     );
     assert!(!x.exists(), "a refused bake leaves nothing behind");
 }
+
+#[test]
+fn import_views_turns_reference_renders_into_a_light_field_and_refuses_bad_folders() {
+    // External renders: the yard's reference from 6 views, colour and depth in one folder.
+    let mesh = write("import-yard.off", &yard_off(-0.8, 1.0));
+    let dir = path("import-views");
+    std::fs::create_dir_all(&dir).expect("dir");
+    let mut views = Vec::new();
+    for (x, y, z) in [
+        (0.0, 4.0, 5.0),
+        (5.0, 3.0, 0.0),
+        (0.0, 3.0, -5.0),
+        (-5.0, 3.0, 0.0),
+        (3.0, 5.0, 3.0),
+        (0.0, -4.0, 2.0),
+    ] {
+        views.push(
+            serde_json::json!({"eye": [x, y, z], "target": [0, 0, 0], "up": [0, 1, 0],
+                                      "yfov_deg": 50, "width": 96, "height": 96}),
+        );
+    }
+    let list = dir.join("views.json");
+    std::fs::write(&list, serde_json::to_vec(&views).expect("json")).expect("write");
+    let o = lumigraph(&[
+        "reference",
+        s(&mesh),
+        "--views",
+        s(&list),
+        "-o",
+        s(&dir),
+        "--depth",
+        s(&dir),
+        "--shadows",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let asset = path("imported.lfa");
+    let o = lumigraph(&[
+        "import-views",
+        s(&dir),
+        "-o",
+        s(&asset),
+        "--cameras",
+        "42",
+        "--resolution",
+        "64",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("imported 6 views"), "{stdout}");
+    // The imported light field renders the first view like its external render.
+    let first = dir.join("first.json");
+    std::fs::write(&first, serde_json::to_vec(&views[0]).expect("json")).expect("write");
+    let png = path("imported-first.png");
+    let o = lumigraph(&["render", s(&asset), "--view", s(&first), "-o", s(&png)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let ours = lumigraph_core::image_io::read_png_rgba8(&png)
+        .expect("png")
+        .2;
+    let theirs = lumigraph_core::image_io::read_png_rgba8(&dir.join("000.png"))
+        .expect("png")
+        .2;
+    let (mut close, mut both) = (0, 0);
+    for (a, b) in ours.chunks_exact(4).zip(theirs.chunks_exact(4)) {
+        if a[3] > 0 && b[3] > 0 {
+            both += 1;
+            close += usize::from(
+                a[..3]
+                    .iter()
+                    .zip(&b[..3])
+                    .all(|(x, y)| x.abs_diff(*y) <= 24),
+            );
+        }
+    }
+    assert!(
+        both > 2000 && close * 10 > both * 9,
+        "{close} of {both} close"
+    );
+
+    // Bad folders: no views.json, a missing depth, a size mismatch, a NaN depth, a bad option.
+    let empty = path("import-empty");
+    std::fs::create_dir_all(&empty).expect("dir");
+    assert_fails(
+        &["import-views", s(&empty), "-o", s(&path("x.lfa"))],
+        "views.json",
+    );
+    let broken = path("import-broken");
+    std::fs::create_dir_all(&broken).expect("dir");
+    std::fs::copy(&list, broken.join("views.json")).expect("copy");
+    for i in 0..6 {
+        std::fs::copy(
+            dir.join(format!("{i:03}.png")),
+            broken.join(format!("{i:03}.png")),
+        )
+        .expect("copy");
+    }
+    assert_fails(
+        &["import-views", s(&broken), "-o", s(&path("x.lfa"))],
+        "no depth image",
+    );
+    let bad_depth = |w: u32, h: u32, value: f32| {
+        let depth = vec![value; (w * h) as usize];
+        for i in 0..6 {
+            lumigraph_core::image_io::write_depth_npy(
+                &broken.join(format!("{i:03}.npy")),
+                w,
+                h,
+                &depth,
+            )
+            .expect("npy");
+        }
+    };
+    bad_depth(32, 32, 1.0);
+    assert_fails(
+        &["import-views", s(&broken), "-o", s(&path("x.lfa"))],
+        "the depth image is 32×32 but the view is 96×96",
+    );
+    bad_depth(96, 96, f32::NAN);
+    assert_fails(
+        &["import-views", s(&broken), "-o", s(&path("x.lfa"))],
+        "depth NaN",
+    );
+    assert_fails(
+        &[
+            "import-views",
+            s(&dir),
+            "--max-depth-jump",
+            "0",
+            "-o",
+            s(&path("x.lfa")),
+        ],
+        "max_depth_jump",
+    );
+    assert!(!path("x.lfa").exists());
+}

@@ -36,10 +36,11 @@ fn box_entry(o: vec3<f32>, inv_d: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>, t_max
     return -1.0;
 }
 
-// Closest hit along o + t·d for t in (0, t_max]; Möller–Trumbore without culling, edges widened
-// by 1e-6 (relative) so rays through shared edges never slip between two triangles. `any`: stop
-// at the first hit found (a shadow ray's question), not the closest.
-fn trace(o: vec3<f32>, d: vec3<f32>, t_max: f32, any: bool) -> Hit {
+// Closest hit along o + t·d for t in (0, t_max]; Möller–Trumbore, edges widened by 1e-6
+// (relative) so rays through shared edges never slip between two triangles. `any`: stop at the
+// first hit found (a shadow ray's question), not the closest. `front_only`: skip triangles
+// seen from behind (their corners clockwise from o; det ≤ 0), else both sides count.
+fn trace(o: vec3<f32>, d: vec3<f32>, t_max: f32, any: bool, front_only: bool) -> Hit {
     var hit = Hit(t_max, 0xffffffffu, 0.0, 0.0);
     let inv_d = vec3<f32>(safe_inverse(d.x), safe_inverse(d.y), safe_inverse(d.z));
     var stack: array<u32, STACK_SIZE>;
@@ -56,7 +57,7 @@ fn trace(o: vec3<f32>, d: vec3<f32>, t_max: f32, any: bool) -> Hit {
                 let e2 = vertices[tri.v.z].position - p0;
                 let pv = cross(d, e2);
                 let det = dot(e1, pv);
-                if abs(det) > 1e-20 {
+                if abs(det) > 1e-20 && (det > 0.0 || !front_only) {
                     let inv_det = 1.0 / det;
                     let tv = o - p0;
                     let b1 = dot(tv, pv) * inv_det;
@@ -121,6 +122,6 @@ fn light_visibility(p: vec3<f32>, triangle: u32, origin: vec3<f32>, light: vec3<
     if dot(n_g, origin - p) < 0.0 {
         n_g = -n_g;
     }
-    let hit = trace(p + SHADOW_OFFSET * n_g, light, 1e30, true);
+    let hit = trace(p + SHADOW_OFFSET * n_g, light, 1e30, true, false);
     return select(1.0, 0.0, hit.triangle != 0xffffffffu);
 }

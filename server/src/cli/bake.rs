@@ -132,6 +132,7 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
         shading: args.shading.to_shading()?,
         depth_bits: args.depth_bits,
         lights: args.lights,
+        one_sided: false,
     };
     options.validate()?;
     let (mesh, provenance) = load_source(args.mesh.as_deref(), args.demo)?;

@@ -38,6 +38,9 @@ pub enum BenchCommand {
     /// pages each stores (with the bake-noise controls: the mesh unchanged and reordered), and
     /// each state's quality against the dented mesh beside a plain bake of it.
     States(super::bench_states::StatesArgs),
+    /// Render a mesh's reference from the camera set's directions, import the renders
+    /// (`import-views`) and score the imported light field beside a direct bake.
+    Import(super::bench_import::ImportArgs),
 }
 
 /// `lumigraph bench tradeoff`. Lists are comma-separated; steps accept fractions (`1/32`).

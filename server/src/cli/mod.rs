@@ -10,11 +10,13 @@ use clap::{Parser, Subcommand};
 mod args;
 mod bake;
 mod bench;
+mod bench_import;
 mod bench_lights;
 mod bench_states;
 mod common;
 mod eval;
 mod healthcheck;
+mod import_views;
 mod info;
 mod plot;
 mod render;
@@ -51,6 +53,9 @@ pub enum Command {
     Eval(EvalArgs),
     /// Print an asset's header (and verify every page).
     Info(InfoArgs),
+    /// Turn external renders (perspective colour + unfiltered z-depth images with their DESIGN
+    /// §3 views) into a spherical light field through depth reliefs (seed 000 §3.4).
+    ImportViews(import_views::ImportViewsArgs),
     /// Benchmarks: `bench tradeoff` sweeps the quality knobs (speed against accuracy).
     Bench(BenchArgs),
     /// Serve the HTTP/WebSocket render service and the web viewer (bakes the demo on first start).
@@ -71,10 +76,12 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Reference(args) => render::reference(&args),
         Command::Eval(args) => eval::eval(&args),
         Command::Info(args) => info::info(&args),
+        Command::ImportViews(args) => import_views::import_views(&args),
         Command::Bench(args) => match args.command {
             BenchCommand::Tradeoff(args) => bench::bench_tradeoff(&args),
             BenchCommand::Lights(args) => bench_lights::bench_lights(&args),
             BenchCommand::States(args) => bench_states::bench_states(&args),
+            BenchCommand::Import(args) => bench_import::bench_import(&args),
         },
         Command::Serve(args) => serve::serve(&args),
         Command::Healthcheck(args) => healthcheck::healthcheck(&args),
