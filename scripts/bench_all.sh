@@ -31,6 +31,8 @@ step "light states (scripts/bench_lights.sh)" "$OUT/lights/table.md: 'Light stat
 bash scripts/bench_lights.sh "$OUT/lights"
 step "deformation states (scripts/bench_states.sh)" "$OUT/states/table.md: 'Deformation states'"
 bash scripts/bench_states.sh "$OUT/states"
+step "import of external renders (scripts/bench_import.sh)" "$OUT/import/table.md: 'Import of external renders'"
+bash scripts/bench_import.sh "$OUT/import"
 step "still refinement (scripts/bench_refine.sh)" "$OUT/refine/tables.md: 'Still-frame refinement'"
 bash scripts/bench_refine.sh "$OUT/refine"
 step "render service (scripts/bench_service.py)" "$OUT/service.md: 'Render service streaming'"
