@@ -10,7 +10,7 @@
 # DIR/.fetch-complete is written last: a run that finds the files there and intact only writes the
 # marker. Needs apt-get download (the package lists are refreshed when the pinned version is not in
 # them), pip (a temporary virtual environment when $PIP does not work), tar, dpkg-deb, sha256sum.
-# About 15 s and 16 MB downloaded (6 MB kept).
+# About 15 s and 37 MB downloaded (6 MB kept).
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 source "$ROOT/scripts/common.sh"
@@ -18,8 +18,12 @@ DIR=${1:-$ROOT/fixtures}
 SUMS='ab651cb04955c161efaeb079035a1e5e1f0e0d1f816a2df67beaea68f393ff2b  mesh/bunny00.off
 1c5a25c3047fc6b14dd0c962d3562b1796671422ab4634f9d46f9f23814cd54a  mesh/cow.off
 2d24cc184dec9a03c32281312f7d2e44f70b51180d982dc0a81899e77efc275a  mesh/spot.ply
-421a10e872fd6cadae7f61d358dffbcc1795a497d61ee76c5dda2503e1a1e9e6  volume/mni_t1.nii.gz'
+421a10e872fd6cadae7f61d358dffbcc1795a497d61ee76c5dda2503e1a1e9e6  volume/mni_t1.nii.gz
+0b910ed4b52fd9fbb565911fc7f9f285edb0f30fa4913a93143466d439d1092e  anim/AnimatedMorphCube.gltf
+4aba93918adba56c1cc688a38c527bc647e26f2c386802e119b4d01b7250dd23  anim/AnimatedMorphCube.bin
+2ccb43a4a0a8d2663088684b53e254358308f48e3f4bcafa999e5b5898e2e0fa  anim/simple_skin.gltf'
 CGAL_DEB=libcgal-demo=5.5.1-2
+ASSIMP_DEB=assimp-testmodels=5.2.5~ds0-1
 SPOT_SDIST='robust-laplacian==1.1.0 --hash=sha256:1db9eeb1a7aa340c3da902b125d2f58c7138feda206a72c2402dd25e702290d2'
 NILEARN_WHEEL='nilearn==0.14.1 --hash=sha256:725206484e9fb3f6691f9c2d20204a068759d5072f12055324702ee0cb2bbe8a'
 
@@ -34,7 +38,7 @@ rm -f "$DIR/.fetch-complete"
 # Staged inside DIR, so that moving a checked file in is a rename on the same file system.
 STAGE=$(mktemp -d "$DIR/.stage.XXXXXX")
 trap 'rm -rf "$STAGE"' EXIT
-mkdir -p "$STAGE/mesh" "$STAGE/volume"
+mkdir -p "$STAGE/mesh" "$STAGE/volume" "$STAGE/anim"
 
 # bunny and cow: CGAL's demo data, a tarball inside the Debian package.
 chmod 755 "$STAGE"  # apt-get download runs as the _apt user where it can
@@ -45,6 +49,15 @@ fi
 dpkg-deb --fsys-tarfile "$STAGE"/libcgal-demo_*.deb | tar -xO ./usr/share/doc/libcgal-dev/data.tar.gz \
   | tar -xz -C "$STAGE" data/meshes/bunny00.off data/meshes/cow.off
 mv "$STAGE"/data/meshes/bunny00.off "$STAGE"/data/meshes/cow.off "$STAGE/mesh/"
+
+# animated glTF: a morph-target cube and a simple skin, glTF samples in assimp's test models.
+(cd "$STAGE" && apt-get download -q "$ASSIMP_DEB" >"$STAGE/apt.log" 2>&1) || { cat "$STAGE/apt.log" >&2; exit 1; }
+MODELS=./usr/share/assimp/models/glTF2
+dpkg-deb --fsys-tarfile "$STAGE"/assimp-testmodels_*.deb | tar -x -C "$STAGE" \
+  "$MODELS/glTF-Sample-Models/AnimatedMorphCube-glTF/AnimatedMorphCube.gltf" \
+  "$MODELS/glTF-Sample-Models/AnimatedMorphCube-glTF/AnimatedMorphCube.bin" \
+  "$MODELS/simple_skin/simple_skin.gltf"
+mv "$STAGE/$MODELS"/glTF-Sample-Models/AnimatedMorphCube-glTF/AnimatedMorphCube.* "$STAGE/$MODELS/simple_skin/simple_skin.gltf" "$STAGE/anim/"
 
 # spot: a test asset of geometry-central, vendored in the robust-laplacian source distribution
 # (its hash pinned, so pip refuses any other bytes).
@@ -72,7 +85,7 @@ with zipfile.ZipFile(sys.argv[1]) as wheel, open(sys.argv[2], "wb") as out:
 PY
 
 (cd "$STAGE" && sha256sum -c --quiet <<<"$SUMS")
-mkdir -p "$DIR/mesh" "$DIR/volume"
+mkdir -p "$DIR/mesh" "$DIR/volume" "$DIR/anim"
 while read -r _ file; do
   mv -f "$STAGE/$file" "$DIR/$file"
 done <<<"$SUMS"

@@ -224,7 +224,7 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
 }
 
 /// The deformation states of a bake ([`crate::deform`]).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct StateBake<'a> {
     /// The state meshes, in state order after the base state.
     pub meshes: &'a [StateMesh<'a>],
@@ -233,6 +233,11 @@ pub struct StateBake<'a> {
     /// Page side of an asset with states (the unit a state stores; the base state's pages
     /// too): [`crate::deform::DEFAULT_STATE_PAGE`] unless set.
     pub page_size: u32,
+    /// The frame every state is baked in: `None`, the base mesh's bounding sphere; an
+    /// animation gives the sphere around all its frames.
+    pub frame: Option<crate::asset::LfFrame>,
+    /// The base state's params (an animation's frame 0).
+    pub base_params: Option<&'a serde_json::Map<String, serde_json::Value>>,
 }
 
 impl Default for StateBake<'_> {
@@ -241,6 +246,8 @@ impl Default for StateBake<'_> {
             meshes: &[],
             tolerance: DEFAULT_TOLERANCE,
             page_size: crate::deform::DEFAULT_STATE_PAGE,
+            frame: None,
+            base_params: None,
         }
     }
 }
@@ -445,7 +452,20 @@ impl Baker {
         if !states.meshes.is_empty() && options.lights.is_some() {
             return Err(BakeError::StatesWithLights);
         }
-        let gpu_mesh = GpuMesh::upload(&self.gpu, mesh)?;
+        let gpu_mesh = match &states.frame {
+            Some(frame) => {
+                let base = StateMesh {
+                    name: "base frame",
+                    mesh,
+                    source_name: "",
+                    source_sha256: "",
+                    params: None,
+                };
+                crate::deform::check_states(frame, &[base])?;
+                GpuMesh::upload_in(&self.gpu, mesh, frame.clone())?
+            }
+            None => GpuMesh::upload(&self.gpu, mesh)?,
+        };
         crate::deform::check_states(&gpu_mesh.frame, states.meshes)?;
         let state_meshes = states
             .meshes
@@ -477,6 +497,11 @@ impl Baker {
         if let Some(count) = options.lights {
             header.states.extend(crate::light::state_descs(count)?);
             header.validate()?;
+        }
+        if let Some(params) = states.base_params
+            && let Some(base) = header.states.first_mut()
+        {
+            base.params.clone_from(params);
         }
         if !states.meshes.is_empty() {
             header

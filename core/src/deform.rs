@@ -61,7 +61,8 @@ pub enum DeformError {
     TooMany(usize),
 }
 
-/// A deformation state to bake: its name and mesh, and where the mesh came from.
+/// A deformation state (or animation frame) to bake: its name and mesh, and where the mesh came
+/// from.
 #[derive(Clone, Copy, Debug)]
 pub struct StateMesh<'a> {
     /// State name (unique, not `base`).
@@ -72,6 +73,120 @@ pub struct StateMesh<'a> {
     pub source_name: &'a str,
     /// Hex SHA-256 of its source bytes (empty if unknown).
     pub source_sha256: &'a str,
+    /// The state's params instead of `{"deformation": {...}}`: an animation frame's
+    /// `{"animation": {...}}` ([`animation_params`]).
+    pub params: Option<&'a serde_json::Map<String, serde_json::Value>>,
+}
+
+/// The frame (bounding sphere) around every frame of an animation, in which all its frames
+/// are baked.
+pub fn frame_around(frames: &[Mesh]) -> crate::asset::LfFrame {
+    let mut all = Mesh::default();
+    for f in frames {
+        let base = all.positions.len() as u32;
+        all.positions.extend_from_slice(&f.positions);
+        all.triangles
+            .extend(f.triangles.iter().map(|t| t.map(|v| v + base)));
+    }
+    let sphere = all.bounding_sphere();
+    crate::asset::LfFrame {
+        center: sphere.center.to_array(),
+        radius: sphere.radius,
+    }
+}
+
+/// The animation of an asset baked with `--animation`: its frames' state indices (frame 0 is
+/// the base state), frame rate and duration; `None` for an asset without one.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AnimationInfo {
+    /// The animation's name.
+    pub name: String,
+    /// Frames per second.
+    pub fps: f64,
+    /// Time of the animation's last key, seconds.
+    pub duration: f64,
+    /// State index of each frame, in frame order.
+    pub states: Vec<u16>,
+}
+
+impl AnimationInfo {
+    /// The animation an asset holds, if any (from its states' `animation` params).
+    pub fn of(header: &AssetHeader) -> Option<AnimationInfo> {
+        let base = header.states.first()?.params.get(ANIMATION_KEY)?;
+        let mut frames: Vec<(u64, u16)> = header
+            .states
+            .iter()
+            .enumerate()
+            .filter_map(|(s, d)| {
+                let frame = d.params.get(ANIMATION_KEY)?.get("frame")?.as_u64()?;
+                Some((frame, s as u16))
+            })
+            .collect();
+        frames.sort_unstable();
+        Some(AnimationInfo {
+            name: base.get("name")?.as_str()?.to_owned(),
+            fps: base
+                .get("fps")?
+                .as_f64()
+                .filter(|f| f.is_finite() && *f > 0.0)?,
+            duration: base
+                .get("duration")?
+                .as_f64()
+                .filter(|d| d.is_finite() && *d >= 0.0)?,
+            states: frames.into_iter().map(|(_, s)| s).collect(),
+        })
+    }
+
+    /// The state showing frame `frame`.
+    ///
+    /// # Errors
+    /// A frame past the last, naming the count.
+    pub fn state_of_frame(&self, frame: u32) -> Result<u16, String> {
+        self.states.get(frame as usize).copied().ok_or_else(|| {
+            format!(
+                "frame {frame}: the animation {:?} has {} frames (0 to {})",
+                self.name,
+                self.states.len(),
+                self.states.len().saturating_sub(1)
+            )
+        })
+    }
+
+    /// The frame shown at `time` seconds: the last frame at or before it.
+    ///
+    /// # Errors
+    /// A time outside `[0, duration]` or not finite.
+    pub fn frame_at(&self, time: f64) -> Result<u32, String> {
+        if !(time.is_finite() && time >= 0.0 && time <= self.duration + 1e-9) {
+            return Err(format!(
+                "time {time} s is outside the animation {:?} (0 to {} s)",
+                self.name, self.duration
+            ));
+        }
+        let frame = (time * self.fps + 1e-6).floor() as u64;
+        Ok(frame.min(self.states.len().saturating_sub(1) as u64) as u32)
+    }
+}
+
+/// An animation frame's state params.
+pub fn animation_params(
+    name: &str,
+    frame: usize,
+    fps: f64,
+    duration: f64,
+) -> serde_json::Map<String, serde_json::Value> {
+    let mut params = serde_json::Map::new();
+    params.insert(
+        ANIMATION_KEY.to_owned(),
+        serde_json::json!({
+            "name": name,
+            "frame": frame,
+            "time": frame as f64 / fps,
+            "fps": fps,
+            "duration": duration,
+        }),
+    );
+    params
 }
 
 /// Checks names and that every state mesh lies inside the base frame's bounding sphere (a
@@ -121,6 +236,12 @@ pub fn state_descs(states: &[StateMesh<'_>]) -> Vec<crate::asset::StateDesc> {
     states
         .iter()
         .map(|s| {
+            if let Some(params) = s.params {
+                return crate::asset::StateDesc {
+                    name: s.name.to_owned(),
+                    params: params.clone(),
+                };
+            }
             let mut params = serde_json::Map::new();
             params.insert(
                 PARAM_KEY.to_owned(),
@@ -240,13 +361,16 @@ pub struct StateStorage {
     pub cameras: u32,
 }
 
-/// Whether state `s` of `header` is a deformation state.
-pub fn is_deformation(header: &AssetHeader, s: usize) -> bool {
+/// The key of an animation frame's params (`{"animation": {"name", "frame", "time", "fps"}}`).
+pub const ANIMATION_KEY: &str = "animation";
+
+/// Whether state `s` of `header` is a geometry state, rendered from maps of its own: a
+/// deformation state or an animation frame (other than state 0, the base).
+pub fn is_geometry_state(header: &AssetHeader, s: usize) -> bool {
     s > 0
-        && header
-            .states
-            .get(s)
-            .is_some_and(|d| d.params.contains_key(PARAM_KEY))
+        && header.states.get(s).is_some_and(|d| {
+            d.params.contains_key(PARAM_KEY) || d.params.contains_key(ANIMATION_KEY)
+        })
 }
 
 /// What each deformation state of `asset` stores, from its index.
@@ -261,7 +385,7 @@ pub fn storage(asset: &AssetFile) -> Result<Vec<StateStorage>, AssetError> {
     let total_pages = layers * u64::from(cameras) * 2 * u64::from(grid.page_count());
     let mut out = Vec::new();
     for (s, desc) in header.states.iter().enumerate() {
-        if !is_deformation(header, s) {
+        if !is_geometry_state(header, s) {
             continue;
         }
         let index = s as u16;
@@ -300,7 +424,7 @@ pub fn state_index(header: &AssetHeader, name: Option<&str>) -> Result<Option<u1
     };
     match header.states.iter().position(|s| s.name == name) {
         Some(0) => Ok(None),
-        Some(s) if is_deformation(header, s) => Ok(Some(s as u16)),
+        Some(s) if is_geometry_state(header, s) => Ok(Some(s as u16)),
         Some(_) => Err(format!(
             "state {name:?} is a light state: relight with `light` instead"
         )),
@@ -309,7 +433,7 @@ pub fn state_index(header: &AssetHeader, name: Option<&str>) -> Result<Option<u1
                 .states
                 .iter()
                 .enumerate()
-                .filter(|&(s, _)| s == 0 || is_deformation(header, s))
+                .filter(|&(s, _)| s == 0 || is_geometry_state(header, s))
                 .map(|(_, d)| d.name.as_str())
                 .collect();
             Err(format!(

@@ -377,16 +377,24 @@ mod tests {
                 .all(|c| (c[0] - 200.0 / 255.0).abs() < 1e-6)
         );
         assert_eq!(mesh.materials[0].base_color_factor, [1.0; 4]);
-        // A jump threshold above the far pixel's joins it.
-        let loose = relief_mesh(
-            std::slice::from_ref(&image),
-            &ImportOptions {
-                max_depth_jump: 1.5,
-                ..ImportOptions::default()
-            },
-        )
-        .expect("mesh");
-        assert_eq!(loose.triangles.len(), 12);
+        // A jump threshold above the far pixel's joins it (with no facing limit: the
+        // triangles to it are steep).
+        let loose = |min_facing| {
+            relief_mesh(
+                std::slice::from_ref(&image),
+                &ImportOptions {
+                    max_depth_jump: 1.5,
+                    min_facing,
+                },
+            )
+            .expect("mesh")
+            .triangles
+            .len()
+        };
+        assert_eq!(loose(0.0), 12);
+        // Those seen most obliquely from the eye are left out by the default facing limit.
+        let facing = loose(DEFAULT_MIN_FACING);
+        assert!((8..12).contains(&facing), "{facing}");
     }
 
     #[test]

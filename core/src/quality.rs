@@ -73,6 +73,9 @@ pub enum QualityError {
     /// An unknown state, or a light state asked for by name.
     #[error("state: {0}")]
     State(String),
+    /// A time or frame the asset's animation does not have, or none to show.
+    #[error("animation: {0}")]
+    Animation(String),
     /// The request is not a JSON object of quality fields.
     #[error("invalid quality options: {0}")]
     Json(String),
@@ -207,6 +210,21 @@ pub struct Quality {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[cfg_attr(feature = "clap", arg(long, value_name = "NAME"))]
     pub state: Option<String>,
+    /// Show the animation frame at this time, seconds from the animation's start (an asset
+    /// baked with `--animation`): the last frame at or before it. Excludes `frame` and `state`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(
+        feature = "clap",
+        arg(long, value_name = "SECONDS", allow_hyphen_values = true)
+    )]
+    pub time: Option<f64>,
+    /// Show this animation frame (0 = the first). Excludes `time` and `state`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(
+        feature = "clap",
+        arg(long, value_name = "N", allow_hyphen_values = true)
+    )]
+    pub frame: Option<u32>,
 }
 
 impl Quality {
@@ -228,6 +246,8 @@ impl Quality {
         "layers",
         "light",
         "state",
+        "time",
+        "frame",
     ];
 
     /// The request of a JSON object holding only quality keys (`null` = absent).
@@ -354,6 +374,23 @@ impl Quality {
         if let Some(light) = &self.light {
             light.unit().map_err(RenderError::from)?;
         }
+        let named = [
+            self.time.is_some(),
+            self.frame.is_some(),
+            self.state.is_some(),
+        ];
+        if named.iter().filter(|&&b| b).count() > 1 {
+            return Err(QualityError::Animation(
+                "give one of time, frame and state".to_owned(),
+            ));
+        }
+        if let Some(t) = self.time
+            && !(t.is_finite() && t >= 0.0)
+        {
+            return Err(QualityError::Animation(format!(
+                "time {t}: give a finite time ≥ 0 in seconds"
+            )));
+        }
         Ok(())
     }
 
@@ -421,8 +458,26 @@ impl Quality {
             .unwrap_or_default()
             .resolve(&header.layers)
             .map_err(QualityError::Layers)?;
-        let state = crate::deform::state_index(header, self.state.as_deref())
-            .map_err(QualityError::State)?;
+        let state = match (self.time, self.frame) {
+            (None, None) => crate::deform::state_index(header, self.state.as_deref())
+                .map_err(QualityError::State)?,
+            (time, frame) => {
+                let animation = crate::deform::AnimationInfo::of(header).ok_or_else(|| {
+                    QualityError::Animation(
+                        "the asset has no animation: bake it with --animation".to_owned(),
+                    )
+                })?;
+                let frame = match (time, frame) {
+                    (Some(t), _) => animation.frame_at(t).map_err(QualityError::Animation)?,
+                    (None, Some(f)) => f,
+                    (None, None) => 0,
+                };
+                let s = animation
+                    .state_of_frame(frame)
+                    .map_err(QualityError::Animation)?;
+                (s != 0).then_some(s)
+            }
+        };
         Ok(Plan {
             state,
             strategy,
@@ -702,6 +757,8 @@ mod tests {
             layers: Some("skin=0.5".parse().expect("opacities")),
             light: Some(crate::light::LightDirection([0.0, 1.0, 0.0])),
             state: Some("dent".to_owned()),
+            time: None,
+            frame: None,
         }
     }
 

@@ -82,6 +82,7 @@ fn state<'a>(name: &'a str, mesh: &'a Mesh) -> StateMesh<'a> {
         mesh,
         source_name: name,
         source_sha256: "",
+        params: None,
     }
 }
 

@@ -614,6 +614,7 @@ pub fn bake(
                 mesh,
                 source_name,
                 source_sha256,
+                params: None,
             })
             .collect();
         let state_bake = StateBake {

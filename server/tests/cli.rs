@@ -2142,3 +2142,123 @@ fn import_views_turns_reference_renders_into_a_light_field_and_refuses_bad_folde
     );
     assert!(!path("x.lfa").exists());
 }
+
+#[test]
+fn animations_bake_into_frames_that_render_by_time_or_frame() {
+    let fixtures = lumigraph_core_fixtures();
+    let cube = fixtures.join("anim/AnimatedMorphCube.gltf");
+    let asset = path("morph-cube.lfa");
+    let o = lumigraph(&[
+        "bake",
+        s(&cube),
+        "--animation",
+        "--fps",
+        "4",
+        "--cameras",
+        "12",
+        "--resolution",
+        "48",
+        "--no-calibrate",
+        "-o",
+        s(&asset),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("frames at 4 fps"), "{stdout}");
+    let info = lumigraph(&["info", s(&asset)]);
+    let text = String::from_utf8_lossy(&info.stdout);
+    assert!(
+        text.contains("animation \"Square\"") && text.contains("animation frame, stores"),
+        "{text}"
+    );
+    let view = write(
+        "cube-view.json",
+        br#"{"eye":[0.1,0.05,0.12],"target":[0,0,0],"up":[0,1,0],"yfov_deg":40,"width":48,"height":48}"#,
+    );
+    let render = |flag: &str, value: &str, name: &str| {
+        let png = path(name);
+        let o = lumigraph(&[
+            "render",
+            s(&asset),
+            "--view",
+            s(&view),
+            flag,
+            value,
+            "-o",
+            s(&png),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read(&png).expect("png")
+    };
+    let (first, at_time, at_frame, later) = (
+        render("--frame", "0", "cube-f0.png"),
+        render("--time", "1.3", "cube-t13.png"),
+        render("--frame", "5", "cube-f5.png"),
+        render("--frame", "8", "cube-f8.png"),
+    );
+    assert_eq!(at_time, at_frame, "1.3 s at 4 fps shows frame 5");
+    assert_ne!(first, later, "the cube morphs");
+    for (args, needle) in [
+        (vec!["--time", "99"], "outside the animation"),
+        (vec!["--time", "-1"], "time"),
+        (vec!["--frame", "999"], "frames (0 to"),
+        (
+            vec!["--frame", "1", "--time", "0"],
+            "one of time, frame and state",
+        ),
+    ] {
+        let mut all = vec!["render", s(&asset), "--view", s(&view), "-o", "x.png"];
+        all.extend(args);
+        assert_fails(&all, needle);
+    }
+    let plain = bake_uncalibrated("anim-plain.lfa");
+    assert_fails(
+        &[
+            "render",
+            s(&plain),
+            "--view",
+            s(&view),
+            "--time",
+            "0",
+            "-o",
+            "x.png",
+        ],
+        "no animation",
+    );
+    let off = write("anim.off", &yard_off(0.0, 1.0));
+    assert_fails(
+        &["bake", s(&off), "--animation", "-o", s(&path("x.lfa"))],
+        "glTF",
+    );
+    assert_fails(
+        &[
+            "bake",
+            s(&cube),
+            "--animation",
+            "Walk",
+            "-o",
+            s(&path("x.lfa")),
+        ],
+        "no animation \"Walk\"",
+    );
+    assert_fails(
+        &["bake", s(&cube), "--fps", "4", "-o", s(&path("x.lfa"))],
+        "--animation",
+    );
+}
+
+/// The dev fixtures folder (fetched by scripts/fixtures.sh on first use).
+fn lumigraph_core_fixtures() -> PathBuf {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let dir =
+        std::env::var_os("LUMIGRAPH_FIXTURES").map_or_else(|| root.join("fixtures"), PathBuf::from);
+    if !dir.join("anim/simple_skin.gltf").is_file() {
+        let o = std::process::Command::new("bash")
+            .arg(root.join("scripts/fixtures.sh"))
+            .arg(&dir)
+            .output()
+            .expect("fixtures script");
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    dir
+}

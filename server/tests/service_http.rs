@@ -3131,6 +3131,7 @@ async fn deformation_states_render_by_name_over_http_and_the_stream() {
                     mesh: &moved,
                     source_name: "moved",
                     source_sha256: "",
+                    params: None,
                 }],
                 ..StateBake::default()
             },

@@ -150,6 +150,58 @@ pub fn load_mesh(path: &Path) -> Result<Mesh, MeshError> {
     mesh.finish()
 }
 
+/// Most frames an animation may be baked into: an asset holds at most 256 states, the base
+/// state (frame 0) and 255 more.
+pub const MAX_ANIMATION_FRAMES: usize = 256;
+
+/// A glTF animation sampled into validated meshes, frame `i` at `i / fps` seconds.
+#[derive(Clone, Debug)]
+pub struct AnimationFrames {
+    /// The animation's name (`animation_<index>` when it has none).
+    pub name: String,
+    /// Time of its last key, seconds.
+    pub duration: f64,
+    /// Frames per second.
+    pub fps: f64,
+    /// The posed meshes, each validated by [`Mesh::finish`].
+    pub frames: Vec<Mesh>,
+}
+
+/// Samples animation `name` (the first when `None`) of a glTF/GLB file at `fps`: node
+/// transforms (step, linear with slerp, cubic spline), morph-target weights and skins pose the
+/// scene at every `i / fps` up to the last key, at most [`MAX_ANIMATION_FRAMES`] frames.
+///
+/// # Errors
+/// [`MeshError`]: not glTF, no animation or an unknown name (the message lists the file's),
+/// bad keys, too many frames for the rate, or a posed mesh that fails validation.
+pub fn load_animation(
+    path: &Path,
+    name: Option<&str>,
+    fps: f64,
+) -> Result<AnimationFrames, MeshError> {
+    let format = MeshFormat::from_path(path)?;
+    if !matches!(format, MeshFormat::Gltf | MeshFormat::Glb) {
+        return Err(MeshError::Parse {
+            format: format.name(),
+            message: "animations come from glTF or GLB files".to_owned(),
+        });
+    }
+    let base_dir = path.parent().unwrap_or_else(|| Path::new("."));
+    let bytes = read_file(path)?;
+    let animation =
+        gltf_scene::load_animation(&bytes, Some(base_dir), name, fps, MAX_ANIMATION_FRAMES)?;
+    Ok(AnimationFrames {
+        name: animation.name,
+        duration: animation.duration,
+        fps: animation.fps,
+        frames: animation
+            .frames
+            .into_iter()
+            .map(Mesh::finish)
+            .collect::<Result<_, _>>()?,
+    })
+}
+
 /// Loads a mesh from bytes, for uploads: nothing is read from the file system.
 ///
 /// glTF must then embed its buffers and images (data URIs or the GLB binary chunk); `.gltf` and

@@ -5,7 +5,10 @@ mod demo;
 mod load;
 
 pub use demo::{DEMO_SOURCE_NAME, demo_mesh, demo_provenance};
-pub use load::{MeshFormat, load_mesh, load_mesh_from_bytes};
+pub use load::{
+    AnimationFrames, MAX_ANIMATION_FRAMES, MeshFormat, load_animation, load_mesh,
+    load_mesh_from_bytes,
+};
 
 use glam::DVec3;
 

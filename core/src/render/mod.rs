@@ -82,8 +82,10 @@ pub struct GpuLightField {
     pub translucent: Option<f32>,
     /// Every layer's maps, in the asset's layer order (one for most assets).
     maps: Vec<LayerMaps>,
-    /// Each deformation state's maps ([`crate::deform`]), in state order.
+    /// Each geometry state's maps ([`crate::deform`]), in state order.
     deformations: Vec<StateMaps>,
+    /// Geometry states that store no page, drawn from the base state's maps.
+    shared_states: Vec<u16>,
     /// The light states' colour maps, when the asset has them ([`crate::light`]).
     lights: Option<LightMaps>,
     /// The device, polled on drop so that wgpu reclaims the textures at once.
@@ -138,10 +140,12 @@ impl GpuLightField {
         self.deformations.iter().map(|d| d.state).collect()
     }
 
-    /// The maps of `state` (`None` or 0: the base state), one per layer.
+    /// The maps of `state` (`None` or 0: the base state), one per layer. A geometry state
+    /// uploaded without maps of its own (it stores no page) reads as the base state.
     fn layer_maps(&self, state: Option<u16>) -> Result<&[LayerMaps], RenderError> {
         match state {
             None | Some(0) => Ok(&self.maps),
+            Some(s) if self.shared_states.contains(&s) => Ok(&self.maps),
             Some(s) => self
                 .deformations
                 .iter()

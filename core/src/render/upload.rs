@@ -25,7 +25,7 @@ pub fn field_bytes(header: &AssetHeader) -> u64 {
     let layers = u64::from(Gpu::padded_layers(header.geometry.camera_count));
     // Deformation states: a whole copy of the base state's maps each.
     let deformations = (0..header.states.len())
-        .filter(|&s| crate::deform::is_deformation(header, s))
+        .filter(|&s| crate::deform::is_geometry_state(header, s))
         .count() as u64;
     let base = base_field_bytes(header).saturating_mul(1 + deformations);
     // Light states: one RGBA8 map per camera for the ambient part and each proxy direction.
@@ -114,9 +114,16 @@ impl Renderer {
         let (maps, mut union) =
             self.upload_state(asset, 0, depth_encoding, requantize_8, translucent)?;
         let mut deformations = Vec::new();
+        let mut shared_states = Vec::new();
         if !options.base_state_only {
             for state in 1..header.states.len() {
-                if crate::deform::is_deformation(header, state) {
+                // A state that stores no page reads as the base state: it shares its maps.
+                if crate::deform::is_geometry_state(header, state)
+                    && asset
+                        .index()
+                        .iter()
+                        .any(|e| usize::from(e.key.state) == state)
+                {
                     let state = state as u16;
                     let (maps, boxed) =
                         self.upload_state(asset, state, depth_encoding, requantize_8, translucent)?;
@@ -126,6 +133,8 @@ impl Renderer {
                         union[1][axis] = union[1][axis].max(boxed[1][axis]);
                     }
                     deformations.push(super::StateMaps { state, maps });
+                } else if crate::deform::is_geometry_state(header, state) {
+                    shared_states.push(state as u16);
                 }
             }
         }
@@ -137,7 +146,13 @@ impl Renderer {
         let gpu_bytes = if options.base_state_only {
             base_field_bytes(header)
         } else {
+            // The states without maps of their own (no stored page) cost nothing.
+            let unshared = (1..header.states.len())
+                .filter(|&s| crate::deform::is_geometry_state(header, s))
+                .count()
+                - deformations.len();
             field_bytes(header)
+                .saturating_sub(base_field_bytes(header).saturating_mul(unshared as u64))
         };
         let frame = &header.frame;
         // Decremented by the field's drop.
@@ -156,6 +171,7 @@ impl Renderer {
             translucent,
             maps,
             deformations,
+            shared_states,
             lights,
             gpu: Arc::clone(&self.gpu),
             resident: Arc::clone(&self.resident),

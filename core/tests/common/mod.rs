@@ -14,11 +14,14 @@ use lumigraph_core::mesh::Mesh;
 static FETCH: Mutex<()> = Mutex::new(());
 
 /// The files the fetch script leaves (and checks the SHA-256 of); all present = complete.
-pub const FIXTURE_FILES: [&str; 4] = [
+pub const FIXTURE_FILES: [&str; 7] = [
     "mesh/bunny00.off",
     "mesh/cow.off",
     "mesh/spot.ply",
     "volume/mni_t1.nii.gz",
+    "anim/AnimatedMorphCube.gltf",
+    "anim/AnimatedMorphCube.bin",
+    "anim/simple_skin.gltf",
 ];
 
 /// Written once every file is there, so later calls need no lock.

@@ -71,6 +71,26 @@ pub struct BakeArgs {
         conflicts_with_all = ["auto", "lights", "demo"]
     )]
     pub states: Vec<String>,
+    /// Bake a glTF animation (NAME, or the file's first): the scene posed at every 1/FPS s
+    /// (node transforms, morph targets, skins) as frame states sharing one bounding sphere,
+    /// frame 0 the base state; each frame stores only the pages that differ from frame 0.
+    /// Render with `--time SECONDS` or `--frame N`. At most 256 frames.
+    #[arg(
+        long,
+        value_name = "NAME",
+        num_args = 0..=1,
+        default_missing_value = "",
+        conflicts_with_all = ["auto", "lights", "demo", "states"]
+    )]
+    pub animation: Option<String>,
+    /// Frames per second of --animation.
+    #[arg(
+        long,
+        default_value_t = 24.0,
+        requires = "animation",
+        allow_hyphen_values = true
+    )]
+    pub fps: f64,
     /// Skip the calibration (error against cost of this scene, stored in the asset's quality
     /// report for `render --target-psnr / --budget-ms`; a few seconds on lavapipe).
     #[arg(long)]
@@ -112,8 +132,8 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
         return bake_volume(path, args);
     }
     if args.volume.given() || args.layers.is_some() {
-        if !args.states.is_empty() {
-            anyhow::bail!("--state bakes deformation states of meshes, not of volumes");
+        if !args.states.is_empty() || args.animation.is_some() {
+            anyhow::bail!("--state and --animation bake states of meshes, not of volumes");
         }
         if args.lights.is_some() {
             anyhow::bail!("--lights relights meshes; volumes take one light (--shade)");
@@ -136,6 +156,9 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
     };
     options.validate()?;
     let (mesh, provenance) = load_source(args.mesh.as_deref(), args.demo)?;
+    if let Some(name) = &args.animation {
+        return bake_animation(args, &options, name, &provenance);
+    }
     let state_sources = load_states(&args.states)?;
     let state_meshes: Vec<StateMesh<'_>> = state_sources
         .iter()
@@ -144,6 +167,7 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
             mesh,
             source_name: &source.source_name,
             source_sha256: &source.source_sha256,
+            params: None,
         })
         .collect();
     let states = StateBake {
@@ -182,6 +206,89 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
         report.bake_ms,
         args.output.display(),
         report.asset_bytes as f64 / (1024.0 * 1024.0)
+    );
+    print_states(&args.output)
+}
+
+/// `--animation`: the frames as states of frame 0, in the frame around all of them.
+fn bake_animation(
+    args: &BakeArgs,
+    options: &BakeOptions,
+    name: &str,
+    provenance: &Provenance,
+) -> Result<()> {
+    let path = args
+        .mesh
+        .as_deref()
+        .context("--animation needs a glTF file")?;
+    let animation =
+        lumigraph_core::mesh::load_animation(path, (!name.is_empty()).then_some(name), args.fps)
+            .with_context(|| format!("cannot sample the animation of {}", path.display()))?;
+    let frame = lumigraph_core::deform::frame_around(&animation.frames);
+    let params: Vec<_> = (0..animation.frames.len())
+        .map(|i| {
+            lumigraph_core::deform::animation_params(
+                &animation.name,
+                i,
+                animation.fps,
+                animation.duration,
+            )
+        })
+        .collect();
+    let names: Vec<String> = (0..animation.frames.len())
+        .map(|i| format!("frame_{i:03}"))
+        .collect();
+    let state_meshes: Vec<StateMesh<'_>> = animation.frames[1..]
+        .iter()
+        .enumerate()
+        .map(|(i, mesh)| StateMesh {
+            name: &names[i + 1],
+            mesh,
+            source_name: &provenance.source_name,
+            source_sha256: &provenance.source_sha256,
+            params: Some(&params[i + 1]),
+        })
+        .collect();
+    let states = StateBake {
+        meshes: &state_meshes,
+        frame: Some(frame),
+        base_params: Some(&params[0]),
+        ..StateBake::default()
+    };
+    let gpu = gpu()?;
+    let baker = Baker::new(gpu.clone());
+    let bar = progress_bar(
+        u64::from(options.cameras),
+        &format!("baking {} frames", animation.frames.len()),
+    );
+    let base = &animation.frames[0];
+    if args.no_calibrate {
+        baker.bake_states_to_file(
+            base,
+            &states,
+            options,
+            provenance,
+            &args.output,
+            &mut |done, _| bar.set_position(u64::from(done)),
+        )?;
+        bar.finish_and_clear();
+    } else {
+        bake_calibrated(
+            args,
+            options,
+            (base, &states),
+            provenance,
+            &baker,
+            &gpu,
+            &bar,
+        )?;
+    }
+    println!(
+        "animation {:?}: {} frames at {} fps over {:.3} s",
+        animation.name,
+        animation.frames.len(),
+        animation.fps,
+        animation.duration
     );
     print_states(&args.output)
 }
@@ -374,6 +481,9 @@ fn bake_auto(args: &BakeArgs) -> Result<()> {
 /// (lumigraph_core::volume::bake). Volume assets are not calibrated: the calibration measures
 /// against the mesh reference.
 fn bake_volume(path: &std::path::Path, args: &BakeArgs) -> Result<()> {
+    if !args.states.is_empty() || args.animation.is_some() {
+        anyhow::bail!("--state and --animation bake states of meshes, not of volumes");
+    }
     if args.lights.is_some() {
         anyhow::bail!("--lights relights meshes; volumes take one light (--shade)");
     }

@@ -181,6 +181,7 @@ pub(super) fn bench_states(args: &StatesArgs) -> Result<()> {
             mesh: m,
             source_name: "",
             source_sha256: "",
+            params: None,
         })
         .collect();
     let gpu = gpu()?;

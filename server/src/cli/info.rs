@@ -65,6 +65,15 @@ pub(super) fn info(args: &InfoArgs) -> Result<()> {
         Ok(None) => {}
         Err(e) => println!("light states: unusable ({e})"),
     }
+    if let Some(animation) = lumigraph_core::deform::AnimationInfo::of(h) {
+        println!(
+            "animation {:?}: {} frames at {} fps over {:.3} s (render --time SECONDS or --frame N)",
+            animation.name,
+            animation.states.len(),
+            animation.fps,
+            animation.duration
+        );
+    }
     for state in lumigraph_core::deform::storage(&asset)? {
         let stored: u64 = asset
             .index()
@@ -73,8 +82,16 @@ pub(super) fn info(args: &InfoArgs) -> Result<()> {
             .map(|e| u64::from(e.length))
             .sum();
         println!(
-            "state {:?}: deformation, stores {:.2} % of the pages ({} of {}, {} of {} cameras), {}",
+            "state {:?}: {}, stores {:.2} % of the pages ({} of {}, {} of {} cameras), {}",
             state.name,
+            if h.states[usize::from(state.index)]
+                .params
+                .contains_key(lumigraph_core::deform::ANIMATION_KEY)
+            {
+                "animation frame"
+            } else {
+                "deformation"
+            },
             100.0 * state.fraction,
             state.stored_pages,
             state.total_pages,

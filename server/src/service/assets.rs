@@ -137,7 +137,7 @@ impl LoadedAsset {
                 .states
                 .iter()
                 .enumerate()
-                .filter(|&(i, _)| lumigraph_core::deform::is_deformation(h, i))
+                .filter(|&(i, _)| lumigraph_core::deform::is_geometry_state(h, i))
                 .map(|(_, s)| s.name.clone())
                 .collect(),
             center: h.frame.center,

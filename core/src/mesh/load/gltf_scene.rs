@@ -8,7 +8,9 @@
 //!   counter-clockwise seen from outside (glTF §3.7.4). A node reached twice (invalid glTF: a
 //!   cycle or a shared child) is instantiated once.
 //! - Primitives of mode `TRIANGLES`, `TRIANGLE_STRIP` and `TRIANGLE_FAN`; points and lines
-//!   are skipped. Morph targets and skins are ignored (the bind pose is loaded).
+//!   are skipped. Morph targets and skins are ignored (the bind pose is loaded), except when an
+//!   animation is sampled ([`load_animation`]): then animated node transforms, morph weights
+//!   and skins (linear blend skinning) pose the mesh.
 //! - Attributes: `POSITION` (required), `NORMAL`, `COLOR_0` (VEC3 or VEC4; float, or unsigned
 //!   byte/short always read as normalized, as the `gltf` crate's readers do) and the UV set that
 //!   the material's base-colour texture names (`TEXCOORD_0` unless its `texCoord` says
@@ -78,6 +80,15 @@ fn check_glb_header(bytes: &[u8]) -> Result<(), MeshError> {
 /// Loads glTF or GLB bytes into an unvalidated mesh; `base_dir` resolves external files
 /// (`None` for uploads).
 pub(super) fn load(bytes: &[u8], base_dir: Option<&Path>) -> Result<Mesh, MeshError> {
+    let (document, buffers) = parse(bytes, base_dir)?;
+    build(&document, &buffers, base_dir, None)
+}
+
+/// Parses, checks and validates the document and resolves its buffers.
+fn parse(
+    bytes: &[u8],
+    base_dir: Option<&Path>,
+) -> Result<(gltf::Document, Vec<Vec<u8>>), MeshError> {
     check_glb_header(bytes)?;
     let gltf::Gltf { document, blob } = gltf::Gltf::from_slice_without_validation(bytes)
         .map_err(|e| parse_error(FORMAT, e.to_string()))?;
@@ -86,9 +97,20 @@ pub(super) fn load(bytes: &[u8], base_dir: Option<&Path>) -> Result<Mesh, MeshEr
     let document =
         gltf::Document::from_json(root).map_err(|e| parse_error(FORMAT, e.to_string()))?;
     let buffers = load_buffers(&document, blob, base_dir)?;
+    Ok((document, buffers))
+}
+
+/// The scene's mesh, at rest (`pose` `None`: node transforms as written, morph targets and
+/// skins ignored) or posed (animated node transforms, morph weights and skins applied).
+fn build(
+    document: &gltf::Document,
+    buffers: &[Vec<u8>],
+    base_dir: Option<&Path>,
+    pose: Option<&Pose>,
+) -> Result<Mesh, MeshError> {
     let mut builder = Builder {
-        document: &document,
-        buffers: &buffers,
+        document,
+        buffers,
         base_dir,
         mesh: Mesh::default(),
         any_normals: false,
@@ -101,9 +123,9 @@ pub(super) fn load(bytes: &[u8], base_dir: Option<&Path>) -> Result<Mesh, MeshEr
         texture_by_image: HashMap::new(),
     };
 
-    let instances = instances(&document)?;
+    let (instances, worlds) = instances(document, pose)?;
     let (mut vertices, mut corners) = (0usize, 0usize);
-    for (mesh, _) in &instances {
+    for (mesh, _, _) in &instances {
         for primitive in mesh.primitives().filter(is_triangles) {
             let count = primitive
                 .get(&gltf::Semantic::Positions)
@@ -120,23 +142,43 @@ pub(super) fn load(bytes: &[u8], base_dir: Option<&Path>) -> Result<Mesh, MeshEr
             ),
         ));
     }
-    for (mesh, world) in &instances {
-        builder.add_mesh(mesh, *world)?;
+    for (mesh, world, node) in &instances {
+        let deform = match (pose, node) {
+            (Some(pose), Some(node)) => Some(builder.deformation(pose, node, mesh, &worlds)?),
+            _ => None,
+        };
+        builder.add_mesh(mesh, *world, deform.as_ref())?;
     }
     Ok(builder.finish())
 }
 
-/// The mesh instances to load with their world transforms: the default scene's (else the first
-/// scene's) node tree, each node once; with no scene, every mesh once untransformed.
-fn instances(document: &gltf::Document) -> Result<Vec<(gltf::Mesh<'_>, DMat4)>, MeshError> {
+/// The mesh instances to load with their world transforms and nodes: the default scene's (else
+/// the first scene's) node tree, each node once; with no scene, every mesh once untransformed.
+/// Also every reached node's world transform (joints of skins), by node index. `pose`
+/// overrides nodes' local transforms.
+#[allow(clippy::type_complexity)]
+fn instances<'a>(
+    document: &'a gltf::Document,
+    pose: Option<&Pose>,
+) -> Result<
+    (
+        Vec<(gltf::Mesh<'a>, DMat4, Option<gltf::Node<'a>>)>,
+        Vec<Option<DMat4>>,
+    ),
+    MeshError,
+> {
+    let mut worlds = vec![None; document.nodes().len()];
     let Some(scene) = document
         .default_scene()
         .or_else(|| document.scenes().next())
     else {
-        return Ok(document
-            .meshes()
-            .map(|mesh| (mesh, DMat4::IDENTITY))
-            .collect());
+        return Ok((
+            document
+                .meshes()
+                .map(|mesh| (mesh, DMat4::IDENTITY, None))
+                .collect(),
+            worlds,
+        ));
     };
     let mut instances = Vec::new();
     let mut visited = vec![false; document.nodes().len()];
@@ -155,24 +197,31 @@ fn instances(document: &gltf::Document) -> Result<Vec<(gltf::Mesh<'_>, DMat4)>, 
             continue;
         }
         *seen = true;
-        let local = node
-            .transform()
-            .matrix()
-            .map(|column| column.map(f64::from));
-        let world = parent * DMat4::from_cols_array_2d(&local);
+        let local = pose
+            .and_then(|p| p.locals.get(node.index()).copied().flatten())
+            .unwrap_or_else(|| {
+                DMat4::from_cols_array_2d(
+                    &node
+                        .transform()
+                        .matrix()
+                        .map(|column| column.map(f64::from)),
+                )
+            });
+        let world = parent * local;
         if !world.is_finite() {
             return Err(parse_error(
                 FORMAT,
                 format!("node {} has a non-finite transform", node.index()),
             ));
         }
+        worlds[node.index()] = Some(world);
         if let Some(mesh) = node.mesh() {
-            instances.push((mesh, world));
+            instances.push((mesh, world, Some(node.clone())));
         }
         let children: Vec<_> = node.children().collect();
         stack.extend(children.into_iter().rev().map(|child| (child, world)));
     }
-    Ok(instances)
+    Ok((instances, worlds))
 }
 
 /// Whether a primitive is made of triangles (list, strip or fan); others are skipped.
@@ -330,7 +379,18 @@ struct Builder<'a> {
 }
 
 impl Builder<'_> {
-    fn add_mesh(&mut self, mesh: &gltf::Mesh<'_>, world: DMat4) -> Result<(), MeshError> {
+    fn add_mesh(
+        &mut self,
+        mesh: &gltf::Mesh<'_>,
+        world: DMat4,
+        deform: Option<&Deformation>,
+    ) -> Result<(), MeshError> {
+        // A skinned mesh is placed by its joints alone (glTF §3.7.3.3), not its node.
+        let world = if deform.is_some_and(|d| d.palette.is_some()) {
+            DMat4::IDENTITY
+        } else {
+            world
+        };
         let linear = DMat3::from_mat4(world);
         let determinant = linear.determinant();
         // Inverse transpose keeps normals perpendicular under non-uniform scale; a singular
@@ -344,7 +404,7 @@ impl Builder<'_> {
                 tracing::debug!(primitive = %what, mode = ?primitive.mode(), "glTF primitive skipped: not triangles");
                 continue;
             }
-            self.add_primitive(&primitive, &what, world, normal_matrix, mirrored)?;
+            self.add_primitive(&primitive, &what, (world, normal_matrix, mirrored), deform)?;
         }
         Ok(())
     }
@@ -353,14 +413,13 @@ impl Builder<'_> {
         &mut self,
         primitive: &gltf::Primitive<'_>,
         what: &str,
-        world: DMat4,
-        normal_matrix: Option<DMat3>,
-        mirrored: bool,
+        (world, normal_matrix, mirrored): (DMat4, Option<DMat3>, bool),
+        deform: Option<&Deformation>,
     ) -> Result<(), MeshError> {
         let positions_accessor = primitive
             .get(&gltf::Semantic::Positions)
             .ok_or_else(|| parse_error(FORMAT, format!("{what} has no POSITION attribute")))?;
-        let positions = read_floats::<3>(
+        let mut positions = read_floats::<3>(
             &positions_accessor,
             self.buffers,
             what,
@@ -382,7 +441,7 @@ impl Builder<'_> {
         };
 
         let (material, uv_set) = self.material(&primitive.material())?;
-        let normals = match primitive.get(&gltf::Semantic::Normals) {
+        let mut normals = match primitive.get(&gltf::Semantic::Normals) {
             Some(accessor) => Some(read_floats::<3>(
                 &accessor,
                 self.buffers,
@@ -392,6 +451,9 @@ impl Builder<'_> {
             )?),
             None => None,
         };
+        if let Some(deform) = deform {
+            self.apply_deformation(primitive, what, deform, &mut positions, &mut normals)?;
+        }
         let uvs = match primitive.get(&gltf::Semantic::TexCoords(uv_set)) {
             Some(accessor) => Some(read_floats::<2>(
                 &accessor,
@@ -609,6 +671,522 @@ enum Normalize {
 }
 
 /// The bytes of a buffer view, checked against its buffer.
+/// Animated node transforms and morph weights of one instant (by node index).
+#[derive(Clone, Debug, Default)]
+pub(super) struct Pose {
+    locals: Vec<Option<DMat4>>,
+    weights: Vec<Option<Vec<f32>>>,
+}
+
+/// What deforms one mesh instance: its morph weights and, for a skinned node, the joint
+/// matrices (`world(joint) · inverse bind matrix`).
+struct Deformation {
+    weights: Vec<f32>,
+    palette: Option<Vec<DMat4>>,
+}
+
+impl Builder<'_> {
+    /// The morph weights (animated, else the node's, else the mesh's) and the skin of `node`.
+    fn deformation(
+        &self,
+        pose: &Pose,
+        node: &gltf::Node<'_>,
+        mesh: &gltf::Mesh<'_>,
+        worlds: &[Option<DMat4>],
+    ) -> Result<Deformation, MeshError> {
+        let weights = pose
+            .weights
+            .get(node.index())
+            .cloned()
+            .flatten()
+            .or_else(|| node.weights().map(<[f32]>::to_vec))
+            .or_else(|| mesh.weights().map(<[f32]>::to_vec))
+            .unwrap_or_default();
+        let palette = match node.skin() {
+            None => None,
+            Some(skin) => {
+                let what = format!("skin {}", skin.index());
+                let joints: Vec<gltf::Node<'_>> = skin.joints().collect();
+                let inverse = match skin.inverse_bind_matrices() {
+                    Some(accessor) => {
+                        let m = read_floats::<16>(
+                            &accessor,
+                            self.buffers,
+                            &what,
+                            "inverseBindMatrices",
+                            Normalize::AsFlagged,
+                        )?;
+                        if m.len() < joints.len() {
+                            return Err(parse_error(
+                                FORMAT,
+                                format!(
+                                    "{what}: {} inverse bind matrices for {} joints",
+                                    m.len(),
+                                    joints.len()
+                                ),
+                            ));
+                        }
+                        m.iter()
+                            .map(|c| DMat4::from_cols_array(&c.map(f64::from)))
+                            .collect()
+                    }
+                    None => vec![DMat4::IDENTITY; joints.len()],
+                };
+                let palette: Vec<DMat4> = joints
+                    .iter()
+                    .zip(inverse)
+                    .map(|(joint, inverse)| {
+                        let world =
+                            worlds
+                                .get(joint.index())
+                                .copied()
+                                .flatten()
+                                .unwrap_or_else(|| {
+                                    DMat4::from_cols_array_2d(
+                                        &joint.transform().matrix().map(|c| c.map(f64::from)),
+                                    )
+                                });
+                        world * inverse
+                    })
+                    .collect();
+                if palette.iter().any(|m| !m.is_finite()) {
+                    return Err(parse_error(
+                        FORMAT,
+                        format!("{what}: a non-finite joint matrix"),
+                    ));
+                }
+                Some(palette)
+            }
+        };
+        Ok(Deformation { weights, palette })
+    }
+
+    /// Morph targets (weighted position and normal offsets), then skinning (linear blend of
+    /// the joint matrices by `JOINTS_0`/`WEIGHTS_0`), applied in place (glTF §3.7.2.2, §3.7.3).
+    fn apply_deformation(
+        &self,
+        primitive: &gltf::Primitive<'_>,
+        what: &str,
+        deform: &Deformation,
+        positions: &mut [[f32; 3]],
+        normals: &mut Option<Vec<[f32; 3]>>,
+    ) -> Result<(), MeshError> {
+        let count = positions.len();
+        for (k, target) in primitive.morph_targets().enumerate() {
+            let w = deform.weights.get(k).copied().unwrap_or(0.0);
+            if w == 0.0 || !w.is_finite() {
+                continue;
+            }
+            if let Some(accessor) = target.positions() {
+                let delta = read_floats::<3>(
+                    &accessor,
+                    self.buffers,
+                    what,
+                    "target POSITION",
+                    Normalize::AsFlagged,
+                )?;
+                if delta.len() != count {
+                    return Err(parse_error(
+                        FORMAT,
+                        format!(
+                            "{what}: morph target {k} has {} positions for {count}",
+                            delta.len()
+                        ),
+                    ));
+                }
+                for (p, d) in positions.iter_mut().zip(&delta) {
+                    for c in 0..3 {
+                        p[c] += w * d[c];
+                    }
+                }
+            }
+            if let (Some(accessor), Some(normals)) = (target.normals(), normals.as_mut()) {
+                let delta = read_floats::<3>(
+                    &accessor,
+                    self.buffers,
+                    what,
+                    "target NORMAL",
+                    Normalize::AsFlagged,
+                )?;
+                if delta.len() == normals.len() {
+                    for (n, d) in normals.iter_mut().zip(&delta) {
+                        for c in 0..3 {
+                            n[c] += w * d[c];
+                        }
+                    }
+                }
+            }
+        }
+        let Some(palette) = &deform.palette else {
+            return Ok(());
+        };
+        let (Some(joints), Some(weights)) = (
+            primitive.get(&gltf::Semantic::Joints(0)),
+            primitive.get(&gltf::Semantic::Weights(0)),
+        ) else {
+            return Ok(());
+        };
+        let joints = read_floats::<4>(
+            &joints,
+            self.buffers,
+            what,
+            "JOINTS_0",
+            Normalize::AsFlagged,
+        )?;
+        let weights = read_floats::<4>(
+            &weights,
+            self.buffers,
+            what,
+            "WEIGHTS_0",
+            Normalize::Integers,
+        )?;
+        if joints.len() != count || weights.len() != count {
+            return Err(parse_error(
+                FORMAT,
+                format!("{what}: JOINTS_0/WEIGHTS_0 do not match POSITION"),
+            ));
+        }
+        for i in 0..count {
+            let mut m = DMat4::ZERO;
+            let mut total = 0.0;
+            for k in 0..4 {
+                let w = f64::from(weights[i][k]);
+                if w == 0.0 {
+                    continue;
+                }
+                let j = joints[i][k];
+                let joint = palette
+                    .get(j as usize)
+                    .filter(|_| j >= 0.0 && j.fract() == 0.0)
+                    .ok_or_else(|| {
+                        parse_error(
+                            FORMAT,
+                            format!("{what}: vertex {i} names joint {j} of {}", palette.len()),
+                        )
+                    })?;
+                m += *joint * w;
+                total += w;
+            }
+            if total <= 0.0 {
+                continue;
+            }
+            let m = m * (1.0 / total);
+            let p = m.transform_point3(DVec3::from(positions[i].map(f64::from)));
+            positions[i] = [p.x as f32, p.y as f32, p.z as f32];
+            if let Some(normals) = normals.as_mut()
+                && let Some(n) = normals.get_mut(i)
+            {
+                let v = m
+                    .transform_vector3(DVec3::from(n.map(f64::from)))
+                    .normalize_or_zero();
+                *n = [v.x as f32, v.y as f32, v.z as f32];
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A node's translation, rotation (quaternion x, y, z, w) and scale.
+type Trs = ([f32; 3], [f32; 4], [f32; 3]);
+
+/// How a channel interpolates between keys.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Interp {
+    Step,
+    Linear,
+    CubicSpline,
+}
+
+/// What a channel animates.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Path3 {
+    Translation,
+    Rotation,
+    Scale,
+    Weights,
+}
+
+/// One animation channel, its keys read and checked.
+struct Channel {
+    node: usize,
+    path: Path3,
+    interp: Interp,
+    times: Vec<f32>,
+    /// Per key, `width` values (cubic splines: in-tangent, value, out-tangent per key).
+    values: Vec<f32>,
+    width: usize,
+}
+
+impl Channel {
+    /// The value at time `t` (clamped to the keys' range).
+    fn sample(&self, t: f32) -> Vec<f32> {
+        let n = self.times.len();
+        let w = self.width;
+        let stride = if self.interp == Interp::CubicSpline {
+            3 * w
+        } else {
+            w
+        };
+        let value = |k: usize| -> &[f32] {
+            let at = k * stride
+                + if self.interp == Interp::CubicSpline {
+                    w
+                } else {
+                    0
+                };
+            &self.values[at..at + w]
+        };
+        if n == 1 || t <= self.times[0] {
+            return value(0).to_vec();
+        }
+        if t >= self.times[n - 1] {
+            return value(n - 1).to_vec();
+        }
+        let k = self
+            .times
+            .partition_point(|&x| x <= t)
+            .saturating_sub(1)
+            .min(n - 2);
+        let (t0, t1) = (self.times[k], self.times[k + 1]);
+        let dt = t1 - t0;
+        let u = if dt > 0.0 { (t - t0) / dt } else { 0.0 };
+        match self.interp {
+            Interp::Step => value(k).to_vec(),
+            Interp::Linear => {
+                let (a, b) = (value(k), value(k + 1));
+                if self.path == Path3::Rotation {
+                    let qa = glam::Quat::from_slice(a).normalize();
+                    let qb = glam::Quat::from_slice(b).normalize();
+                    qa.slerp(qb, u).to_array().to_vec()
+                } else {
+                    a.iter().zip(b).map(|(x, y)| x + (y - x) * u).collect()
+                }
+            }
+            Interp::CubicSpline => {
+                let (u2, u3) = (u * u, u * u * u);
+                let p0 = value(k);
+                let m0 = &self.values[k * stride + 2 * w..k * stride + 3 * w];
+                let p1 = value(k + 1);
+                let m1 = &self.values[(k + 1) * stride..(k + 1) * stride + w];
+                let out: Vec<f32> = (0..w)
+                    .map(|c| {
+                        (2.0 * u3 - 3.0 * u2 + 1.0) * p0[c]
+                            + (u3 - 2.0 * u2 + u) * dt * m0[c]
+                            + (-2.0 * u3 + 3.0 * u2) * p1[c]
+                            + (u3 - u2) * dt * m1[c]
+                    })
+                    .collect();
+                if self.path == Path3::Rotation {
+                    glam::Quat::from_slice(&out).normalize().to_array().to_vec()
+                } else {
+                    out
+                }
+            }
+        }
+    }
+}
+
+/// A glTF animation baked into frames: the mesh posed at `t = i / fps` for `i = 0..frames`,
+/// up to the animation's last key.
+#[derive(Clone, Debug)]
+pub struct Animation {
+    /// The animation's name (or `animation_<index>` when it has none).
+    pub name: String,
+    /// Time of its last key, seconds.
+    pub duration: f64,
+    /// Frames per second sampled.
+    pub fps: f64,
+    /// The posed meshes, unvalidated (the caller finishes them).
+    pub frames: Vec<Mesh>,
+}
+
+/// Samples animation `name` (or the first) of a glTF scene at `fps` into at most `max_frames`
+/// posed meshes: node translation, rotation and scale (step, linear with slerp, cubic spline),
+/// morph-target weights and skins.
+///
+/// # Errors
+/// [`MeshError::Parse`] for a file without animations, an unknown name (the message lists
+/// them), bad keys (times not increasing, non-finite values, wrong counts), a bad fps, or more
+/// frames than `max_frames`.
+pub(super) fn load_animation(
+    bytes: &[u8],
+    base_dir: Option<&Path>,
+    name: Option<&str>,
+    fps: f64,
+    max_frames: usize,
+) -> Result<Animation, MeshError> {
+    if !(fps.is_finite() && fps > 0.0 && fps <= 1000.0) {
+        return Err(parse_error(
+            FORMAT,
+            format!("fps {fps}: give a rate in (0, 1000]"),
+        ));
+    }
+    let (document, buffers) = parse(bytes, base_dir)?;
+    let names: Vec<String> = document
+        .animations()
+        .map(|a| {
+            a.name()
+                .map_or_else(|| format!("animation_{}", a.index()), str::to_owned)
+        })
+        .collect();
+    if names.is_empty() {
+        return Err(parse_error(FORMAT, "the file has no animation".to_owned()));
+    }
+    let index = match name {
+        None => 0,
+        Some(name) => names.iter().position(|n| n == name).ok_or_else(|| {
+            parse_error(
+                FORMAT,
+                format!("no animation {name:?}; the file has {}", names.join(", ")),
+            )
+        })?,
+    };
+    let animation = document
+        .animations()
+        .nth(index)
+        .ok_or_else(|| parse_error(FORMAT, "animation index out of range".to_owned()))?;
+    let what = format!("animation {:?}", names[index]);
+    let mut channels = Vec::new();
+    for channel in animation.channels() {
+        let sampler = channel.sampler();
+        let times = read_floats::<1>(
+            &sampler.input(),
+            &buffers,
+            &what,
+            "input",
+            Normalize::AsFlagged,
+        )?
+        .into_iter()
+        .map(|[t]| t)
+        .collect::<Vec<f32>>();
+        if times.is_empty()
+            || times.iter().any(|t| !t.is_finite())
+            || times.windows(2).any(|w| w[1] < w[0])
+        {
+            return Err(parse_error(
+                FORMAT,
+                format!("{what}: key times must be finite and increasing"),
+            ));
+        }
+        let path = match channel.target().property() {
+            gltf::animation::Property::Translation => Path3::Translation,
+            gltf::animation::Property::Rotation => Path3::Rotation,
+            gltf::animation::Property::Scale => Path3::Scale,
+            gltf::animation::Property::MorphTargetWeights => Path3::Weights,
+        };
+        let interp = match sampler.interpolation() {
+            gltf::animation::Interpolation::Step => Interp::Step,
+            gltf::animation::Interpolation::Linear => Interp::Linear,
+            gltf::animation::Interpolation::CubicSpline => Interp::CubicSpline,
+        };
+        let output = sampler.output();
+        let values: Vec<f32> = match output.dimensions().multiplicity() {
+            1 => read_floats::<1>(&output, &buffers, &what, "output", Normalize::AsFlagged)?
+                .into_iter()
+                .flatten()
+                .collect(),
+            3 => read_floats::<3>(&output, &buffers, &what, "output", Normalize::AsFlagged)?
+                .into_iter()
+                .flatten()
+                .collect(),
+            4 => read_floats::<4>(&output, &buffers, &what, "output", Normalize::AsFlagged)?
+                .into_iter()
+                .flatten()
+                .collect(),
+            n => {
+                return Err(parse_error(
+                    FORMAT,
+                    format!("{what}: output with {n} components"),
+                ));
+            }
+        };
+        let per_key = if interp == Interp::CubicSpline { 3 } else { 1 };
+        let keys = times.len() * per_key;
+        let width = match path {
+            Path3::Translation | Path3::Scale => 3,
+            Path3::Rotation => 4,
+            Path3::Weights => values.len() / keys.max(1),
+        };
+        if width == 0 || values.len() != keys * width || values.iter().any(|v| !v.is_finite()) {
+            return Err(parse_error(
+                FORMAT,
+                format!(
+                    "{what}: {} output values for {} keys of {width}",
+                    values.len(),
+                    times.len()
+                ),
+            ));
+        }
+        channels.push(Channel {
+            node: channel.target().node().index(),
+            path,
+            interp,
+            times,
+            values,
+            width,
+        });
+    }
+    let duration = f64::from(
+        channels
+            .iter()
+            .filter_map(|c| c.times.last().copied())
+            .fold(0.0_f32, f32::max),
+    );
+    let frames = (duration * fps + 1e-6).floor() as usize + 1;
+    if frames > max_frames {
+        return Err(parse_error(
+            FORMAT,
+            format!(
+                "{what} lasts {duration:.3} s: {frames} frames at {fps} fps, more than the {max_frames} an asset holds; lower the frame rate"
+            ),
+        ));
+    }
+    let nodes: Vec<gltf::Node<'_>> = document.nodes().collect();
+    let mut meshes = Vec::with_capacity(frames);
+    for i in 0..frames {
+        let t = (i as f64 / fps) as f32;
+        let mut pose = Pose {
+            locals: vec![None; nodes.len()],
+            weights: vec![None; nodes.len()],
+        };
+        let mut trs: HashMap<usize, Trs> = HashMap::new();
+        for channel in &channels {
+            let Some(node) = nodes.get(channel.node) else {
+                continue;
+            };
+            let value = channel.sample(t);
+            if channel.path == Path3::Weights {
+                pose.weights[channel.node] = Some(value);
+                continue;
+            }
+            let entry = trs
+                .entry(channel.node)
+                .or_insert_with(|| node.transform().decomposed());
+            match channel.path {
+                Path3::Translation => entry.0 = [value[0], value[1], value[2]],
+                Path3::Rotation => entry.1 = [value[0], value[1], value[2], value[3]],
+                Path3::Scale => entry.2 = [value[0], value[1], value[2]],
+                Path3::Weights => {}
+            }
+        }
+        for (node, (t, r, s)) in trs {
+            let q = glam::DQuat::from_array(r.map(f64::from)).normalize();
+            pose.locals[node] = Some(DMat4::from_scale_rotation_translation(
+                DVec3::from(s.map(f64::from)),
+                q,
+                DVec3::from(t.map(f64::from)),
+            ));
+        }
+        meshes.push(build(&document, &buffers, base_dir, Some(&pose))?);
+    }
+    Ok(Animation {
+        name: names[index].clone(),
+        duration,
+        fps,
+        frames: meshes,
+    })
+}
+
 fn view_bytes<'b>(
     view: &gltf::buffer::View<'_>,
     buffers: &'b [Vec<u8>],
