@@ -229,6 +229,11 @@ def test_deformation_states_store_what_changed_and_render_by_name() -> None:
     np.testing.assert_array_equal(lf.render(view, state="base").color, lf.render(view).color)
     with pytest.raises(ValueError, match="unknown state"):
         lf.render(view, state="dent")
+    # Animation frames are picked by time or frame, of assets baked with --animation only.
+    with pytest.raises(ValueError, match="no animation"):
+        lf.render(view, time=0.0)
+    with pytest.raises(ValueError, match="one of time, frame and state"):
+        lf.render(view, frame=0, state="moved")
     with pytest.raises(ValueError, match="bounding sphere"):
         lg.bake_mesh(base, cameras=12, resolution=16, states={"big": (base[0] * 3.0, base[1])}, progress=False)
     with pytest.raises(ValueError, match="base"):

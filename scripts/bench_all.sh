@@ -33,6 +33,8 @@ step "deformation states (scripts/bench_states.sh)" "$OUT/states/table.md: 'Defo
 bash scripts/bench_states.sh "$OUT/states"
 step "import of external renders (scripts/bench_import.sh)" "$OUT/import/table.md: 'Import of external renders'"
 bash scripts/bench_import.sh "$OUT/import"
+step "animation (scripts/bench_animation.sh)" "$OUT/animation/table.md: 'Animation'"
+bash scripts/bench_animation.sh "$OUT/animation"
 step "still refinement (scripts/bench_refine.sh)" "$OUT/refine/tables.md: 'Still-frame refinement'"
 bash scripts/bench_refine.sh "$OUT/refine"
 step "render service (scripts/bench_service.py)" "$OUT/service.md: 'Render service streaming'"

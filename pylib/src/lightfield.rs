@@ -354,7 +354,9 @@ impl PyLightField {
     ///         silhouette error, pixels) with ``lod_min_psnr``, ``lod_max_psnr_drop`` and
     ///         ``lod_blend`` (see :meth:`choose_lod`). ``light=(x, y, z)`` relights an asset
     ///         baked with ``lights=`` at that world-space direction (DESIGN §9).
-    ///         ``state="NAME"`` renders a deformation state (baked with ``states=``).
+    ///         ``state="NAME"`` renders a deformation state (baked with ``states=``);
+    ///         ``time=SECONDS`` or ``frame=N`` a frame of an asset baked with
+    ///         ``lumigraph bake --animation``.
     ///
     /// Raises:
     ///     ValueError: a bad view, an unknown or bad quality option, or a conflict between

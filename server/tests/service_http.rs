@@ -3193,3 +3193,82 @@ async fn deformation_states_render_by_name_over_http_and_the_stream() {
         "the stream renders the state as the render body does"
     );
 }
+
+/// An animation through the service: `time` and `frame` in the render body and the link pick
+/// the frame, a time outside the animation is a 422.
+#[tokio::test(flavor = "multi_thread")]
+async fn animation_frames_render_by_time_and_frame_over_http() {
+    use lumigraph_core::bake::{BakeOptions, Baker, StateBake};
+    use lumigraph_core::deform::{StateMesh, animation_params};
+    let (dir, state) = setup(None, |_| {}).await;
+    let frames = [yard_mesh(-0.8), yard_mesh(0.6)];
+    let params: Vec<_> = (0..2)
+        .map(|i| animation_params("slide", i, 2.0, 0.5))
+        .collect();
+    let baker = Baker::new(lumigraph_core::gpu::Gpu::shared().expect("gpu"));
+    let bytes = baker
+        .bake_states_to_bytes(
+            &frames[0],
+            &StateBake {
+                meshes: &[StateMesh {
+                    name: "frame_001",
+                    mesh: &frames[1],
+                    source_name: "",
+                    source_sha256: "",
+                    params: Some(&params[1]),
+                }],
+                frame: Some(lumigraph_core::deform::frame_around(&frames)),
+                base_params: Some(&params[0]),
+                ..StateBake::default()
+            },
+            &BakeOptions {
+                cameras: 12,
+                resolution: 32,
+                ..BakeOptions::default()
+            },
+            &lumigraph_core::asset::Provenance::default(),
+            &mut |_, _| {},
+        )
+        .expect("bake");
+    std::fs::write(dir.path().join("slide.lfa"), bytes).expect("write");
+    state.load_assets().await.expect("loading assets");
+    let render = |extra: serde_json::Value| {
+        let state = state.clone();
+        async move {
+            let mut body = serde_json::json!({"view": view_json(48, 48)});
+            if let (Some(b), Some(e)) = (body.as_object_mut(), extra.as_object()) {
+                b.extend(e.clone());
+            }
+            post_json(&state, "/v1/assets/slide/render", body.to_string()).await
+        }
+    };
+    let first = render(serde_json::json!({"time": 0.2})).await;
+    let second = render(serde_json::json!({"time": 0.5})).await;
+    let by_frame = render(serde_json::json!({"frame": 1})).await;
+    let by_name = render(serde_json::json!({"state": "frame_001"})).await;
+    let plain = render(serde_json::json!({})).await;
+    assert_eq!(
+        second.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&second.body)
+    );
+    assert_eq!(first.body, plain.body, "0.2 s shows frame 0");
+    assert_ne!(first.body, second.body, "the box slid");
+    assert_eq!(second.body, by_frame.body);
+    assert_eq!(second.body, by_name.body);
+    let link = get(&state, "/v1/assets/slide/render?eye=0.3,0.5,3&target=0,0,0&up=0,1,0&yfov_deg=40&width=48&height=48&frame=1").await;
+    assert_eq!(link.status, StatusCode::OK);
+    assert_eq!(
+        lumigraph_core::image_io::decode_png_rgba8(&link.body).expect("png"),
+        lumigraph_core::image_io::decode_png_rgba8(&second.body).expect("png")
+    );
+    for bad in [
+        serde_json::json!({"time": 3.0}),
+        serde_json::json!({"frame": 2}),
+        serde_json::json!({"time": 0.1, "frame": 0}),
+    ] {
+        let reply = render(bad.clone()).await;
+        assert_eq!(reply.status, StatusCode::UNPROCESSABLE_ENTITY, "{bad}");
+    }
+}

@@ -33,6 +33,8 @@ class _Quality(TypedDict, total=False):
     layers: Mapping[str, float] | str | None
     light: Sequence[float] | None
     state: str | None
+    time: float | None
+    frame: int | None
 
 _Image = Frame | npt.ArrayLike
 

@@ -263,7 +263,7 @@ fn bake_animation(
     );
     let base = &animation.frames[0];
     if args.no_calibrate {
-        baker.bake_states_to_file(
+        let report = baker.bake_states_to_file(
             base,
             &states,
             options,
@@ -272,6 +272,15 @@ fn bake_animation(
             &mut |done, _| bar.set_position(u64::from(done)),
         )?;
         bar.finish_and_clear();
+        println!(
+            "baked {} cameras at {} px from {} triangles in {:.0} ms: {} ({:.1} MiB)",
+            report.cameras,
+            report.resolution,
+            report.triangles,
+            report.bake_ms,
+            args.output.display(),
+            report.asset_bytes as f64 / (1024.0 * 1024.0)
+        );
     } else {
         bake_calibrated(
             args,

@@ -41,6 +41,9 @@ pub enum BenchCommand {
     /// Render a mesh's reference from the camera set's directions, import the renders
     /// (`import-views`) and score the imported light field beside a direct bake.
     Import(super::bench_import::ImportArgs),
+    /// Playback cost of an asset baked with --animation: frames rendered in turn against the
+    /// static frame, interleaved.
+    Animation(super::bench_animation::AnimationArgs),
 }
 
 /// `lumigraph bench tradeoff`. Lists are comma-separated; steps accept fractions (`1/32`).

@@ -10,6 +10,7 @@ use clap::{Parser, Subcommand};
 mod args;
 mod bake;
 mod bench;
+mod bench_animation;
 mod bench_import;
 mod bench_lights;
 mod bench_states;
@@ -82,6 +83,7 @@ pub fn run(cli: Cli) -> Result<()> {
             BenchCommand::Lights(args) => bench_lights::bench_lights(&args),
             BenchCommand::States(args) => bench_states::bench_states(&args),
             BenchCommand::Import(args) => bench_import::bench_import(&args),
+            BenchCommand::Animation(args) => bench_animation::bench_animation(&args),
         },
         Command::Serve(args) => serve::serve(&args),
         Command::Healthcheck(args) => healthcheck::healthcheck(&args),
