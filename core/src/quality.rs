@@ -757,8 +757,8 @@ mod tests {
             layers: Some("skin=0.5".parse().expect("opacities")),
             light: Some(crate::light::LightDirection([0.0, 1.0, 0.0])),
             state: Some("dent".to_owned()),
-            time: None,
-            frame: None,
+            time: Some(0.5),
+            frame: Some(3),
         }
     }
 
