@@ -596,6 +596,21 @@ impl Plan {
         &self.quality
     }
 
+    /// The geometry state the plan renders (`None`: the base state).
+    pub fn state(&self) -> Option<u16> {
+        self.state
+    }
+
+    /// The same plan rendering another geometry state (an animation frame a player advances
+    /// to; `None` or 0: the base state). The caller names a state of the same asset.
+    #[must_use]
+    pub fn with_state(&self, state: Option<u16>) -> Plan {
+        Plan {
+            state: state.filter(|&s| s != 0),
+            ..self.clone()
+        }
+    }
+
     /// The decision for `view`, without rendering.
     ///
     /// # Errors

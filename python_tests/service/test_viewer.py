@@ -541,3 +541,59 @@ def test_viewer_state_picker_shows_a_deformation_state(
         assert not page.errors, page.errors  # type: ignore[attr-defined]
     finally:
         httpx.delete(f"{server.base_url}/v1/assets/yard", timeout=30)
+
+
+def _animated_fixture() -> Path:
+    """The Debian glTF morph-target cube (scripts/fixtures.sh fetches it when missing)."""
+    root = Path(__file__).resolve().parents[2]
+    folder = Path(os.environ.get("LUMIGRAPH_FIXTURES") or root / "fixtures")
+    cube = folder / "anim" / "AnimatedMorphCube.gltf"
+    if not cube.is_file():
+        subprocess.run(["bash", str(root / "scripts" / "fixtures.sh"), str(folder)], check=True,
+                       capture_output=True, timeout=600)
+    return cube
+
+
+def test_viewer_plays_and_pauses_an_animation(
+    server: Server, page: Page, tmp_path: Path
+) -> None:
+    """An animated asset (`bake --animation`) shows Play; playing, frames keep coming for a
+    resting view with the animation frame in the stats and `playing=1` in the link; Pause stops
+    them."""
+    baked = subprocess.run(
+        [str(BIN), "bake", str(_animated_fixture()), "--animation", "--fps", "4", "--cameras",
+         "12", "--resolution", "48", "--no-calibrate", "-o", str(tmp_path / "cube.lfa")],
+        capture_output=True, text=True, env=runtime_env(), timeout=120, check=False,
+    )
+    assert baked.returncode == 0, baked.stderr
+    created = httpx.post(f"{server.base_url}/v1/assets?id=cube",
+                         content=(tmp_path / "cube.lfa").read_bytes(), timeout=60)
+    assert created.status_code == 201, created.text
+    try:
+        page.goto(server.base_url + "/?asset=cube&interactive=0&still_codec=png")
+        page.wait_for_function(FULL_FRAME, timeout=30_000)
+        assert page.is_visible("#playback")
+        assert page.inner_text("#play") == "Play"
+        first = last(page)
+        page.click("#play")
+        assert page.inner_text("#play") == "Pause"
+        # Frames keep coming for the one resting view, stamped with advancing animation frames.
+        page.wait_for_function(
+            f"window.lumigraphViewer.last.frameId > {first['frameId']} + 6", timeout=30_000)
+        seen = page.evaluate("window.lumigraphViewer.last.animation")
+        assert seen is not None and seen["frame"] >= 0, seen
+        assert "anim" in page.inner_text("#stats")
+        page.wait_for_function("new URLSearchParams(location.search).get('playing') === '1'",
+                               timeout=10_000)
+        page.click("#play")
+        assert page.inner_text("#play") == "Play"
+        page.wait_for_function("!new URLSearchParams(location.search).has('playing')",
+                               timeout=10_000)
+        # Paused: after the frame that answers the pause, no more frames arrive.
+        page.wait_for_timeout(800)
+        paused = last(page)["frameId"]
+        page.wait_for_timeout(1200)
+        assert last(page)["frameId"] == paused
+        assert not page.errors, page.errors  # type: ignore[attr-defined]
+    finally:
+        httpx.delete(f"{server.base_url}/v1/assets/cube", timeout=30)

@@ -258,6 +258,25 @@
     scheduleUrlUpdate();
   }
 
+  // --- animation playback ------------------------------------------------------------------------
+  // Play / pause for an asset baked with --animation: `playing` in a settings message of its own
+  // (the server advances the frames on its clock) and `playing=1` in the link.
+  function fillPlayback(asset, playing) {
+    $("playback").hidden = !asset.animation;
+    state.playing = !!asset.animation && !!playing;
+    $("play").textContent = state.playing ? "Pause" : "Play";
+  }
+
+  function togglePlayback() {
+    state.playing = !state.playing;
+    $("play").textContent = state.playing ? "Pause" : "Play";
+    if (state.playing) state.extra.playing = "1";
+    else delete state.extra.playing;
+    send({ type: "settings", playing: state.playing });
+    sendView(true);
+    scheduleUrlUpdate();
+  }
+
   // --- light direction (assets with light states) ----------------------------------------------
   // A ball: a point on it is where the light comes from as seen from the camera (centre: from
   // behind the camera, rim: from the side). The direction goes to the server in world space, a
@@ -500,6 +519,9 @@
           break;
         }
         case "state": out.settings.state = v; out.extra.state = v; break;
+        case "playing":
+          if (v === "1" || v === "0") { out.settings.playing = v === "1"; if (v === "1") out.extra.playing = v; } else bad(k, v, "not 0 or 1");
+          break;
         case "light": {
           const l = v.split(",").map((c) => (c.trim() === "" ? NaN : Number(c)));
           if (l.length !== 3 || !l.every(Number.isFinite) || Math.hypot(l[0], l[1], l[2]) === 0) {
@@ -545,8 +567,12 @@
       yfovDeg: dv.getFloat32(92, true),
       depthBytes: dv.getUint32(96, true),
     } : null;
+    // Bit 3: the animation extension (frame index, time) follows the depth extension, if any.
+    const at = 40 + (flags & 4 ? 60 : 0);
+    const animation = flags & 8 ? { frame: dv.getUint32(at, true), time: dv.getFloat32(at + 4, true) } : null;
     return {
       depth,
+      animation,
       headerLen: dv.getUint16(4, true),
       codec: dv.getUint8(6),
       quality: dv.getUint8(7),
@@ -606,6 +632,7 @@
       `bytes     ${(h.bytes / 1024).toFixed(1)} KiB`,
       `quality   ${QUALITY[h.quality] || h.quality} ${h.width}x${h.height} ${CODECS[h.codec] || "?"}`,
       `cameras   ${h.cameras}`,
+      ...(h.animation ? [`anim      frame ${h.animation.frame} (${h.animation.time.toFixed(2)} s)`] : []),
       `frames    ${state.frames} (dropped ${h.dropped})`,
       `reproject ${reprojecting() ? "on" : state.warper ? "off" : "off (no WebGL2)"} (${state.warps} warped)`,
     ].join("\n");
@@ -656,6 +683,7 @@
         fillLod(msg.asset.camera_count);
         fillLayers(msg.asset, fromUrlLayers());
         fillStates(msg.asset, (state.fromUrl && state.fromUrl.settings.state) || (same ? state.extra.state : null));
+        fillPlayback(msg.asset, state.fromUrl ? state.fromUrl.settings.playing : (same && state.playing));
         // The link's light, else (a reconnect to the same asset) the light already chosen.
         fillLighting(msg.asset, (state.fromUrl && state.fromUrl.settings.light) || (same ? state.light : null));
         if (!same) resetCamera();
@@ -678,6 +706,7 @@
           const again = {};
           if (state.light) again.light = state.light;
           if (state.extra.state) again.state = state.extra.state;
+          if (state.playing) again.playing = true;
           if (Object.keys(again).length) send({ type: "settings", ...again });
         }
         sendView(true);
@@ -770,6 +799,7 @@
   }
   $("asset").addEventListener("change", (e) => { state.extra = {}; connect(e.target.value); });
   $("state").addEventListener("change", sendState);
+  $("play").addEventListener("click", togglePlayback);
   $("notice").addEventListener("click", () => showNotice([]));
 
   // Copy buttons: the clipboard where the page may use it, else the text is selected in a

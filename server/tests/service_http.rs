@@ -1637,6 +1637,8 @@ struct FrameHeader {
     dropped: u32,
     encoded_quality: u8,
     flags: u8,
+    /// The animation extension: frame index and time.
+    animation: Option<(u32, f32)>,
 }
 
 fn parse_frame(bytes: &[u8]) -> (FrameHeader, &[u8]) {
@@ -1654,6 +1656,13 @@ fn parse_frame(bytes: &[u8]) -> (FrameHeader, &[u8]) {
         dropped: u32_at(32),
         encoded_quality: bytes[38],
         flags: bytes[39],
+        animation: (bytes[39] & 8 != 0).then(|| {
+            let at = 40 + if bytes[39] & 4 != 0 { 60 } else { 0 };
+            (
+                u32_at(at),
+                f32::from_le_bytes([bytes[at + 4], bytes[at + 5], bytes[at + 6], bytes[at + 7]]),
+            )
+        }),
     };
     (header, &bytes[header_len..])
 }
@@ -3194,19 +3203,16 @@ async fn deformation_states_render_by_name_over_http_and_the_stream() {
     );
 }
 
-/// An animation through the service: `time` and `frame` in the render body and the link pick
-/// the frame, a time outside the animation is a 422.
-#[tokio::test(flavor = "multi_thread")]
-async fn animation_frames_render_by_time_and_frame_over_http() {
+/// A two-frame animation (the yard's box sliding, 2 fps): frame 0 the base state.
+fn slide_asset() -> Vec<u8> {
     use lumigraph_core::bake::{BakeOptions, Baker, StateBake};
     use lumigraph_core::deform::{StateMesh, animation_params};
-    let (dir, state) = setup(None, |_| {}).await;
     let frames = [yard_mesh(-0.8), yard_mesh(0.6)];
     let params: Vec<_> = (0..2)
         .map(|i| animation_params("slide", i, 2.0, 0.5))
         .collect();
     let baker = Baker::new(lumigraph_core::gpu::Gpu::shared().expect("gpu"));
-    let bytes = baker
+    baker
         .bake_states_to_bytes(
             &frames[0],
             &StateBake {
@@ -3229,7 +3235,15 @@ async fn animation_frames_render_by_time_and_frame_over_http() {
             &lumigraph_core::asset::Provenance::default(),
             &mut |_, _| {},
         )
-        .expect("bake");
+        .expect("bake")
+}
+
+/// An animation through the service: `time` and `frame` in the render body and the link pick
+/// the frame, a time outside the animation is a 422.
+#[tokio::test(flavor = "multi_thread")]
+async fn animation_frames_render_by_time_and_frame_over_http() {
+    let (dir, state) = setup(None, |_| {}).await;
+    let bytes = slide_asset();
     std::fs::write(dir.path().join("slide.lfa"), bytes).expect("write");
     state.load_assets().await.expect("loading assets");
     let render = |extra: serde_json::Value| {
@@ -3271,4 +3285,78 @@ async fn animation_frames_render_by_time_and_frame_over_http() {
         let reply = render(bad.clone()).await;
         assert_eq!(reply.status, StatusCode::UNPROCESSABLE_ENTITY, "{bad}");
     }
+}
+
+/// The stream plays an animation on the server's clock: with `playing`, frames keep coming for
+/// one resting view, their headers stamped with the frame they show, both frames of the slide
+/// in turn; an asset without an animation refuses `playing`.
+#[tokio::test(flavor = "multi_thread")]
+async fn the_stream_plays_an_animation_and_stamps_each_frame() {
+    let (dir, state) = setup(None, |_| {}).await;
+    std::fs::write(dir.path().join("slide.lfa"), slide_asset()).expect("write");
+    state.load_assets().await.expect("loading assets");
+    let (addr, stop_tx, server) = serve_on_loopback(state).await;
+    let (mut ws, _) =
+        tokio_tungstenite::connect_async(format!("ws://{addr}/v1/stream?asset=slide"))
+            .await
+            .expect("connect");
+    let hello = next_json(&mut ws).await;
+    assert_eq!(hello["asset"]["animation"]["frames"], 2, "{hello}");
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "settings", "interactive": false, "still_codec": "png", "rest_ms": 0, "playing": true}),
+    )
+    .await;
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "view", "id": 1, "view": view_json(32, 32)}),
+    )
+    .await;
+    // At 2 fps the frames change every 0.5 s: 2.2 s shows both several times.
+    let mut images: std::collections::HashMap<u32, Vec<u8>> = std::collections::HashMap::new();
+    let mut shown = Vec::new();
+    let start = std::time::Instant::now();
+    while start.elapsed() < Duration::from_millis(2200) {
+        let (header, image) = next_frame(&mut ws).await;
+        send_json(
+            &mut ws,
+            serde_json::json!({"type": "ack", "frame": header.frame_id}),
+        )
+        .await;
+        let (frame, time) = header.animation.expect("an animation stamp");
+        assert!((time - frame as f32 * 0.5).abs() < 1e-6, "{frame} {time}");
+        assert_eq!(header.request_id, 1, "frames of the one resting view");
+        let (_, _, rgba) = lumigraph_core::image_io::decode_png_rgba8(&image).expect("png");
+        if let Some(seen) = images.get(&frame) {
+            assert_eq!(seen, &rgba, "frame {frame} looks the same each time");
+        }
+        images.insert(frame, rgba);
+        shown.push(frame);
+    }
+    assert!(shown.contains(&0) && shown.contains(&1), "{shown:?}");
+    assert!(shown.len() >= 4, "frames keep coming: {shown:?}");
+    assert_ne!(images[&0], images[&1], "the box slid");
+    // Pausing shows the frame `frame` names.
+    send_json(
+        &mut ws,
+        serde_json::json!({"type": "settings", "playing": false, "frame": 1}),
+    )
+    .await;
+    let mut last = None;
+    for _ in 0..8 {
+        let (header, _) = next_frame(&mut ws).await;
+        send_json(
+            &mut ws,
+            serde_json::json!({"type": "ack", "frame": header.frame_id}),
+        )
+        .await;
+        last = header.animation;
+        if last.map(|(f, _)| f) == Some(1) {
+            break;
+        }
+    }
+    assert_eq!(last.map(|(f, _)| f), Some(1));
+    drop(ws);
+    let _ = stop_tx.send(());
+    let _ = server.await;
 }

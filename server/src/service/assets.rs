@@ -108,6 +108,10 @@ pub struct AssetSummary {
     /// The deformation states among them (`bake --state NAME=MESH2`): what the `state` render
     /// option takes besides `base`.
     pub deformations: Vec<String>,
+    /// The asset's animation (`bake --animation`), if any: what `time`, `frame` and the
+    /// stream's `playing` take.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub animation: Option<AnimationSummary>,
     /// Bounding sphere centre in world units (a good orbit target).
     pub center: [f64; 3],
     /// Bounding sphere radius in world units.
@@ -116,6 +120,19 @@ pub struct AssetSummary {
     pub file_bytes: u64,
     /// GPU memory the asset takes, in bytes, charged to the asset memory budget.
     pub gpu_bytes: u64,
+}
+
+/// An asset's animation.
+#[derive(Clone, Debug, Serialize, utoipa::ToSchema)]
+pub struct AnimationSummary {
+    /// The animation's name.
+    pub name: String,
+    /// Frames.
+    pub frames: usize,
+    /// Frames per second.
+    pub fps: f64,
+    /// Time of its last key, seconds.
+    pub duration: f64,
 }
 
 impl LoadedAsset {
@@ -137,9 +154,18 @@ impl LoadedAsset {
                 .states
                 .iter()
                 .enumerate()
-                .filter(|&(i, _)| lumigraph_core::deform::is_geometry_state(h, i))
+                .filter(|&(i, s)| {
+                    lumigraph_core::deform::is_geometry_state(h, i)
+                        && s.params.contains_key(lumigraph_core::deform::PARAM_KEY)
+                })
                 .map(|(_, s)| s.name.clone())
                 .collect(),
+            animation: lumigraph_core::deform::AnimationInfo::of(h).map(|a| AnimationSummary {
+                name: a.name,
+                frames: a.states.len(),
+                fps: a.fps,
+                duration: a.duration,
+            }),
             center: h.frame.center,
             radius: h.frame.radius,
             file_bytes: self.file_bytes,

@@ -191,7 +191,21 @@ pub struct FrameHeader {
     pub flags: u8,
     /// The depth extension, present when the session's `depth` setting is on.
     pub depth: Option<DepthExtension>,
+    /// The animation frame shown, for an asset with an animation (the animation extension).
+    pub animation: Option<AnimationStamp>,
 }
+
+/// Which animation frame a frame shows (docs/protocol.md, "Animation extension").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AnimationStamp {
+    /// Frame index, 0 = the first.
+    pub frame: u32,
+    /// Its time in the animation, seconds.
+    pub time: f32,
+}
+
+/// Bytes of the animation extension (after the depth extension, when both are present).
+pub const ANIMATION_EXTENSION_LEN: usize = 8;
 
 /// What a frame carries for reprojection: where its depth image is, the range its 16-bit values
 /// map and the view it was rendered for (docs/protocol.md, "Depth extension").
@@ -307,11 +321,14 @@ pub fn parse_frame(bytes: &[u8]) -> Result<ParsedFrame<'_>, FrameError> {
     let header_len = usize::from(u16_at(bytes, 4));
     let flags = bytes[39];
     let has_depth = flags & FrameHeader::DEPTH != 0;
-    let needed = if has_depth {
-        FRAME_HEADER_LEN + DEPTH_EXTENSION_LEN
-    } else {
-        FRAME_HEADER_LEN
-    };
+    let has_animation = flags & FrameHeader::ANIMATION != 0;
+    let animation_at = FRAME_HEADER_LEN + if has_depth { DEPTH_EXTENSION_LEN } else { 0 };
+    let needed = animation_at
+        + if has_animation {
+            ANIMATION_EXTENSION_LEN
+        } else {
+            0
+        };
     if header_len < needed || bytes.len() < header_len {
         return Err(truncated(header_len.max(needed)));
     }
@@ -377,8 +394,12 @@ pub fn parse_frame(bytes: &[u8]) -> Result<ParsedFrame<'_>, FrameError> {
             dropped: u32_at(bytes, 32),
             cameras: u16_at(bytes, 36),
             encoded_quality: bytes[38],
-            flags: flags & !FrameHeader::DEPTH,
+            flags: flags & !(FrameHeader::DEPTH | FrameHeader::ANIMATION),
             depth,
+            animation: has_animation.then(|| AnimationStamp {
+                frame: u32_at(bytes, animation_at),
+                time: f32_at(bytes, animation_at + 4),
+            }),
         },
         color,
         depth: depth_image,
@@ -433,9 +454,14 @@ impl FrameHeader {
     /// when [`FrameHeader::depth`] is present).
     pub const DEPTH: u8 = 4;
 
+    /// Flag: the animation extension follows (the depth extension, if any, comes first).
+    pub const ANIMATION: u8 = 8;
+
     /// Bytes of this header, extensions included.
     pub fn encoded_len(&self) -> usize {
-        FRAME_HEADER_LEN + self.depth.map_or(0, |_| DEPTH_EXTENSION_LEN)
+        FRAME_HEADER_LEN
+            + self.depth.map_or(0, |_| DEPTH_EXTENSION_LEN)
+            + self.animation.map_or(0, |_| ANIMATION_EXTENSION_LEN)
     }
 
     /// Appends the header (and its depth extension) to `out`; the colour image, then the depth
@@ -460,7 +486,12 @@ impl FrameHeader {
         out.extend_from_slice(&self.cameras.to_le_bytes());
         out.push(self.encoded_quality);
         let depth_flag = if self.depth.is_some() { Self::DEPTH } else { 0 };
-        out.push(self.flags | depth_flag);
+        let animation_flag = if self.animation.is_some() {
+            Self::ANIMATION
+        } else {
+            0
+        };
+        out.push(self.flags | depth_flag | animation_flag);
         if let Some(depth) = &self.depth {
             out.extend_from_slice(&[DEPTH_CODEC_PNG16, 0, 0, 0]);
             out.extend_from_slice(&depth.color_bytes.to_le_bytes());
@@ -471,6 +502,10 @@ impl FrameHeader {
             }
             out.extend_from_slice(&depth.yfov_deg.to_le_bytes());
             out.extend_from_slice(&depth.depth_bytes.to_le_bytes());
+        }
+        if let Some(stamp) = &self.animation {
+            out.extend_from_slice(&stamp.frame.to_le_bytes());
+            out.extend_from_slice(&stamp.time.to_le_bytes());
         }
     }
 }
@@ -521,6 +556,7 @@ mod tests {
             encoded_quality: 35,
             flags: FrameHeader::LINK_LIMITED,
             depth: None,
+            animation: None,
         };
         let mut out = Vec::new();
         header.write(&mut out);
@@ -535,6 +571,27 @@ mod tests {
         let parsed = parse_frame(&out).unwrap();
         assert_eq!(parsed.header, header);
         assert!(parsed.depth.is_none() && parsed.color.is_empty());
+        // The animation extension: 8 bytes after the base header, flag bit 3.
+        let stamped = FrameHeader {
+            animation: Some(AnimationStamp {
+                frame: 12,
+                time: 0.5,
+            }),
+            ..header
+        };
+        let mut out = Vec::new();
+        stamped.write(&mut out);
+        out.extend_from_slice(b"image");
+        assert_eq!(out.len(), FRAME_HEADER_LEN + ANIMATION_EXTENSION_LEN + 5);
+        assert_eq!(u16::from_le_bytes([out[4], out[5]]), 48);
+        assert_eq!(out[39], 1 | FrameHeader::ANIMATION);
+        assert_eq!(u32::from_le_bytes([out[40], out[41], out[42], out[43]]), 12);
+        let parsed = parse_frame(&out).unwrap();
+        assert_eq!((parsed.header, parsed.color), (stamped, &b"image"[..]));
+        assert!(
+            parse_frame(&out[..44]).is_err(),
+            "a cut extension is refused"
+        );
     }
 
     /// Depths covering a range with misses; quantised to 16 bits, the round trip through the
@@ -577,6 +634,7 @@ mod tests {
                 up: [0.0, 1.0, 0.0],
                 yfov_deg: 40.0,
             }),
+            animation: None,
         };
         let mut out = Vec::new();
         header.write(&mut out);

@@ -12,8 +12,8 @@ use tokio::sync::{mpsc, watch};
 
 use super::adapt::{self, LinkEstimator};
 use super::protocol::{
-    ClientMessage, DepthExtension, FRAME_HEADER_LEN, FrameHeader, Hello, PROTOCOL_VERSION, Quality,
-    error_text, parse_client_message,
+    AnimationStamp, ClientMessage, DepthExtension, FRAME_HEADER_LEN, FrameHeader, Hello,
+    PROTOCOL_VERSION, Quality, error_text, parse_client_message,
 };
 use super::settings::{Effective, Settings, merge_settings, validate_settings};
 use crate::service::assets::LoadedAsset;
@@ -115,6 +115,7 @@ pub(super) async fn run_session(socket: WebSocket, state: AppState, asset: Arc<L
         jpeg_bytes_per_px_q50: None,
         depth_bytes_per_px: None,
         generation: state.pool().engine().generation,
+        play_start: None,
     };
     let close = tokio::select! {
         close = receiver => close,
@@ -259,11 +260,15 @@ struct Sender<'a> {
     depth_bytes_per_px: Option<f64>,
     /// The engine generation when the session started (a later one: the device was replaced).
     generation: u64,
+    /// When the animation started playing (`None`: not playing).
+    play_start: Option<Instant>,
 }
 
 enum Wake {
     Changed,
     Rested,
+    /// The next animation frame is due.
+    Tick,
     Error(String),
     Closed,
 }
@@ -288,6 +293,24 @@ impl Sender<'_> {
                 .frame_id
                 .saturating_sub(*self.acked.borrow_and_update());
             let window_open = in_flight < want.effective.settings.max_in_flight;
+            let playing = want.effective.settings.playing && want.effective.animation.is_some();
+            match (playing, self.play_start) {
+                (true, None) => self.play_start = Some(Instant::now()),
+                (false, Some(_)) => self.play_start = None,
+                _ => {}
+            }
+            // While playing, the next frame of the animation is due at the next multiple of the
+            // frame period since the start (a frame the window cannot take is skipped).
+            let tick_deadline = match (&want.effective.animation, self.play_start, &want.view) {
+                (Some(animation), Some(start), Some(_)) if window_open => {
+                    let period = 1.0 / animation.fps;
+                    let next = ((start.elapsed().as_secs_f64() / period).floor() + 1.0) * period;
+                    Some(tokio::time::Instant::from_std(
+                        start + Duration::from_secs_f64(next),
+                    ))
+                }
+                _ => None,
+            };
             let mut rest_deadline = None;
             if let (Some(view), true) = (&want.view, window_open) {
                 let interactive = want.effective.settings.interactive && !want.still;
@@ -317,8 +340,22 @@ impl Sender<'_> {
                     rest_deadline = Some(tokio::time::Instant::from_std(want.arrived + rest));
                 }
             }
-            match self.wait(rest_deadline).await {
+            match self.wait(rest_deadline, tick_deadline).await {
                 Wake::Changed => {}
+                Wake::Tick => {
+                    let want = self.wanted.borrow().clone();
+                    if let Some(view) = &want.view {
+                        // A resting view gets full-quality frames, a moving one interactive.
+                        let quality = if full_seq == want.seq && sent_seq == want.seq {
+                            Quality::Full
+                        } else {
+                            Quality::Interactive
+                        };
+                        if !self.send_frame(&want, view, quality).await {
+                            break;
+                        }
+                    }
+                }
                 Wake::Rested => {
                     let want = self.wanted.borrow().clone();
                     if want.seq == sent_seq {
@@ -344,6 +381,32 @@ impl Sender<'_> {
         }
     }
 
+    /// The plan of the animation frame to show (the one playing now, on the server's clock)
+    /// and its stamp for the header; for an asset without an animation, `plan` unchanged.
+    fn animation_frame(
+        &self,
+        effective: &Effective,
+        plan: lumigraph_core::quality::Plan,
+    ) -> (lumigraph_core::quality::Plan, Option<AnimationStamp>) {
+        let Some(animation) = &effective.animation else {
+            return (plan, None);
+        };
+        let stamp = |frame: usize| AnimationStamp {
+            frame: u32::try_from(frame).unwrap_or(u32::MAX),
+            time: (frame as f64 / animation.fps) as f32,
+        };
+        if let (true, Some(start)) = (effective.settings.playing, self.play_start) {
+            let count = animation.states.len().max(1) as u64;
+            let frame = ((start.elapsed().as_secs_f64() * animation.fps + 1e-6).floor() as u64
+                % count) as usize;
+            let state = animation.states.get(frame).copied();
+            return (plan.with_state(state), Some(stamp(frame)));
+        }
+        let shown = plan.state().unwrap_or(0);
+        let frame = animation.states.iter().position(|&s| s == shown);
+        (plan, frame.map(stamp))
+    }
+
     /// Sends the errors already queued; false when the socket is gone.
     async fn send_queued_errors(&mut self) -> bool {
         while let Ok(text) = self.errors.try_recv() {
@@ -354,9 +417,19 @@ impl Sender<'_> {
         true
     }
 
-    async fn wait(&mut self, rest_deadline: Option<tokio::time::Instant>) -> Wake {
+    async fn wait(
+        &mut self,
+        rest_deadline: Option<tokio::time::Instant>,
+        tick_deadline: Option<tokio::time::Instant>,
+    ) -> Wake {
         let rest = async {
             match rest_deadline {
+                Some(deadline) => tokio::time::sleep_until(deadline).await,
+                None => std::future::pending::<()>().await,
+            }
+        };
+        let tick = async {
+            match tick_deadline {
                 Some(deadline) => tokio::time::sleep_until(deadline).await,
                 None => std::future::pending::<()>().await,
             }
@@ -367,6 +440,7 @@ impl Sender<'_> {
             changed = self.shutdown.changed() => if changed.is_ok() { Wake::Changed } else { Wake::Closed },
             error = self.errors.recv() => error.map_or(Wake::Closed, Wake::Error),
             () = rest => Wake::Rested,
+            () = tick => Wake::Tick,
         }
     }
 
@@ -462,6 +536,7 @@ impl Sender<'_> {
         // The view the frame is rendered for (interactive frames at their reduced size): the
         // depth extension carries it so the client can reproject the frame.
         let rendered_view = view.clone();
+        let (plan, stamp) = self.animation_frame(effective, plan);
         let rendered = match self.state.pool().render(asset, view, plan).await {
             Ok(r) => r,
             Err(err) => {
@@ -568,6 +643,7 @@ impl Sender<'_> {
                 0
             },
             flags,
+            animation: stamp,
             depth: depth.map(|((color_bytes, depth_bytes), (near, far))| {
                 let f32x3 = |v: [f64; 3]| v.map(|x| x as f32);
                 DepthExtension {

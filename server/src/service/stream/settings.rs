@@ -43,6 +43,11 @@ pub struct Settings {
     /// Append each frame's depth and view to its header (the depth extension), so the client
     /// can reproject the frame to a newer camera while the next one is on its way.
     pub depth: bool,
+    /// Play the asset's animation (an asset baked with `--animation`): frames advance at its
+    /// rate on the server's clock, looping, whether the view moves or rests (the quality keys
+    /// `time`, `frame` and `state` are ignored meanwhile); every frame's header says which
+    /// animation frame it shows (the animation extension).
+    pub playing: bool,
     /// The quality request (core `Quality`) as its JSON keys, layer opacities (`layers`)
     /// included: a message's quality key sets it, `null` clears it. Resting frames render with it; moving frames with its motion
     /// quality (`Quality::for_motion`, `interactive_lod` replacing `lod` without `auto_lod`).
@@ -66,6 +71,7 @@ impl Settings {
             max_in_flight: 2,
             background: [0; 4],
             depth: false,
+            playing: false,
             quality: serde_json::Map::new(),
         }
     }
@@ -79,6 +85,8 @@ pub(super) struct Effective {
     pub(super) still: Plan,
     /// The plan of interactive frames while the view moves.
     pub(super) motion: Plan,
+    /// The asset's animation, if it has one.
+    pub(super) animation: Option<lumigraph_core::deform::AnimationInfo>,
 }
 
 pub(super) fn validate_settings(
@@ -124,7 +132,18 @@ pub(super) fn validate_settings(
             s.max_in_flight
         ));
     }
-    let quality = Quality::from_json_map(s.quality.clone()).map_err(|e| e.to_string())?;
+    let animation = lumigraph_core::deform::AnimationInfo::of(header);
+    if s.playing && animation.is_none() {
+        return Err("playing: the asset has no animation (bake it with --animation)".to_owned());
+    }
+    let mut quality_keys = s.quality.clone();
+    if s.playing {
+        // The player picks the frame.
+        for key in ["time", "frame", "state"] {
+            quality_keys.remove(key);
+        }
+    }
+    let quality = Quality::from_json_map(quality_keys).map_err(|e| e.to_string())?;
     let still = quality.plan(header).map_err(|e| e.to_string())?;
     let mut moving = quality.for_motion();
     if moving.auto_lod.is_none() {
@@ -135,6 +154,7 @@ pub(super) fn validate_settings(
         settings,
         still,
         motion,
+        animation,
     })
 }
 
@@ -196,5 +216,28 @@ mod tests {
         assert_eq!(merged.still_codec, ColorFormat::Png);
         assert_eq!(merged.interactive_quality, 50);
         assert!(merge_settings(&current, serde_json::json!({"bogus": 1})).is_err());
+    }
+
+    #[test]
+    fn playing_needs_an_animation() {
+        let header = lumigraph_core::asset::AssetHeader::new_spherical(
+            0,
+            16,
+            lumigraph_core::asset::LfFrame {
+                center: [0.0; 3],
+                radius: 1.0,
+            },
+            lumigraph_core::asset::Encoding::R16,
+            lumigraph_core::asset::Provenance::default(),
+        )
+        .expect("header");
+        let current = Settings::defaults(Duration::from_millis(250));
+        let playing = merge_settings(&current, serde_json::json!({"playing": true})).unwrap();
+        let err = validate_settings(playing, &header).expect_err("no animation");
+        assert!(
+            err.contains("playing") && err.contains("no animation"),
+            "{err}"
+        );
+        assert!(validate_settings(current, &header).is_ok());
     }
 }
