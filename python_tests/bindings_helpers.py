@@ -14,7 +14,15 @@ import pytest
 import lumigraph as lg
 
 ROOT = Path(__file__).resolve().parent.parent
-FIXTURE_FILES = ("mesh/bunny00.off", "mesh/cow.off", "mesh/spot.ply", "volume/mni_t1.nii.gz")
+FIXTURE_FILES = (
+    "mesh/bunny00.off",
+    "mesh/cow.off",
+    "mesh/spot.ply",
+    "volume/mni_t1.nii.gz",
+    "anim/AnimatedMorphCube.gltf",
+    "anim/AnimatedMorphCube.bin",
+    "anim/simple_skin.gltf",
+)
 
 
 def fixtures_dir() -> Path:

@@ -242,6 +242,26 @@ def test_deformation_states_store_what_changed_and_render_by_name() -> None:
         lg.bake_mesh(base, cameras=12, resolution=16, lights=12, states={"s": base}, progress=False)
 
 
+def test_bake_animation_renders_frames_by_time_and_frame() -> None:
+    from bindings_helpers import fixtures_dir
+
+    cube = fixtures_dir() / "anim" / "AnimatedMorphCube.gltf"
+    lf = lg.bake_animation(cube, fps=4, cameras=12, resolution=48, progress=False)
+    base = lf.info["states"][0]["params"]["animation"]
+    assert base["name"] == "Square" and base["fps"] == 4.0
+    frames = len(lf.info["states"])
+    assert frames > 10
+    view = lg.View(eye=(0.1, 0.05, 0.12), target=(0, 0, 0), yfov_deg=40.0, width=48, height=48)
+    np.testing.assert_array_equal(lf.render(view, time=1.3).color, lf.render(view, frame=5).color)
+    assert not np.array_equal(lf.render(view, frame=0).color, lf.render(view, frame=8).color)
+    with pytest.raises(ValueError, match="outside the animation"):
+        lf.render(view, time=99.0)
+    with pytest.raises(lg.MeshError, match="no animation \"Walk\""):
+        lg.bake_animation(cube, animation="Walk", progress=False)
+    with pytest.raises(lg.MeshError, match="fps"):
+        lg.bake_animation(cube, fps=0.0, progress=False)
+
+
 def test_light_states_relight_at_any_direction(
     demo_mesh: lg.Mesh, demo_views: list[lg.View]
 ) -> None:

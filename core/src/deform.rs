@@ -168,6 +168,63 @@ impl AnimationInfo {
     }
 }
 
+/// How an animation's frames are baked as states: frame 0 the base state, frame `i` the state
+/// `frame_<iii>`, each with its `animation` params, all in the frame around every frame.
+#[derive(Clone, Debug)]
+pub struct AnimationLayout {
+    /// The bounding sphere around every frame.
+    pub frame: crate::asset::LfFrame,
+    /// State names, frame by frame (frame 0's is unused: the base state keeps `base`).
+    pub names: Vec<String>,
+    /// State params, frame by frame.
+    pub params: Vec<serde_json::Map<String, serde_json::Value>>,
+}
+
+impl AnimationLayout {
+    /// The layout of a sampled animation.
+    pub fn new(animation: &crate::mesh::AnimationFrames) -> Self {
+        let count = animation.frames.len();
+        Self {
+            frame: frame_around(&animation.frames),
+            names: (0..count).map(|i| format!("frame_{i:03}")).collect(),
+            params: (0..count)
+                .map(|i| animation_params(&animation.name, i, animation.fps, animation.duration))
+                .collect(),
+        }
+    }
+
+    /// The state meshes of frames 1.. (frame 0 is the base mesh), named after their source.
+    pub fn state_meshes<'a>(
+        &'a self,
+        frames: &'a [Mesh],
+        source_name: &'a str,
+        source_sha256: &'a str,
+    ) -> Vec<StateMesh<'a>> {
+        frames
+            .iter()
+            .zip(self.names.iter().zip(&self.params))
+            .skip(1)
+            .map(|(mesh, (name, params))| StateMesh {
+                name,
+                mesh,
+                source_name,
+                source_sha256,
+                params: Some(params),
+            })
+            .collect()
+    }
+
+    /// The state bake of `meshes` (from [`Self::state_meshes`]).
+    pub fn state_bake<'a>(&'a self, meshes: &'a [StateMesh<'a>]) -> crate::bake::StateBake<'a> {
+        crate::bake::StateBake {
+            meshes,
+            frame: Some(self.frame.clone()),
+            base_params: self.params.first(),
+            ..crate::bake::StateBake::default()
+        }
+    }
+}
+
 /// An animation frame's state params.
 pub fn animation_params(
     name: &str,

@@ -529,12 +529,12 @@ impl PyLightField {
 
 /// Native bake on a `Mesh` (the Python `bake_mesh` converts other inputs and the progress flag).
 #[pyfunction]
-#[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress, calibrate = false, auto = false, target_psnr = None, max_bytes = None, shadows = false, lights = None, states = None))]
+#[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress, calibrate = false, auto = false, target_psnr = None, max_bytes = None, shadows = false, lights = None, states = None, animation = None))]
 // Python's keyword-only flags, one parameter each (the Python signature is the interface).
 #[allow(clippy::fn_params_excessive_bools)]
 pub fn bake(
     py: Python<'_>,
-    mesh: &Bound<'_, PyMesh>,
+    mesh: Option<Bound<'_, PyMesh>>,
     cameras: u32,
     resolution: u32,
     light: [f32; 3],
@@ -550,6 +550,7 @@ pub fn bake(
     shadows: bool,
     lights: Option<u32>,
     states: Option<Vec<(String, Bound<'_, PyMesh>)>>,
+    animation: Option<(PathBuf, Option<String>, f64)>,
 ) -> PyResult<PyLightField> {
     if let Some(callback) = &progress
         && !callback.bind(py).is_callable()
@@ -586,6 +587,11 @@ pub fn bake(
             )
         })
         .collect();
+    if animation.is_some() && (auto || !states.is_empty() || lights.is_some()) {
+        return Err(PyValueError::new_err(
+            "animation: an animated bake takes no auto, states or lights",
+        ));
+    }
     if auto && !states.is_empty() {
         return Err(PyValueError::new_err(
             "states: an automatic bake chooses settings for the base state only; bake \
@@ -601,13 +607,44 @@ pub fn bake(
         one_sided: false,
     };
     options.validate().map_err(|e| errors::bake(&e))?;
-    let mesh = mesh.get();
-    let provenance = Provenance {
-        source_name: mesh.source_name.clone(),
-        source_sha256: mesh.source_sha256.clone(),
-        ..Provenance::default()
+    // An animation: its frames, frame 0 the base mesh.
+    let frames = match &animation {
+        Some((path, name, fps)) => Some(
+            py.detach(|| lumigraph_core::mesh::load_animation(path, name.as_deref(), *fps))
+                .map_err(|e| errors::mesh(&e))?,
+        ),
+        None => None,
     };
-    let core_mesh = mesh.mesh.clone();
+    let (core_mesh, provenance) = match (&frames, &mesh, &animation) {
+        (Some(frames), _, Some((path, _, _))) => {
+            let bytes = std::fs::read(path).map_err(|e| {
+                pyo3::exceptions::PyOSError::new_err(format!("{}: {e}", path.display()))
+            })?;
+            (
+                Arc::new(frames.frames[0].clone()),
+                Provenance {
+                    source_name: path.file_name().map_or_else(
+                        || path.display().to_string(),
+                        |n| n.to_string_lossy().into_owned(),
+                    ),
+                    source_sha256: lumigraph_core::bake::sha256_hex(&bytes),
+                    ..Provenance::default()
+                },
+            )
+        }
+        (_, Some(mesh), _) => {
+            let mesh = mesh.get();
+            (
+                mesh.mesh.clone(),
+                Provenance {
+                    source_name: mesh.source_name.clone(),
+                    source_sha256: mesh.source_sha256.clone(),
+                    ..Provenance::default()
+                },
+            )
+        }
+        _ => return Err(PyValueError::new_err("give a mesh or an animation")),
+    };
     let (bytes, callback_error) = py.detach(|| {
         let state_meshes: Vec<StateMesh<'_>> = states
             .iter()
@@ -619,9 +656,23 @@ pub fn bake(
                 params: None,
             })
             .collect();
-        let state_bake = StateBake {
-            meshes: &state_meshes,
-            ..StateBake::default()
+        let layout = frames
+            .as_ref()
+            .map(lumigraph_core::deform::AnimationLayout::new);
+        let frame_meshes = match (&layout, &frames) {
+            (Some(layout), Some(frames)) => layout.state_meshes(
+                &frames.frames,
+                &provenance.source_name,
+                &provenance.source_sha256,
+            ),
+            _ => Vec::new(),
+        };
+        let state_bake = match &layout {
+            Some(layout) => layout.state_bake(&frame_meshes),
+            None => StateBake {
+                meshes: &state_meshes,
+                ..StateBake::default()
+            },
         };
         let baker = engines::baker().map_err(|e| errors::BakeError::new_err(e.to_string()))?;
         // The callback runs with the GIL re-acquired; its first exception is raised after the

@@ -62,6 +62,7 @@ __all__ = [
     "ViewLike",
     "__version__",
     "as_mesh",
+    "bake_animation",
     "bake_mesh",
     "bake_volume",
     "device_info",
@@ -304,6 +305,58 @@ def bake_mesh(
         shadows=shadows,
         lights=lights,
         states=None if states is None else [(name, as_mesh(m)) for name, m in states.items()],
+    )
+
+
+def bake_animation(
+    path: str | os.PathLike[str],
+    *,
+    animation: str | None = None,
+    fps: float = 24.0,
+    cameras: int = 162,
+    resolution: int = 256,
+    light: Sequence[float] = DEFAULT_LIGHT,
+    ambient: float = DEFAULT_AMBIENT,
+    specular: tuple[float, float] | None = None,
+    unlit: bool = False,
+    shadows: bool = False,
+    depth_bits: int = 16,
+    progress: bool | Callable[[int, int], object] = True,
+    calibrate: bool = False,
+) -> LightField:
+    """Bakes a glTF animation into a light field of frames (``lumigraph bake --animation``).
+
+    The animation (``animation`` by name, else the file's first) is sampled every ``1 / fps``
+    seconds up to its last key: node translation, rotation and scale (step, linear with slerp,
+    cubic-spline keys), morph-target weights and skins pose the scene. Frame 0 is the base state;
+    every other frame is a state storing only the pages that differ from it; all share the
+    bounding sphere around every frame. ``lf.render(view, time=seconds)`` or ``frame=n`` renders
+    a frame. At most 256 frames; on the device each frame that stores pages costs a copy of the
+    base state's maps. Other options as :func:`bake_mesh`.
+
+    Raises:
+        MeshError: not glTF, no animation or an unknown name, bad keys, a bad fps or too many
+            frames. ValueError: an option out of range. BakeError: the device failed.
+    """
+    if progress is True:
+        callback: Callable[[int, int], object] | None = _progress_printer()
+    elif progress is False or progress is None:
+        callback = None
+    else:
+        callback = progress
+    return _bake(
+        None,
+        cameras=cameras,
+        resolution=resolution,
+        light=tuple(light),
+        ambient=ambient,
+        specular=specular,
+        unlit=unlit,
+        depth_bits=depth_bits,
+        progress=callback,
+        calibrate=calibrate,
+        shadows=shadows,
+        animation=(os.fspath(path), animation, float(fps)),
     )
 
 

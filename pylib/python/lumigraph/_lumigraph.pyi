@@ -195,7 +195,7 @@ def orbit_views(
     size: int = 256,
 ) -> list[View]: ...
 def bake(
-    mesh: Mesh,
+    mesh: Mesh | None,
     *,
     cameras: int,
     resolution: int,
@@ -212,6 +212,7 @@ def bake(
     shadows: bool = False,
     lights: int | None = None,
     states: Sequence[tuple[str, Mesh]] | None = None,
+    animation: tuple[str, str | None, float] | None = None,
 ) -> LightField: ...
 def reference_render(
     mesh: Mesh,

@@ -224,37 +224,13 @@ fn bake_animation(
     let animation =
         lumigraph_core::mesh::load_animation(path, (!name.is_empty()).then_some(name), args.fps)
             .with_context(|| format!("cannot sample the animation of {}", path.display()))?;
-    let frame = lumigraph_core::deform::frame_around(&animation.frames);
-    let params: Vec<_> = (0..animation.frames.len())
-        .map(|i| {
-            lumigraph_core::deform::animation_params(
-                &animation.name,
-                i,
-                animation.fps,
-                animation.duration,
-            )
-        })
-        .collect();
-    let names: Vec<String> = (0..animation.frames.len())
-        .map(|i| format!("frame_{i:03}"))
-        .collect();
-    let state_meshes: Vec<StateMesh<'_>> = animation.frames[1..]
-        .iter()
-        .enumerate()
-        .map(|(i, mesh)| StateMesh {
-            name: &names[i + 1],
-            mesh,
-            source_name: &provenance.source_name,
-            source_sha256: &provenance.source_sha256,
-            params: Some(&params[i + 1]),
-        })
-        .collect();
-    let states = StateBake {
-        meshes: &state_meshes,
-        frame: Some(frame),
-        base_params: Some(&params[0]),
-        ..StateBake::default()
-    };
+    let layout = lumigraph_core::deform::AnimationLayout::new(&animation);
+    let state_meshes = layout.state_meshes(
+        &animation.frames,
+        &provenance.source_name,
+        &provenance.source_sha256,
+    );
+    let states = layout.state_bake(&state_meshes);
     let gpu = gpu()?;
     let baker = Baker::new(gpu.clone());
     let bar = progress_bar(
