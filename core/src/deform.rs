@@ -416,6 +416,8 @@ pub struct StateStorage {
     pub fraction: f64,
     /// Cameras with at least one stored page.
     pub cameras: u32,
+    /// Bytes of the stored pages, as stored (compressed).
+    pub stored_bytes: u64,
 }
 
 /// The key of an animation frame's params (`{"animation": {"name", "frame", "time", "fps"}}`).
@@ -446,6 +448,12 @@ pub fn storage(asset: &AssetFile) -> Result<Vec<StateStorage>, AssetError> {
             continue;
         }
         let index = s as u16;
+        let stored_bytes = asset
+            .index()
+            .iter()
+            .filter(|e| e.key.state == index)
+            .map(|e| u64::from(e.length))
+            .sum();
         let (mut stored, mut touched) = (0u64, 0u32);
         for camera in 0..cameras {
             let mut any = false;
@@ -465,6 +473,7 @@ pub fn storage(asset: &AssetFile) -> Result<Vec<StateStorage>, AssetError> {
             total_pages,
             fraction: stored as f64 / total_pages.max(1) as f64,
             cameras: touched,
+            stored_bytes,
         });
     }
     Ok(out)

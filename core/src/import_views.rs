@@ -127,6 +127,29 @@ impl Default for ImportOptions {
     }
 }
 
+/// The perspective views an external renderer would be asked for: from the first `count`
+/// directions of the camera set ([`crate::geometry::camera_set`]), the eye 2.5 radii from
+/// `center`, looking at it, 40°, `size`² (up +y; +z for an eye on the y axis).
+pub fn surround_views(center: DVec3, radius: f64, count: usize, size: u32) -> Vec<View> {
+    crate::geometry::camera_set()
+        .positions
+        .iter()
+        .take(count)
+        .map(|p| {
+            let eye = center + p.as_dvec3().normalize() * radius * 2.5;
+            let up = if p.x.abs() + p.z.abs() < 1e-6 {
+                [0.0, 0.0, 1.0]
+            } else {
+                [0.0, 1.0, 0.0]
+            };
+            View {
+                up,
+                ..View::look_at(eye.to_array(), center.to_array(), 40.0, size, size)
+            }
+        })
+        .collect()
+}
+
 /// Reads `dir/views.json` (a JSON list of DESIGN §3 views, as `--views` takes) and, for view
 /// `i`, the colour `dir/iii.png` and the depth `dir/iii.npy` or `dir/iii.exr` (`iii` = `i`
 /// with three digits): what `lumigraph reference MESH --views views.json -o DIR --depth DIR`

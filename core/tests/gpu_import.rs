@@ -8,14 +8,13 @@ use std::sync::{Arc, OnceLock};
 
 use lumigraph_core::asset::{AssetFile, Provenance};
 use lumigraph_core::bake::{BakeOptions, Baker};
-use lumigraph_core::geometry;
 use lumigraph_core::gpu::Gpu;
-use lumigraph_core::import_views::{ImportOptions, ViewImage, relief_mesh};
+use lumigraph_core::import_views::{ImportOptions, ViewImage, relief_mesh, surround_views};
 use lumigraph_core::metrics;
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::{RenderOptions, Renderer};
 use lumigraph_core::shading::Shading;
-use lumigraph_core::view::{View, evaluation_views};
+use lumigraph_core::view::evaluation_views;
 
 struct Ctx {
     baker: Baker,
@@ -47,19 +46,9 @@ fn imported_renders_match_a_direct_bake_of_their_mesh() {
     let gpu_mesh = c.reference.upload(&mesh).expect("mesh");
     let sphere = mesh.bounding_sphere();
     // External renders: the 12 icosahedron directions, 2.5 r away, 192².
-    let images: Vec<ViewImage> = geometry::camera_set().positions[..12]
-        .iter()
-        .map(|p| {
-            let eye = sphere.center + p.as_dvec3().normalize() * sphere.radius * 2.5;
-            let up = if p.x.abs() + p.z.abs() < 1e-6 {
-                [0.0, 0.0, 1.0]
-            } else {
-                [0.0, 1.0, 0.0]
-            };
-            let view = View {
-                up,
-                ..View::look_at(eye.to_array(), sphere.center.to_array(), 40.0, 192, 192)
-            };
+    let images: Vec<ViewImage> = surround_views(sphere.center, sphere.radius, 12, 192)
+        .into_iter()
+        .map(|view| {
             let frame = c
                 .reference
                 .render(&gpu_mesh, &view, &shading)

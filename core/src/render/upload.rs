@@ -116,26 +116,39 @@ impl Renderer {
         let mut deformations = Vec::new();
         let mut shared_states = Vec::new();
         if !options.base_state_only {
-            for state in 1..header.states.len() {
-                // A state that stores no page reads as the base state: it shares its maps.
-                if crate::deform::is_geometry_state(header, state)
-                    && asset
-                        .index()
-                        .iter()
-                        .any(|e| usize::from(e.key.state) == state)
-                {
-                    let state = state as u16;
-                    let (maps, boxed) =
-                        self.upload_state(asset, state, depth_encoding, requantize_8, translucent)?;
-                    // The field's box holds every state's surface (scenes cull by it).
-                    for axis in 0..3 {
-                        union[0][axis] = union[0][axis].min(boxed[0][axis]);
-                        union[1][axis] = union[1][axis].max(boxed[1][axis]);
-                    }
-                    deformations.push(super::StateMaps { state, maps });
-                } else if crate::deform::is_geometry_state(header, state) {
-                    shared_states.push(state as u16);
+            // Which states store any page, from one pass over the index.
+            let mut stores = vec![false; header.states.len()];
+            for entry in asset.index() {
+                if let Some(flag) = stores.get_mut(usize::from(entry.key.state)) {
+                    *flag = true;
                 }
+            }
+            for (state, &stored) in stores.iter().enumerate().skip(1) {
+                if !crate::deform::is_geometry_state(header, state) {
+                    continue;
+                }
+                let state_index = state as u16;
+                // A state that stores no page reads as the base state: it shares its maps.
+                if !stored {
+                    shared_states.push(state_index);
+                    continue;
+                }
+                let (maps, boxed) = self.upload_state(
+                    asset,
+                    state_index,
+                    depth_encoding,
+                    requantize_8,
+                    translucent,
+                )?;
+                // The field's box holds every state's surface (scenes cull by it).
+                for axis in 0..3 {
+                    union[0][axis] = union[0][axis].min(boxed[0][axis]);
+                    union[1][axis] = union[1][axis].max(boxed[1][axis]);
+                }
+                deformations.push(super::StateMaps {
+                    state: state_index,
+                    maps,
+                });
             }
         }
         let lights = if options.base_state_only {
@@ -147,12 +160,8 @@ impl Renderer {
             base_field_bytes(header)
         } else {
             // The states without maps of their own (no stored page) cost nothing.
-            let unshared = (1..header.states.len())
-                .filter(|&s| crate::deform::is_geometry_state(header, s))
-                .count()
-                - deformations.len();
             field_bytes(header)
-                .saturating_sub(base_field_bytes(header).saturating_mul(unshared as u64))
+                .saturating_sub(base_field_bytes(header).saturating_mul(shared_states.len() as u64))
         };
         let frame = &header.frame;
         // Decremented by the field's drop.

@@ -184,6 +184,17 @@ def _progress_printer() -> Callable[[int, int], None]:
     return report
 
 
+def _progress_callback(
+    progress: bool | Callable[[int, int], object] | None,
+) -> Callable[[int, int], object] | None:
+    """A bake's `progress` argument as the native callback: True prints, False/None is silent."""
+    if progress is True:
+        return _progress_printer()
+    if progress is False or progress is None:
+        return None
+    return progress
+
+
 def bake_mesh(
     mesh: MeshLike,
     *,
@@ -282,12 +293,7 @@ def bake_mesh(
         if given:
             raise ValueError(f"auto=True chooses {', '.join(given)}: do not pass them")
     native = as_mesh(mesh)
-    if progress is True:
-        callback: Callable[[int, int], object] | None = _progress_printer()
-    elif progress is False or progress is None:
-        callback = None
-    else:
-        callback = progress
+    callback = _progress_callback(progress)
     return _bake(
         native,
         cameras=162 if cameras is None else cameras,
@@ -338,12 +344,7 @@ def bake_animation(
         MeshError: not glTF, no animation or an unknown name, bad keys, a bad fps or too many
             frames. ValueError: an option out of range. BakeError: the device failed.
     """
-    if progress is True:
-        callback: Callable[[int, int], object] | None = _progress_printer()
-    elif progress is False or progress is None:
-        callback = None
-    else:
-        callback = progress
+    callback = _progress_callback(progress)
     return _bake(
         None,
         cameras=cameras,
@@ -456,12 +457,7 @@ def bake_volume(
         FileNotFoundError: no such file. ValueError: a bad array, file, tf or option.
         TypeError: an argument of the wrong type. BakeError: the GPU device failed.
     """
-    if progress is True:
-        callback: Callable[[int, int], object] | None = _progress_printer()
-    elif progress is False or progress is None:
-        callback = None
-    else:
-        callback = progress
+    callback = _progress_callback(progress)
     return _bake_volume(
         volume,
         tf=tf,

@@ -174,26 +174,44 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
         meshes: &state_meshes,
         ..StateBake::default()
     };
+    bake_mesh_states(
+        args,
+        &options,
+        (&mesh, &states),
+        &provenance,
+        "baking cameras",
+    )?;
+    print_states(&args.output)
+}
+
+/// Bakes `mesh` with `states` into `args.output`: calibrated unless `--no-calibrate`, with a
+/// progress bar labelled `label`, and prints what the bake made.
+fn bake_mesh_states(
+    args: &BakeArgs,
+    options: &BakeOptions,
+    (mesh, states): (&Mesh, &StateBake<'_>),
+    provenance: &Provenance,
+    label: &str,
+) -> Result<()> {
     let gpu = gpu()?;
     let baker = Baker::new(gpu.clone());
-    let bar = progress_bar(u64::from(options.cameras), "baking cameras");
+    let bar = progress_bar(u64::from(options.cameras), label);
     if !args.no_calibrate {
-        bake_calibrated(
+        return bake_calibrated(
             args,
-            &options,
-            (&mesh, &states),
-            &provenance,
+            options,
+            (mesh, states),
+            provenance,
             &baker,
             &gpu,
             &bar,
-        )?;
-        return print_states(&args.output);
+        );
     }
     let report = baker.bake_states_to_file(
-        &mesh,
-        &states,
-        &options,
-        &provenance,
+        mesh,
+        states,
+        options,
+        provenance,
         &args.output,
         &mut |done, _| bar.set_position(u64::from(done)),
     )?;
@@ -207,7 +225,7 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
         args.output.display(),
         report.asset_bytes as f64 / (1024.0 * 1024.0)
     );
-    print_states(&args.output)
+    Ok(())
 }
 
 /// `--animation`: the frames as states of frame 0, in the frame around all of them.
@@ -231,43 +249,13 @@ fn bake_animation(
         &provenance.source_sha256,
     );
     let states = layout.state_bake(&state_meshes);
-    let gpu = gpu()?;
-    let baker = Baker::new(gpu.clone());
-    let bar = progress_bar(
-        u64::from(options.cameras),
+    bake_mesh_states(
+        args,
+        options,
+        (&animation.frames[0], &states),
+        provenance,
         &format!("baking {} frames", animation.frames.len()),
-    );
-    let base = &animation.frames[0];
-    if args.no_calibrate {
-        let report = baker.bake_states_to_file(
-            base,
-            &states,
-            options,
-            provenance,
-            &args.output,
-            &mut |done, _| bar.set_position(u64::from(done)),
-        )?;
-        bar.finish_and_clear();
-        println!(
-            "baked {} cameras at {} px from {} triangles in {:.0} ms: {} ({:.1} MiB)",
-            report.cameras,
-            report.resolution,
-            report.triangles,
-            report.bake_ms,
-            args.output.display(),
-            report.asset_bytes as f64 / (1024.0 * 1024.0)
-        );
-    } else {
-        bake_calibrated(
-            args,
-            options,
-            (base, &states),
-            provenance,
-            &baker,
-            &gpu,
-            &bar,
-        )?;
-    }
+    )?;
     println!(
         "animation {:?}: {} frames at {} fps over {:.3} s",
         animation.name,

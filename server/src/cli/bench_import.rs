@@ -18,7 +18,7 @@ use lumigraph_core::metrics::{self, MeanComparison};
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::{RenderOptions, Renderer};
 use lumigraph_core::shading::Shading;
-use lumigraph_core::view::{View, evaluation_views};
+use lumigraph_core::view::evaluation_views;
 use serde::Serialize;
 
 use super::args::ShadingArgs;
@@ -162,29 +162,7 @@ pub(super) fn bench_import(args: &ImportArgs) -> Result<()> {
         std::fs::create_dir_all(&dir)?;
         // Perspective views from the camera set's directions, 2.5 r away, 40° (the sphere
         // fills about 60 % of the height): what an external renderer would be asked for.
-        let positions = &geometry::camera_set().positions[..count as usize];
-        let views: Vec<View> = positions
-            .iter()
-            .map(|p| {
-                let eye = center + p.as_dvec3().normalize() * radius * 2.5;
-                // Up +y, or +z for a camera on the y axis.
-                let up = if p.x.abs() + p.z.abs() < 1e-6 {
-                    [0.0, 0.0, 1.0]
-                } else {
-                    [0.0, 1.0, 0.0]
-                };
-                View {
-                    up,
-                    ..View::look_at(
-                        eye.to_array(),
-                        center.to_array(),
-                        40.0,
-                        args.input_size,
-                        args.input_size,
-                    )
-                }
-            })
-            .collect();
+        let views = import_views::surround_views(center, radius, count as usize, args.input_size);
         for (i, view) in views.iter().enumerate() {
             let frame = reference.render(&gpu_mesh, view, &shading)?;
             lumigraph_core::image_io::write_png_rgba8(

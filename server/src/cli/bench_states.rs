@@ -215,12 +215,6 @@ pub(super) fn bench_states(args: &StatesArgs) -> Result<()> {
             &mesh,
         )?;
         for s in deform::storage(&asset)? {
-            let stored_bytes = asset
-                .index()
-                .iter()
-                .filter(|e| e.key.state == s.index)
-                .map(|e| u64::from(e.length))
-                .sum();
             let colour_only_cameras = (0..args.cameras)
                 .filter(|&k| {
                     let pages = |c| asset.stored_pages(ImageKey::new(0, s.index, k, c));
@@ -233,7 +227,7 @@ pub(super) fn bench_states(args: &StatesArgs) -> Result<()> {
                 fraction: s.fraction,
                 cameras: s.cameras,
                 colour_only_cameras,
-                stored_bytes,
+                stored_bytes: s.stored_bytes,
             });
         }
         if asset_for_quality.is_none() {

@@ -75,12 +75,6 @@ pub(super) fn info(args: &InfoArgs) -> Result<()> {
         );
     }
     for state in lumigraph_core::deform::storage(&asset)? {
-        let stored: u64 = asset
-            .index()
-            .iter()
-            .filter(|e| e.key.state == state.index)
-            .map(|e| u64::from(e.length))
-            .sum();
         println!(
             "state {:?}: {}, stores {:.2} % of the pages ({} of {}, {} of {} cameras), {}",
             state.name,
@@ -97,7 +91,7 @@ pub(super) fn info(args: &InfoArgs) -> Result<()> {
             state.total_pages,
             state.cameras,
             h.geometry.camera_count,
-            describe_bytes(stored)
+            describe_bytes(state.stored_bytes)
         );
     }
     println!(
