@@ -1809,6 +1809,48 @@ fn light_states_relight_through_bake_render_reference_and_info() {
         &["bake", "--demo", "--lights", "13", "-o", s(&path("x.lfa"))],
         "use 12, 42 or 162",
     );
+    // The benchmark: every light scored, the lights between proxy directions paired with the
+    // relit frames at their triangle's corners, and the frames written side by side.
+    let (json, images) = (path("lights-bench.json"), path("lights-bench"));
+    let o = lumigraph(&[
+        "bench",
+        "lights",
+        s(&asset),
+        "--demo",
+        "--views",
+        "1",
+        "--size",
+        "48",
+        "--lights",
+        "1",
+        "--repeats",
+        "1",
+        "--json",
+        s(&json),
+        "--images",
+        s(&images),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&json).expect("json")).expect("report");
+    let per_light = report["per_light"].as_array().expect("per_light");
+    assert_eq!(per_light.len(), 3, "{report}");
+    for p in per_light {
+        let psnr = p["masked_psnr"].as_f64().expect("masked_psnr");
+        assert!(psnr > 15.0, "{p}");
+        let corners = &p["corners_masked_psnr"];
+        if p["kind"] == "proxy" {
+            assert!(corners.is_null(), "{p}");
+        } else {
+            assert!(corners.as_f64().is_some_and(|c| c > 15.0), "{p}");
+        }
+    }
+    let kinds = report["kinds"].as_array().expect("kinds");
+    assert!(kinds[0]["corners"].is_null() && kinds[1]["corners"]["masked_psnr"].is_number());
+    for name in ["0-proxy-0.png", "0-centroid-0.png", "0-random-0.png"] {
+        let (w, h, _) = lumigraph_core::image_io::read_png_rgba8(&images.join(name)).expect(name);
+        assert_eq!((w, h), (3 * 48, 48), "{name}");
+    }
     assert_fails(
         &[
             "bake",

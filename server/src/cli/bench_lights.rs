@@ -53,6 +53,10 @@ pub struct LightsArgs {
     /// Write the report as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+    /// Write each relit frame beside its reference and the planar weights' frame into this
+    /// folder (`V-KIND-I.png`: reference | relit | planar, side by side).
+    #[arg(long)]
+    pub images: Option<PathBuf>,
 }
 
 /// One kind of light's scores, each the mean over views and lights.
@@ -68,6 +72,24 @@ struct KindReport {
     interpolation: MeanComparison,
     /// Planar barycentric weights' relit frame against the reference.
     planar: MeanComparison,
+    /// Relit frames at the three proxy directions around each light (the corners of its proxy
+    /// triangle), each against its own reference, in the same views: the same asset at proxy
+    /// directions, paired with the lights between them (none for the proxy directions).
+    corners: Option<MeanComparison>,
+}
+
+/// One relit frame's scores.
+#[derive(Debug, Serialize)]
+struct LightScore {
+    kind: &'static str,
+    view: usize,
+    light: [f64; 3],
+    /// Masked PSNR of the relit frame and of the planar one.
+    masked_psnr: f64,
+    planar_masked_psnr: f64,
+    /// Mean masked PSNR of the relit frames at the three proxy directions around the light
+    /// (none for a proxy direction).
+    corners_masked_psnr: Option<f64>,
 }
 
 #[derive(Debug, Serialize)]
@@ -84,6 +106,7 @@ struct Report {
     relit_ms: f64,
     relit_over_static: f64,
     kinds: Vec<KindReport>,
+    per_light: Vec<LightScore>,
 }
 
 /// Deterministic uniform directions (splitmix64).
@@ -196,6 +219,22 @@ fn reference_blend(
     Ok(out)
 }
 
+/// Writes frames of one size side by side into a PNG.
+fn side_by_side(path: &std::path::Path, frames: &[&Frame]) -> Result<()> {
+    let (w, h) = (frames[0].width as usize, frames[0].height as usize);
+    let mut out = vec![0u8; 4 * w * h * frames.len()];
+    for (i, f) in frames.iter().enumerate() {
+        for y in 0..h {
+            let row = &f.color[4 * y * w..4 * (y + 1) * w];
+            let at = 4 * (y * w * frames.len() + i * w);
+            out[at..at + 4 * w].copy_from_slice(row);
+        }
+    }
+    let width = u32::try_from(w * frames.len())?;
+    lumigraph_core::image_io::write_png_rgba8(path, width, frames[0].height, &out)
+        .with_context(|| format!("cannot write {}", path.display()))
+}
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
@@ -207,6 +246,9 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
     }
     if args.repeats == 0 || args.repeats > 100 {
         bail!("--repeats {}: give 1 to 100", args.repeats);
+    }
+    if let Some(dir) = &args.images {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
     let asset = AssetFile::open(&args.asset)
         .with_context(|| format!("cannot open asset {}", args.asset.display()))?;
@@ -234,7 +276,8 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
     let centroids = light::centroid_lights(count)?;
     let randoms = random_lights(args.views * args.lights, args.seed);
     let kinds: [&'static str; 3] = ["proxy", "centroid", "random"];
-    let mut scores: Vec<[Vec<Comparison>; 4]> = (0..3).map(|_| Default::default()).collect();
+    let mut scores: Vec<[Vec<Comparison>; 5]> = (0..3).map(|_| Default::default()).collect();
+    let mut per_light = Vec::new();
     let (mut static_ms, mut relit_ms) = (Vec::new(), Vec::new());
     let bar = progress_bar(
         (views.len() * (3 * args.lights + 1)) as u64,
@@ -285,6 +328,37 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
                 scores[k][1].push(metrics::compare(&relit, &blend)?);
                 scores[k][2].push(metrics::compare(&blend, &truth)?);
                 scores[k][3].push(metrics::compare(&flat, &truth)?);
+                let mut corners = Vec::with_capacity(3);
+                let around = light::blend_for(count, l, Blend::Spherical)?.vectors;
+                for corner in around.into_iter().filter(|_| kinds[k] != "proxy") {
+                    let truth = reference.render(
+                        &gpu_mesh,
+                        view,
+                        &Shading {
+                            light: corner.as_vec3().to_array(),
+                            ..shading
+                        },
+                    )?;
+                    let relit = renderer.render(&field, view, &lit(corner))?;
+                    corners.push(metrics::compare(&relit, &truth)?);
+                }
+                let corners_psnr = (!corners.is_empty()).then(|| {
+                    corners.iter().map(|c| c.masked_psnr).sum::<f64>() / corners.len() as f64
+                });
+                scores[k][4].extend(corners);
+                if let Some(dir) = &args.images {
+                    let name = format!("{v}-{}-{}.png", kinds[k], per_light.len() % args.lights);
+                    side_by_side(&dir.join(name), &[&truth, &relit, &flat])?;
+                }
+                let last = |i: usize| scores[k][i].last().map_or(f64::NAN, |c| c.masked_psnr);
+                per_light.push(LightScore {
+                    kind: kinds[k],
+                    view: v,
+                    light: l.to_array(),
+                    masked_psnr: last(0),
+                    planar_masked_psnr: last(3),
+                    corners_masked_psnr: corners_psnr,
+                });
                 bar.inc(1);
             }
         }
@@ -300,6 +374,7 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
             light_field: mean(&scores[k][1])?,
             interpolation: mean(&scores[k][2])?,
             planar: mean(&scores[k][3])?,
+            corners: metrics::mean_comparison(&scores[k][4]),
         });
     }
     let (s, r) = (median(static_ms), median(relit_ms));
@@ -316,6 +391,7 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
         relit_ms: r,
         relit_over_static: r / s,
         kinds: reports,
+        per_light,
     };
     println!(
         "{}: {count} light directions, shadows {}; {} views of {}² on {}",
@@ -329,11 +405,12 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
         report.bytes_per_light_state_per_camera
     );
     println!(
-        "kind      lights  masked  ∩ masks  wrong px  | LF masked  interp masked | planar masked"
+        "kind      lights  masked  ∩ masks  wrong px  | LF masked  interp masked | planar masked \
+         | corners masked"
     );
     for k in &report.kinds {
         println!(
-            "{:<8}  {:>6}  {:>6.2}  {:>7.2}  {:>8.0}  | {:>9.2}  {:>13.2} | {:>13.2}",
+            "{:<8}  {:>6}  {:>6.2}  {:>7.2}  {:>8.0}  | {:>9.2}  {:>13.2} | {:>13.2} | {:>14.2}",
             k.kind,
             k.lights,
             k.total.masked_psnr,
@@ -341,7 +418,8 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
             k.total.wrong_surface_px,
             k.light_field.masked_psnr,
             k.interpolation.masked_psnr,
-            k.planar.masked_psnr
+            k.planar.masked_psnr,
+            k.corners.as_ref().map_or(f64::NAN, |c| c.masked_psnr)
         );
     }
     if let Some(path) = &args.json {
