@@ -267,13 +267,13 @@ def test_viewer_url_state_opens_the_view_its_image_link_renders(server: Server, 
 
 def test_viewer_reports_a_bad_link_and_falls_back(server: Server, page: Page) -> None:
     page.goto(f"{server.base_url}/?asset=nope&az=abc&el=95&dist=-1&lod=13&yfov_deg=40"
-              "&interactive=maybe&light=sun&time=3&bogus=1")
+              "&interactive=maybe&light=sun&time=-1&focus=3&bogus=1")
     page.wait_for_function(FULL_FRAME, timeout=30_000)
     notice = page.locator("#notice")
     assert notice.is_visible()
     text = notice.inner_text()
     for needle in ("asset=nope", "az=abc", "el=95", "dist=-1", "lod=13", "interactive=maybe",
-                   "light=sun", "time=3", "bogus"):
+                   "light=sun", "time=-1", "focus=3", "bogus"):
         assert needle in text, text
     # The closest valid state: the first asset at its default camera, the valid keys kept.
     assert page.eval_on_selector("#asset", "s => s.value") == "demo"
@@ -287,8 +287,8 @@ def test_viewer_reports_a_bad_link_and_falls_back(server: Server, page: Page) ->
     page.wait_for_function("new URLSearchParams(location.search).get('asset') === 'demo'",
                            timeout=5_000)
     params = page.evaluate("Object.fromEntries(new URLSearchParams(location.search))")
-    assert params["time"] == "3" and "bogus" not in params and params["az"] != "abc", params
-    assert "light" not in params, params
+    assert params["focus"] == "3" and "bogus" not in params and params["az"] != "abc", params
+    assert "light" not in params and "time" not in params, params
     notice.click()
     assert not notice.is_visible()
 
@@ -559,7 +559,8 @@ def test_viewer_plays_and_pauses_an_animation(
 ) -> None:
     """An animated asset (`bake --animation`) shows Play; playing, frames keep coming for a
     resting view with the animation frame in the stats and `playing=1` in the link; Pause stops
-    them."""
+    them on the frame shown, kept in the link as `time`; the frame slider picks a frame; a link
+    with `time` opens on that frame."""
     baked = subprocess.run(
         [str(BIN), "bake", str(_animated_fixture()), "--animation", "--fps", "4", "--cameras",
          "12", "--resolution", "48", "--no-calibrate", "-o", str(tmp_path / "cube.lfa")],
@@ -594,6 +595,24 @@ def test_viewer_plays_and_pauses_an_animation(
         paused = last(page)["frameId"]
         page.wait_for_timeout(1200)
         assert last(page)["frameId"] == paused
+        # ...and the frame shown stays: the slider and the last frame's stamp agree.
+        kept = page.evaluate("window.lumigraphViewer.last.animation.frame")
+        assert page.input_value("#frame") == str(kept)
+        # The slider picks frame 3 (4 fps: 0.75 s), in the frames and in the link.
+        page.evaluate("""() => { const s = document.getElementById('frame');
+            s.value = '3'; s.dispatchEvent(new Event('input')); }""")
+        page.wait_for_function("window.lumigraphViewer.last.animation.frame === 3",
+                               timeout=30_000)
+        page.wait_for_function("new URLSearchParams(location.search).get('time') === '0.75'",
+                               timeout=10_000)
+        assert page.inner_text("#frame_label") == "3"
+        # A link with a time opens on its frame (0.5 s at 4 fps: frame 2).
+        page.goto(server.base_url + "/?asset=cube&interactive=0&still_codec=png&time=0.5")
+        page.wait_for_function(FULL_FRAME, timeout=30_000)
+        page.wait_for_function("window.lumigraphViewer.last.animation.frame === 2",
+                               timeout=30_000)
+        assert page.input_value("#frame") == "2"
+        assert page.inner_text("#play") == "Play"
         assert not page.errors, page.errors  # type: ignore[attr-defined]
     finally:
         httpx.delete(f"{server.base_url}/v1/assets/cube", timeout=30)

@@ -260,19 +260,65 @@
 
   // --- animation playback ------------------------------------------------------------------------
   // Play / pause for an asset baked with --animation: `playing` in a settings message of its own
-  // (the server advances the frames on its clock) and `playing=1` in the link.
-  function fillPlayback(asset, playing) {
+  // (the server advances the frames on its clock) and `playing=1` in the link. Paused, the frame
+  // slider picks the frame (`time` in seconds to the server and in the link); pausing keeps the
+  // frame on screen, and moving the slider while playing pauses.
+  function fillPlayback(asset, playing, time) {
     $("playback").hidden = !asset.animation;
     state.playing = !!asset.animation && !!playing;
     $("play").textContent = state.playing ? "Pause" : "Play";
+    const slider = $("frame");
+    const a = asset.animation;
+    slider.max = a ? String(Math.max(a.frames - 1, 0)) : "0";
+    const frame = a && time != null ? Math.min(Math.floor(time * a.fps + 1e-6), a.frames - 1) : 0;
+    showFrame(frame);
+    if (!a || state.playing || !frame) delete state.extra.time;
+  }
+
+  function showFrame(frame) {
+    $("frame").value = String(frame);
+    $("frame_label").textContent = String(frame);
+  }
+
+  // The link's and the server's time of animation frame `frame`: its start, rounded to 0.1 ms
+  // (the server shows the last frame at or before a time).
+  function frameTime(frame) {
+    return Number((frame / state.asset.animation.fps).toFixed(4));
+  }
+
+  function setFrame(frame, extra) {
+    const time = frameTime(frame);
+    if (frame > 0) state.extra.time = String(time); else delete state.extra.time;
+    showFrame(frame);
+    send({ type: "settings", ...extra, time: frame > 0 ? time : null });
   }
 
   function togglePlayback() {
     state.playing = !state.playing;
     $("play").textContent = state.playing ? "Pause" : "Play";
-    if (state.playing) state.extra.playing = "1";
-    else delete state.extra.playing;
-    send({ type: "settings", playing: state.playing });
+    if (state.playing) {
+      state.extra.playing = "1";
+      delete state.extra.time;
+      send({ type: "settings", playing: true, time: null });
+    } else {
+      delete state.extra.playing;
+      // Pausing keeps the frame last shown.
+      const shown = state.last && state.last.animation ? state.last.animation.frame : Number($("frame").value);
+      setFrame(shown, { playing: false });
+    }
+    sendView(true);
+    scheduleUrlUpdate();
+  }
+
+  function scrubFrame() {
+    const extra = {};
+    if (state.playing) {
+      state.playing = false;
+      $("play").textContent = "Play";
+      delete state.extra.playing;
+      extra.playing = false;
+    }
+    setFrame(Number($("frame").value), extra);
     sendView(true);
     scheduleUrlUpdate();
   }
@@ -446,9 +492,9 @@
   // The URL's state, checked key by key: a bad value is reported and its default used.
   const URL_KEYS = ["asset", "az", "el", "dist", "target", "yfov_deg", "lod", "method", "step",
     "tolerance", "auto_lod", "still_codec", "interactive", "target_fps", "rest_ms", "background",
-    "layers", "state", "light", "time", "focus", "reproject"];
+    "layers", "state", "light", "time", "playing", "focus", "reproject"];
   // Keys reserved for later renderer features: kept in the link, not yet sent.
-  const LATER_KEYS = ["time", "focus"];
+  const LATER_KEYS = ["focus"];
 
   function readUrl() {
     const params = new URLSearchParams(location.search);
@@ -519,6 +565,8 @@
           break;
         }
         case "state": out.settings.state = v; out.extra.state = v; break;
+        // Seconds into the animation; the server checks it against the asset's animation.
+        case "time": { const x = num(k, v, 0, 1e6); if (x !== null) { out.settings.time = x; out.extra.time = v; } break; }
         case "playing":
           if (v === "1" || v === "0") { out.settings.playing = v === "1"; if (v === "1") out.extra.playing = v; } else bad(k, v, "not 0 or 1");
           break;
@@ -616,6 +664,7 @@
     const sent = state.sentAt.get(h.requestId);
     h.latencyMs = sent === undefined ? null : now - sent;
     state.last = h;
+    if (h.animation && state.playing) showFrame(h.animation.frame);
     updateStats();
   }
 
@@ -683,7 +732,8 @@
         fillLod(msg.asset.camera_count);
         fillLayers(msg.asset, fromUrlLayers());
         fillStates(msg.asset, (state.fromUrl && state.fromUrl.settings.state) || (same ? state.extra.state : null));
-        fillPlayback(msg.asset, state.fromUrl ? state.fromUrl.settings.playing : (same && state.playing));
+        fillPlayback(msg.asset, state.fromUrl ? state.fromUrl.settings.playing : (same && state.playing),
+          state.fromUrl ? state.fromUrl.settings.time : (same && state.extra.time ? Number(state.extra.time) : null));
         // The link's light, else (a reconnect to the same asset) the light already chosen.
         fillLighting(msg.asset, (state.fromUrl && state.fromUrl.settings.light) || (same ? state.light : null));
         if (!same) resetCamera();
@@ -707,6 +757,7 @@
           if (state.light) again.light = state.light;
           if (state.extra.state) again.state = state.extra.state;
           if (state.playing) again.playing = true;
+          else if (state.extra.time) again.time = Number(state.extra.time);
           if (Object.keys(again).length) send({ type: "settings", ...again });
         }
         sendView(true);
@@ -800,6 +851,7 @@
   $("asset").addEventListener("change", (e) => { state.extra = {}; connect(e.target.value); });
   $("state").addEventListener("change", sendState);
   $("play").addEventListener("click", togglePlayback);
+  $("frame").addEventListener("input", scrubFrame);
   $("notice").addEventListener("click", () => showNotice([]));
 
   // Copy buttons: the clipboard where the page may use it, else the text is selected in a
