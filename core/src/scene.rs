@@ -12,7 +12,8 @@
 //! Lighting is baked into a light field in its own frame, so it turns with the instance; a
 //! mesh object is shaded in its own frame the same way, so both kinds stay consistent. An
 //! instance of an asset with light states may be relit: its `options.light` is a world-space
-//! direction, carried into the instance's frame.
+//! direction, carried into the instance's frame. An instance of an asset with deformation states
+//! or an animation shows the `state`, `time` or `frame` it names (the base state by default).
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -243,6 +244,17 @@ pub enum SceneObject {
         /// the instance's projected size); knobs set in `options` stay fixed.
         #[serde(default)]
         auto_lod: Option<LodPolicy>,
+        /// A deformation state of the asset to show, by name (`bake --state`; the quality key
+        /// `state`); default the base state. Instances of one asset share its upload whatever
+        /// state or frame each shows.
+        #[serde(default)]
+        state: Option<String>,
+        /// Seconds into the asset's animation (`bake --animation`; the quality key `time`).
+        #[serde(default)]
+        time: Option<f64>,
+        /// A frame of the asset's animation (the quality key `frame`).
+        #[serde(default)]
+        frame: Option<u32>,
     },
     /// A polygon mesh (any format `lumigraph bake` reads), rasterized.
     Mesh {
@@ -255,6 +267,14 @@ pub enum SceneObject {
         #[serde(default)]
         shading: Shading,
     },
+}
+
+/// Which state a light-field instance shows: its `state`, `time` and `frame` (the quality keys).
+#[derive(Clone, Copy, Debug)]
+struct Pose<'a> {
+    state: Option<&'a str>,
+    time: Option<f64>,
+    frame: Option<u32>,
 }
 
 /// A scene file: `{"objects": [...]}`.
@@ -373,6 +393,9 @@ impl Scene {
                     transform,
                     options,
                     auto_lod,
+                    state,
+                    time,
+                    frame,
                 } => {
                     let placement = transform
                         .similarity()
@@ -396,7 +419,12 @@ impl Scene {
                         fields.len() - 1
                     };
                     let shown = path.display().to_string();
-                    let plan = object_quality(options, auto_lod.as_ref(), &placement)
+                    let pose = Pose {
+                        state: state.as_deref(),
+                        time: *time,
+                        frame: *frame,
+                    };
+                    let plan = object_quality(options, auto_lod.as_ref(), pose, &placement)
                         .plan(&headers[field])
                         .map_err(|source| SceneError::Quality {
                             index,
@@ -548,11 +576,13 @@ impl Scene {
 }
 
 /// The quality of a light-field object: its `options` knobs, with automatic LOD when it has an
-/// `auto_lod` policy (`max_psnr_drop: null` there means no limit), and its world-space `light`
-/// carried into the instance's frame (the asset's light states are in that frame).
+/// `auto_lod` policy (`max_psnr_drop: null` there means no limit), its pose, and its
+/// world-space `light` carried into the instance's frame (the asset's light states are in that
+/// frame).
 fn object_quality(
     options: &RenderOptions,
     auto_lod: Option<&LodPolicy>,
+    pose: Pose<'_>,
     placement: &Similarity,
 ) -> Quality {
     let light = options.light.map(|l| {
@@ -569,6 +599,9 @@ fn object_quality(
         lod_min_psnr: auto_lod.and_then(|p| p.min_psnr),
         lod_max_psnr_drop: auto_lod.map(|p| p.max_psnr_drop.unwrap_or(f64::INFINITY)),
         lod_blend: auto_lod.map(|p| p.blend_band),
+        state: pose.state.map(str::to_owned),
+        time: pose.time,
+        frame: pose.frame,
         ..Quality::default()
     }
 }

@@ -91,7 +91,17 @@ fn bake_states(
     states: &[StateMesh<'_>],
     options: &BakeOptions,
 ) -> Result<AssetFile, BakeError> {
-    let bytes = ctx().baker.bake_states_to_bytes(
+    let bytes = bake_state_bytes(base, states, options)?;
+    Ok(AssetFile::from_bytes(bytes).expect("baked asset opens"))
+}
+
+/// [`bake_states`]'s file bytes.
+fn bake_state_bytes(
+    base: &Mesh,
+    states: &[StateMesh<'_>],
+    options: &BakeOptions,
+) -> Result<Vec<u8>, BakeError> {
+    ctx().baker.bake_states_to_bytes(
         base,
         &StateBake {
             meshes: states,
@@ -101,8 +111,7 @@ fn bake_states(
         options,
         &Provenance::default(),
         &mut |_, _| {},
-    )?;
-    Ok(AssetFile::from_bytes(bytes).expect("baked asset opens"))
+    )
 }
 
 #[test]
@@ -285,6 +294,60 @@ fn a_state_renders_by_name_like_its_mesh_and_unknown_states_are_errors() {
         )
         .expect_err("not uploaded");
     assert!(err.to_string().contains("state 1"), "{err}");
+}
+
+#[test]
+fn scene_instances_of_one_asset_show_the_states_they_name() {
+    use lumigraph_core::scene::{Scene, SceneError};
+    let base = yard(-0.25);
+    let moved = yard(0.6);
+    let bytes = bake_state_bytes(&base, &[state("moved", &moved)], &options()).expect("bake");
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::write(dir.path().join("yard.lfa"), &bytes).expect("write");
+    let asset = AssetFile::from_bytes(bytes).expect("baked asset opens");
+    let c = ctx();
+    let field = c.renderer.upload(&asset).expect("upload");
+    let view = View::look_at([1.5, 2.5, -4.0], [0.3, 0.2, -1.0], 45.0, 96, 96);
+    let alone = |name: Option<&str>| {
+        Quality {
+            state: name.map(str::to_owned),
+            ..Quality::default()
+        }
+        .plan(asset.header())
+        .expect("plan")
+        .render(&c.renderer, &field, &view)
+        .expect("render")
+        .frame
+    };
+    let scene = |object: serde_json::Value| {
+        let text = serde_json::json!({"objects": [object]}).to_string();
+        Scene::from_json(&text, dir.path(), &c.renderer, &c.reference)
+    };
+    for name in [None, Some("moved")] {
+        let mut object = serde_json::json!({"type": "lightfield", "asset": "yard.lfa"});
+        if let Some(name) = name {
+            object["state"] = name.into();
+        }
+        let frame = scene(object)
+            .expect("scene")
+            .render(&c.renderer, &c.reference, &view)
+            .expect("scene render");
+        // One opaque layer composited keeps its colours: at most one code of rounding.
+        let worst = common::max_code_diff(&frame.color, &alone(name).color);
+        assert!(worst <= 1, "{name:?}: {worst} codes");
+    }
+    assert!(common::max_code_diff(&alone(None).color, &alone(Some("moved")).color) > 40);
+    // An unknown state, and a time on an asset without an animation, name the object.
+    for (key, value, needle) in [
+        ("state", serde_json::json!("dent"), "base, moved"),
+        ("time", serde_json::json!(0.5), "animation"),
+    ] {
+        let mut object = serde_json::json!({"type": "lightfield", "asset": "yard.lfa"});
+        object[key] = value;
+        let err = scene(object).err().expect("refused");
+        assert!(matches!(err, SceneError::Quality { index: 0, .. }), "{err}");
+        assert!(err.to_string().contains(needle), "{err}");
+    }
 }
 
 #[test]
