@@ -269,14 +269,6 @@ pub enum SceneObject {
     },
 }
 
-/// Which state a light-field instance shows: its `state`, `time` and `frame` (the quality keys).
-#[derive(Clone, Copy, Debug)]
-struct Pose<'a> {
-    state: Option<&'a str>,
-    time: Option<f64>,
-    frame: Option<u32>,
-}
-
 /// A scene file: `{"objects": [...]}`.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -419,18 +411,21 @@ impl Scene {
                         fields.len() - 1
                     };
                     let shown = path.display().to_string();
-                    let pose = Pose {
-                        state: state.as_deref(),
+                    // The instance's pose: the quality keys of the same names.
+                    let quality = Quality {
+                        state: state.clone(),
                         time: *time,
                         frame: *frame,
+                        ..object_quality(options, auto_lod.as_ref(), &placement)
                     };
-                    let plan = object_quality(options, auto_lod.as_ref(), pose, &placement)
-                        .plan(&headers[field])
-                        .map_err(|source| SceneError::Quality {
-                            index,
-                            path: shown.clone(),
-                            source,
-                        })?;
+                    let plan =
+                        quality
+                            .plan(&headers[field])
+                            .map_err(|source| SceneError::Quality {
+                                index,
+                                path: shown.clone(),
+                                source,
+                            })?;
                     layers.push(Layer::Field {
                         field,
                         placement,
@@ -576,13 +571,11 @@ impl Scene {
 }
 
 /// The quality of a light-field object: its `options` knobs, with automatic LOD when it has an
-/// `auto_lod` policy (`max_psnr_drop: null` there means no limit), its pose, and its
-/// world-space `light` carried into the instance's frame (the asset's light states are in that
-/// frame).
+/// `auto_lod` policy (`max_psnr_drop: null` there means no limit), and its world-space `light`
+/// carried into the instance's frame (the asset's light states are in that frame).
 fn object_quality(
     options: &RenderOptions,
     auto_lod: Option<&LodPolicy>,
-    pose: Pose<'_>,
     placement: &Similarity,
 ) -> Quality {
     let light = options.light.map(|l| {
@@ -599,9 +592,6 @@ fn object_quality(
         lod_min_psnr: auto_lod.and_then(|p| p.min_psnr),
         lod_max_psnr_drop: auto_lod.map(|p| p.max_psnr_drop.unwrap_or(f64::INFINITY)),
         lod_blend: auto_lod.map(|p| p.blend_band),
-        state: pose.state.map(str::to_owned),
-        time: pose.time,
-        frame: pose.frame,
         ..Quality::default()
     }
 }

@@ -293,15 +293,19 @@
     send({ type: "settings", ...extra, time: frame > 0 ? time : null });
   }
 
+  // The button and the link follow `playing`; the server hears of it from the caller.
+  function setPlaying(playing) {
+    state.playing = playing;
+    $("play").textContent = playing ? "Pause" : "Play";
+    if (playing) state.extra.playing = "1"; else delete state.extra.playing;
+  }
+
   function togglePlayback() {
-    state.playing = !state.playing;
-    $("play").textContent = state.playing ? "Pause" : "Play";
+    setPlaying(!state.playing);
     if (state.playing) {
-      state.extra.playing = "1";
       delete state.extra.time;
       send({ type: "settings", playing: true, time: null });
     } else {
-      delete state.extra.playing;
       // Pausing keeps the frame last shown.
       const shown = state.last && state.last.animation ? state.last.animation.frame : Number($("frame").value);
       setFrame(shown, { playing: false });
@@ -311,13 +315,8 @@
   }
 
   function scrubFrame() {
-    const extra = {};
-    if (state.playing) {
-      state.playing = false;
-      $("play").textContent = "Play";
-      delete state.extra.playing;
-      extra.playing = false;
-    }
+    const extra = state.playing ? { playing: false } : {};
+    setPlaying(false);
     setFrame(Number($("frame").value), extra);
     sendView(true);
     scheduleUrlUpdate();
