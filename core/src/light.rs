@@ -20,6 +20,17 @@
 //! default [`Blend::Normal`] scales the sum by `max(0, n·ℓ) / Σ w_i max(0, n·ℓ_i)` from the
 //! stored normal, which makes every unshadowed point exact. What remains is the shadows'
 //! interpolation: three shadows blended where the truth has one.
+//!
+//! For assets baked with shadows, the renderer removes that too (`Switches::shadow_rays`, on by
+//! default; shaders/render/probe.wgsl `relit_texel`, shade.wgsl `shadow_visible`). A texel is
+//! *contested* where, among the proxy lights that weigh in, some light it and some face it but
+//! leave it dark. On contested texels the direct part is either 0 or the lit proxies'
+//! `albedo·(1−ambient)` (their direct parts over their cosines) times `max(0, n·ℓ)`, and a
+//! shadow ray decides which: the ray from outside the camera sphere to the shaded point,
+//! against the light, marched through the light field like an eye's ray (the cameras around
+//! `ℓ` see what the light sees). It is shadowed where the march meets a surface more than one
+//! step before the point. Uncontested texels keep the blend, so a frame at a proxy direction is
+//! unchanged and a ray is marched only where shadows move between the proxies (docs/marcher.md).
 
 use std::str::FromStr;
 

@@ -71,7 +71,9 @@ struct RenderParams {
     // 1: relit from the light states (`color_texel`), with `light_weights` (x, y, z) on
     // `light_a_maps`, `light_b_maps`, `light_c_maps` (core/src/light.rs); 0: the base colour.
     lit: u32,
-    pad1: u32,
+    // 1: in a relit frame of an asset baked with shadows, a shadow ray decides where the proxy
+    // lights disagree (`shadow_visible`).
+    shadow_rays: u32,
     pad2: u32,
     // w 1: the blend is scaled by the stored normal's cosine ratio (`blend_direct`).
     light_weights: vec4<f32>,

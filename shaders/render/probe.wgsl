@@ -93,16 +93,50 @@ fn oct_decode16(t: vec4<f32>) -> vec3<f32> {
 // 1 (w ≥ 0 and Σ w_i ℓ_i = ℓ), 1 where all three lights face the texel, and exact at a
 // terminator (0 where none does); clamped as the bake clamps a colour. Alpha: the ambient map's
 // (1 at hits, as the base colour's).
-fn relit_texel(p: vec2<i32>, k: u32) -> vec4<f32> {
+//
+// Where the proxy lights that weigh in disagree on the texel's shadow (some lit, some facing it
+// but dark), the blend is a penumbra the truth does not have: `contested` holds that texel's
+// blended direct part (`soft`) and its direct part with the light unshadowed (`full`: the
+// lit proxies' albedo · (1 − ambient), max(0, n·ℓ_i) divided out, times max(0, n·ℓ)), for the
+// shadow ray of `shade` to choose between (`params.shadow_rays`).
+struct RelitTexel {
+    color: vec4<f32>,
+    soft: vec3<f32>,
+    full: vec3<f32>,
+    contested: f32,
+}
+
+// An 8-bit direct part at or below this is dark: shadowed, facing away or black.
+const DARK_DIRECT: f32 = 0.5 / 255.0;
+// A proxy light that faces the texel counts as shadowing it only where the lit proxies say it
+// would show at least this much direct light unshadowed (a dark albedo cannot tell).
+const SHADOW_EVIDENCE: f32 = 2.0 / 255.0;
+
+fn relit_texel(p: vec2<i32>, k: u32) -> RelitTexel {
     let w = params.light_weights;
     let a = textureLoad(ambient_maps, p, k, 0);
-    let direct = w.x * textureLoad(light_a_maps, p, k, 0).rgb + w.y * textureLoad(light_b_maps, p, k, 0).rgb + w.z * textureLoad(light_c_maps, p, k, 0).rgb;
+    let da = textureLoad(light_a_maps, p, k, 0).rgb;
+    let db = textureLoad(light_b_maps, p, k, 0).rgb;
+    let dc = textureLoad(light_c_maps, p, k, 0).rgb;
+    let direct = w.x * da + w.y * db + w.z * dc;
     let n = oct_decode16(textureLoad(normal_maps, p, k, 0));
     let cosines = max(vec3<f32>(0.0), vec3<f32>(dot(n, params.light_a.xyz), dot(n, params.light_b.xyz), dot(n, params.light_c.xyz)));
     let denominator = dot(w.xyz, cosines);
-    let ratio = select(0.0, min(max(dot(n, params.light_dir.xyz), 0.0) / max(denominator, 1e-6), 1.0), denominator > 1e-6);
-    let c = a.rgb + direct * select(1.0, ratio, w.w > 0.5);
-    return vec4<f32>(min(c, vec3<f32>(1.0)), a.a);
+    let cos_l = max(dot(n, params.light_dir.xyz), 0.0);
+    let ratio = select(0.0, min(cos_l / max(denominator, 1e-6), 1.0), denominator > 1e-6);
+    let c = min(a.rgb + direct * select(1.0, ratio, w.w > 0.5), vec3<f32>(1.0));
+    // The proxies that weigh in and are lit; the albedo · (1 − ambient) they agree on.
+    let brightest = vec3<f32>(max(max(da.r, da.g), da.b), max(max(db.r, db.g), db.b), max(max(dc.r, dc.g), dc.b));
+    let weighs = w.xyz > vec3<f32>(0.0);
+    let lit = weighs & (brightest > vec3<f32>(DARK_DIRECT)) & (cosines > vec3<f32>(0.0));
+    let lw = select(vec3<f32>(0.0), w.xyz, lit);
+    let k_rgb = (lw.x * da + lw.y * db + lw.z * dc) / max(dot(lw, cosines), 1e-6);
+    let k_max = max(max(k_rgb.r, k_rgb.g), k_rgb.b);
+    let shadowed = weighs & !lit & (cosines * k_max > vec3<f32>(SHADOW_EVIDENCE));
+    let contested = any(lit) & any(shadowed) & (w.w > 0.5);
+    let full = min(a.rgb + k_rgb * cos_l, vec3<f32>(1.0)) - min(a.rgb, vec3<f32>(1.0));
+    let soft = c - min(a.rgb, vec3<f32>(1.0));
+    return RelitTexel(vec4<f32>(c, a.a), soft, full, select(0.0, 1.0, contested));
 }
 
 // Texel p of camera k's colour map: the base state's, or in a relit frame (`params.lit`)
@@ -111,7 +145,7 @@ fn color_texel(p: vec2<i32>, k: u32) -> vec4<f32> {
     if per_invocation(params.lit == 0u) {
         return textureLoad(color_maps, p, k, 0);
     }
-    return relit_texel(p, k);
+    return relit_texel(p, k).color;
 }
 
 // Colour of camera k at texel coordinates tc from the footprint texels with the given weights,
@@ -127,6 +161,27 @@ fn layer_color(k: u32, tc: vec2<f32>, bw: vec4<f32>) -> vec4<f32> {
         + bw.z * color_texel(vec2<i32>(i0.x, i1.y), k)
         + bw.w * color_texel(vec2<i32>(i1.x, i1.y), k);
     return sum / max(bw.x + bw.y + bw.z + bw.w, 1e-12);
+}
+
+// `layer_color` in a relit frame, with the footprint's contested parts (`RelitTexel`) blended
+// alike.
+fn relit_layer_color(k: u32, tc: vec2<f32>, bw: vec4<f32>) -> RelitTexel {
+    let n = i32(params.resolution);
+    let base = vec2<i32>(floor(tc - 0.5));
+    let i0 = clamp(base, vec2<i32>(0), vec2<i32>(n - 1));
+    let i1 = clamp(base + 1, vec2<i32>(0), vec2<i32>(n - 1));
+    let t0 = relit_texel(vec2<i32>(i0.x, i0.y), k);
+    let t1 = relit_texel(vec2<i32>(i1.x, i0.y), k);
+    let t2 = relit_texel(vec2<i32>(i0.x, i1.y), k);
+    let t3 = relit_texel(vec2<i32>(i1.x, i1.y), k);
+    let inv = 1.0 / max(bw.x + bw.y + bw.z + bw.w, 1e-12);
+    let wc = bw * vec4<f32>(t0.contested, t1.contested, t2.contested, t3.contested) * inv;
+    return RelitTexel(
+        (bw.x * t0.color + bw.y * t1.color + bw.z * t2.color + bw.w * t3.color) * inv,
+        wc.x * t0.soft + wc.y * t1.soft + wc.z * t2.soft + wc.w * t3.soft,
+        wc.x * t0.full + wc.y * t1.full + wc.z * t2.full + wc.w * t3.full,
+        wc.x + wc.y + wc.z + wc.w,
+    );
 }
 
 // The fixed baseline's colour: one bilinear sample; in a relit frame, the four texels'

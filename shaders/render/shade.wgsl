@@ -29,6 +29,10 @@ fn shade(o: vec3<f32>, d: vec3<f32>, z_rate: f32, t: f32, loc: Located, c0: Came
     // The largest step back (f / rate) of a fully agreeing camera; none yet.
     var correction = -1e30;
     var fetches = 0u;
+    // Contested texels' parts in a relit frame (`RelitTexel`), blended as the colour.
+    var soft = vec3<f32>(0.0);
+    var full = vec3<f32>(0.0);
+    var contested = 0.0;
     for (var i = 0u; i < 3u; i++) {
         let k = loc.cameras[i];
         let edge_aware = !is_fixed();
@@ -40,7 +44,12 @@ fn shade(o: vec3<f32>, d: vec3<f32>, z_rate: f32, t: f32, loc: Located, c0: Came
         }
         let pb = probe(cam, k, x, edge_aware);
         var c: vec4<f32>;
-        if edge_aware {
+        var parts = RelitTexel(vec4<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), 0.0);
+        if edge_aware && per_invocation(params.lit != 0u) {
+            parts = relit_layer_color(k, pb.tc, pb.layer_weights);
+            c = parts.color;
+            fetches += LAYER_SHADE_FETCHES;
+        } else if edge_aware {
             c = layer_color(k, pb.tc, pb.layer_weights);
             fetches += LAYER_SHADE_FETCHES;
         } else {
@@ -52,6 +61,9 @@ fn shade(o: vec3<f32>, d: vec3<f32>, z_rate: f32, t: f32, loc: Located, c0: Came
         let w = loc.weights[i] * agree;
         color += w * c;
         total += w;
+        soft += w * parts.soft;
+        full += w * parts.full;
+        contested += w * parts.contested;
         if newton && agree >= 1.0 && loc.weights[i] > 0.0 {
             correction = max(correction, pb.f / max(dot(d, normalize(x - cam.position)), 0.2));
         }
@@ -69,11 +81,44 @@ fn shade(o: vec3<f32>, d: vec3<f32>, z_rate: f32, t: f32, loc: Located, c0: Came
     } else {
         color = fallback;
     }
+    // Where the proxy lights disagree on the shadow, a shadow ray through the light field
+    // decides it (`shadow_visible`).
+    if (total > 1e-6) & (contested > 1e-6) & per_invocation(params.shadow_rays != 0u) {
+        let shadow = shadow_visible(o + t_out * d);
+        fetches += shadow.fetches;
+        let visible = select(0.0, 1.0, shadow.visible);
+        color = vec4<f32>(clamp(color.rgb + (visible * full - soft) / total, vec3<f32>(0.0), vec3<f32>(1.0)), color.a);
+    }
     let z = t_out * z_rate;
     // A translucent field's maps hold premultiplied colour and opacity: both are blended alike
     // and kept; an opaque field's hits are opaque.
     let alpha = select(1.0, color.a, params.premultiplied != 0u);
     return Shaded(pack4x8unorm(vec4<f32>(color.rgb, alpha)), z, fetches, total > 1e-6);
+}
+
+struct Shadow {
+    visible: bool,
+    fetches: u32,
+}
+
+// Whether point x (a surface point the eye's march found) sees the frame's light: the ray from
+// outside the camera sphere towards x, against the light (`-params.light_dir`), marched through
+// the light field like an eye's ray, meets no surface more than SHADOW_CLEARANCE steps before
+// x. The cameras around the light's direction see that ray's surfaces as an eye there would.
+fn shadow_visible(x: vec3<f32>) -> Shadow {
+    let d = -params.light_dir.xyz;
+    // x lies inside the unit camera sphere, so o lies outside it, and x at t = 2.
+    let o = x - 2.0 * d;
+    let sphere = sphere_roots(o, d, BOUNDING_RADIUS);
+    let box = box_roots(o, d, params.box_min, params.box_max);
+    let t_in = max(sphere.x, box.x);
+    let t_out = min(min(sphere.y, box.y), 2.0 - SHADOW_CLEARANCE * g_step);
+    if t_in >= t_out {
+        return Shadow(true, 0u);
+    }
+    let loc = locate(sphere_entry(o, d), g_level);
+    let m = march_refined(o, d, t_in, t_out, 1e30, loc.cameras, loc.weights, camera(loc.cameras.x), camera(loc.cameras.y), camera(loc.cameras.z));
+    return Shadow(!m.hit, m.fetches);
 }
 
 // The interior pass (ROLE_INTERIOR): a pixel of a flat quad (see `cs_tiles`) takes the z-depth
@@ -182,6 +227,10 @@ fn give_back(slot: u32) {
         list_quad(2u, grid.x * grid.y, 1, entry);
     }
 }
+
+// How far before the shaded point (in steps) a shadow ray's surface must lie to shadow it: the
+// eye's and the shadow ray's marches each place a surface within the tolerance (half a step).
+const SHADOW_CLEARANCE: f32 = 1.0;
 
 // What `shade` counts per camera for an edge-aware pixel: one footprint and four colour loads.
 const LAYER_SHADE_FETCHES: u32 = 5u;

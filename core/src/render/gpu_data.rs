@@ -61,7 +61,9 @@ pub(super) struct RenderParams {
     pub(super) premultiplied: u32,
     /// 1: relit from the light states with `light_weights`; 0: the base colour.
     pub(super) lit: u32,
-    pub(super) pad1: u32,
+    /// 1: a shadow ray decides where the proxy lights disagree on a relit texel's shadow
+    /// (an asset baked with shadows and normals).
+    pub(super) shadow_rays: u32,
     pub(super) pad2: u32,
     /// Weights of the three proxy lights' direct parts; w 1: scaled by the stored normal's
     /// cosine ratio (`Blend::Normal`), 0: as they are.
@@ -320,7 +322,7 @@ pub fn render_params_layout() -> Vec<(&'static str, usize)> {
         jitter,
         premultiplied,
         lit,
-        pad1,
+        shadow_rays,
         pad2,
         light_weights,
         light_dir,

@@ -122,6 +122,8 @@ struct LightMaps {
     normal: Option<(wgpu::Texture, wgpu::TextureView)>,
     /// In the proxy's order.
     direct: Vec<(wgpu::Texture, wgpu::TextureView)>,
+    /// Whether the states were baked with shadows (DESIGN §9).
+    shadows: bool,
 }
 
 impl GpuLightField {
@@ -205,6 +207,8 @@ struct Relit {
     weights: [f32; 4],
     light: [f32; 4],
     proxy: [[f32; 4]; 3],
+    /// Whether shadow rays decide contested texels (RenderParams `shadow_rays`).
+    shadow_rays: bool,
 }
 
 /// The light fields a [`Renderer`] has on the device: uploaded and not yet dropped.
@@ -843,6 +847,7 @@ impl Renderer {
                 weights: [w[0], w[1], w[2], f32::from(u8::from(normal.is_some()))],
                 light: dir(l),
                 proxy: [da, db, dc],
+                shadow_rays: self.switches.shadow_rays && lights.shadows && normal.is_some(),
             },
         )))
     }
@@ -971,7 +976,7 @@ impl Renderer {
             jitter,
             premultiplied: u32::from(field.translucent.is_some()),
             lit: u32::from(relit.is_some()),
-            pad1: 0,
+            shadow_rays: relit.as_ref().map_or(0, |(_, r)| u32::from(r.shadow_rays)),
             pad2: 0,
             light_weights: relit.as_ref().map_or([0.0; 4], |(_, r)| r.weights),
             light_dir: relit.as_ref().map_or([0.0; 4], |(_, r)| r.light),

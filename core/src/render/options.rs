@@ -233,7 +233,14 @@ pub struct Switches {
     /// [`LIGHT_BLEND_VARIABLE`] = `normal` | `spherical` | `planar` when the switches are made;
     /// the last two are for measuring).
     pub light_blend: crate::light::Blend,
+    /// In a relit frame of an asset baked with shadows, a shadow ray through the light field
+    /// decides the texels where the proxy lights disagree on the shadow (on by default; env
+    /// [`SHADOW_RAYS_VARIABLE`] = `0` turns it off when the switches are made, for measuring).
+    pub shadow_rays: bool,
 }
+
+/// Environment variable that turns [`Switches::shadow_rays`] off (`0`).
+pub const SHADOW_RAYS_VARIABLE: &str = "LUMIGRAPH_SHADOW_RAYS";
 
 /// Environment variable choosing [`Switches::light_blend`].
 pub const LIGHT_BLEND_VARIABLE: &str = "LUMIGRAPH_LIGHT_BLEND";
@@ -252,6 +259,7 @@ impl Default for Switches {
                 Ok("spherical") => crate::light::Blend::Spherical,
                 _ => crate::light::Blend::Normal,
             },
+            shadow_rays: std::env::var(SHADOW_RAYS_VARIABLE).as_deref() != Ok("0"),
         }
     }
 }

@@ -345,6 +345,7 @@ impl Renderer {
             ambient,
             normal,
             direct,
+            shadows: crate::bake::BakeOptions::of(header).shading.shadows,
         }))
     }
 }
