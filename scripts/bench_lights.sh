@@ -5,8 +5,9 @@
 # 4 lights of each kind per view (proxy directions, proxy-triangle centres, random), each scored
 # against the reference with that light and the bake's shadows, the error split into the light
 # field's (against the same blend of references) and the light interpolation's, planar weights
-# beside, and the relit frames at the three proxy directions around each light in between
-# (corners); and static against relit frames, 7 interleaved pairs per view.
+# and blended shadows (no shadow rays) beside, and the relit frames at the three proxy
+# directions around each light in between (corners); and static against relit frames (with
+# shadow rays and with blended shadows), 7 interleaved triples per view.
 #   bash scripts/bench_lights.sh [OUT_DIR]   (default out/lights; about 35 min on 2 cores)
 # Writes OUT_DIR/table.md and the JSON reports beside it.
 set -euo pipefail
@@ -34,21 +35,22 @@ bakes = {}
 for line in open(f"{out}/bakes.txt"):
     scene, lights, ms, mib = line.split()
     bakes[(scene, lights)] = (float(ms) / 1e3, float(mib))
-speed = ["| scene | lights | bake s | asset MiB | GPU MiB | static ms | relit ms | relit / static |",
-         "|---|---|---|---|---|---|---|---|"]
-quality = ["| scene | lights | kind | masked PSNR | PSNR ∩ masks | wrong-surface px | corners masked PSNR | light-field masked PSNR | interpolation masked PSNR | planar masked PSNR |",
-           "|---|---|---|---|---|---|---|---|---|---|"]
+speed = ["| scene | lights | bake s | asset MiB | GPU MiB | static ms | relit ms | relit / static | blended-shadow relit / static |",
+         "|---|---|---|---|---|---|---|---|---|"]
+quality = ["| scene | lights | kind | masked PSNR | PSNR ∩ masks | wrong-surface px | corners masked PSNR | blended-shadow masked PSNR | light-field masked PSNR | interpolation masked PSNR | planar masked PSNR |",
+           "|---|---|---|---|---|---|---|---|---|---|---|"]
 for scene in ("demo", "bunny", "cow", "spot"):
     for lights in ("12", "42", "162"):
         r = json.load(open(f"{out}/{scene}-{lights}.json"))
         s, mib = bakes[(scene, lights)]
         speed.append(f"| {scene} | {lights} | {s:.1f} | {mib:.1f} | {r['gpu_bytes'] / 2**20:.0f} | "
-                     f"{r['static_ms']:.2f} | {r['relit_ms']:.2f} | {r['relit_over_static']:.3f} |")
+                     f"{r['static_ms']:.2f} | {r['relit_ms']:.2f} | {r['relit_over_static']:.3f} | {r['blended_over_static']:.3f} |")
         for k in r["kinds"]:
             t, lf, it, pl = k["total"], k["light_field"], k["interpolation"], k["planar"]
+            bl = k["blended_shadows"]
             co = f"{k['corners']['masked_psnr']:.2f}" if k.get("corners") else "–"
             quality.append(f"| {scene} | {lights} | {k['kind']} | {t['masked_psnr']:.2f} | {t['intersection_psnr']:.2f} | "
-                           f"{t['wrong_surface_px']:.0f} | {co} | {lf['masked_psnr']:.2f} | "
+                           f"{t['wrong_surface_px']:.0f} | {co} | {bl['masked_psnr']:.2f} | {lf['masked_psnr']:.2f} | "
                            f"{it['masked_psnr']:.2f} | {pl['masked_psnr']:.2f} |")
 text = "\n".join(speed) + "\n\n" + "\n".join(quality) + "\n"
 open(f"{out}/table.md", "w").write(text)

@@ -1809,8 +1809,9 @@ fn light_states_relight_through_bake_render_reference_and_info() {
         &["bake", "--demo", "--lights", "13", "-o", s(&path("x.lfa"))],
         "use 12, 42 or 162",
     );
-    // The benchmark: every light scored, the lights between proxy directions paired with the
-    // relit frames at their triangle's corners, and the frames written side by side.
+    // The benchmark: every light scored (with shadow rays and with blended shadows), the lights
+    // between proxy directions paired with the relit frames at their triangle's corners, and
+    // the frames written side by side.
     let (json, images) = (path("lights-bench.json"), path("lights-bench"));
     let o = lumigraph(&[
         "bench",
@@ -1847,9 +1848,18 @@ fn light_states_relight_through_bake_render_reference_and_info() {
     }
     let kinds = report["kinds"].as_array().expect("kinds");
     assert!(kinds[0]["corners"].is_null() && kinds[1]["corners"]["masked_psnr"].is_number());
+    for kind in kinds {
+        assert!(kind["blended_shadows"]["masked_psnr"].is_number(), "{kind}");
+    }
+    assert!(
+        report["blended_over_static"]
+            .as_f64()
+            .is_some_and(|r| r > 0.0),
+        "{report}"
+    );
     for name in ["0-proxy-0.png", "0-centroid-0.png", "0-random-0.png"] {
         let (w, h, _) = lumigraph_core::image_io::read_png_rgba8(&images.join(name)).expect(name);
-        assert_eq!((w, h), (3 * 48, 48), "{name}");
+        assert_eq!((w, h), (4 * 48, 48), "{name}");
     }
     assert_fails(
         &[

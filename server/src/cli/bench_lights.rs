@@ -48,14 +48,16 @@ pub struct LightsArgs {
     /// Lights of each kind (proxy directions, triangle centres, random) per view.
     #[arg(long, default_value_t = 4)]
     pub lights: usize,
-    /// Static and relit frames per view for the timing, interleaved; the median is kept.
+    /// Static, relit and blended-shadow relit frames per view for the timing, interleaved; the
+    /// median is kept.
     #[arg(long, default_value_t = 7)]
     pub repeats: usize,
     /// Write the report as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
-    /// Write each relit frame beside its reference and the planar weights' frame into this
-    /// folder (`V-KIND-I.png`: reference | relit | planar, side by side).
+    /// Write each relit frame beside its reference, the frame with blended shadows and the
+    /// planar weights' frame into this folder (`V-KIND-I.png`: reference | relit | blended
+    /// shadows | planar, side by side).
     #[arg(long)]
     pub images: Option<PathBuf>,
 }
@@ -73,6 +75,9 @@ struct KindReport {
     interpolation: MeanComparison,
     /// Planar barycentric weights' relit frame against the reference.
     planar: MeanComparison,
+    /// The relit frame without shadow rays (the three proxy lights' shadows blended) against
+    /// the reference.
+    blended_shadows: MeanComparison,
     /// Relit frames at the three proxy directions around each light (the corners of its proxy
     /// triangle), each against its own reference, in the same views: the same asset at proxy
     /// directions, paired with the lights between them (none for the proxy directions).
@@ -85,9 +90,10 @@ struct LightScore {
     kind: &'static str,
     view: usize,
     light: [f64; 3],
-    /// Masked PSNR of the relit frame and of the planar one.
+    /// Masked PSNR of the relit frame, of the planar one and of the one with blended shadows.
     masked_psnr: f64,
     planar_masked_psnr: f64,
+    blended_shadows_masked_psnr: f64,
     /// Mean masked PSNR of the relit frames at the three proxy directions around the light
     /// (none for a proxy direction).
     corners_masked_psnr: Option<f64>,
@@ -106,6 +112,9 @@ struct Report {
     static_ms: f64,
     relit_ms: f64,
     relit_over_static: f64,
+    /// The relit frame without shadow rays (blended shadows).
+    blended_ms: f64,
+    blended_over_static: f64,
     kinds: Vec<KindReport>,
     per_light: Vec<LightScore>,
 }
@@ -268,6 +277,13 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
             ..Switches::default()
         },
     );
+    let blended = Renderer::with_switches(
+        gpu.clone(),
+        Switches {
+            shadow_rays: false,
+            ..Switches::default()
+        },
+    );
     let reference = ReferenceRenderer::new(gpu.clone());
     let field = renderer.upload(&asset)?;
     let gpu_mesh = reference.upload(&mesh)?;
@@ -277,9 +293,9 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
     let centroids = light::centroid_lights(count)?;
     let randoms = random_lights(args.views * args.lights, args.seed);
     let kinds: [&'static str; 3] = ["proxy", "centroid", "random"];
-    let mut scores: Vec<[Vec<Comparison>; 5]> = (0..3).map(|_| Default::default()).collect();
+    let mut scores: Vec<[Vec<Comparison>; 6]> = (0..3).map(|_| Default::default()).collect();
     let mut per_light = Vec::new();
-    let (mut static_ms, mut relit_ms) = (Vec::new(), Vec::new());
+    let (mut static_ms, mut relit_ms, mut blended_ms) = (Vec::new(), Vec::new(), Vec::new());
     let bar = progress_bar(
         (views.len() * (3 * args.lights + 1)) as u64,
         "relighting views",
@@ -298,10 +314,11 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
         // The relit frame at each proxy direction that is some light's corner in this view,
         // against its reference: neighbouring lights share corners.
         let mut at_corner: HashMap<u32, Comparison> = HashMap::new();
-        // Timing: static and relit frames interleaved, so drift hits both alike.
+        // Timing: static, relit and blended-shadow frames interleaved, so drift hits all alike.
         let timing_light = randoms[v * args.lights];
         renderer.render(&field, view, &RenderOptions::default())?;
         renderer.render(&field, view, &lit(timing_light))?;
+        blended.render(&field, view, &lit(timing_light))?;
         for _ in 0..args.repeats {
             let t = Instant::now();
             renderer.render(&field, view, &RenderOptions::default())?;
@@ -309,6 +326,9 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
             let t = Instant::now();
             renderer.render(&field, view, &lit(timing_light))?;
             relit_ms.push(t.elapsed().as_secs_f64() * 1e3);
+            let t = Instant::now();
+            blended.render(&field, view, &lit(timing_light))?;
+            blended_ms.push(t.elapsed().as_secs_f64() * 1e3);
         }
         bar.inc(1);
         let per_kind = [
@@ -323,6 +343,7 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
                 // Relit frames bind the light states with the renderer's own layout, so the
                 // planar renderer draws the one upload (162 lights: 7 GB once, not twice).
                 let flat = planar.render(&field, view, &lit(l))?;
+                let soft = blended.render(&field, view, &lit(l))?;
                 let blend = reference_blend(
                     &reference,
                     &gpu_mesh,
@@ -335,6 +356,7 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
                 scores[k][1].push(metrics::compare(&relit, &blend)?);
                 scores[k][2].push(metrics::compare(&blend, &truth)?);
                 scores[k][3].push(metrics::compare(&flat, &truth)?);
+                scores[k][5].push(metrics::compare(&soft, &truth)?);
                 let mut corners = Vec::with_capacity(3);
                 let around = light::blend_for(count, l, Blend::Spherical)?;
                 let pairs = around.directions.into_iter().zip(around.vectors);
@@ -354,7 +376,7 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
                 scores[k][4].extend(corners);
                 if let Some(dir) = &args.images {
                     let name = format!("{v}-{}-{}.png", kinds[k], per_light.len() % args.lights);
-                    side_by_side(&dir.join(name), &[&truth, &relit, &flat])?;
+                    side_by_side(&dir.join(name), &[&truth, &relit, &soft, &flat])?;
                 }
                 let last = |i: usize| scores[k][i].last().map_or(f64::NAN, |c| c.masked_psnr);
                 per_light.push(LightScore {
@@ -363,6 +385,7 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
                     light: l.to_array(),
                     masked_psnr: last(0),
                     planar_masked_psnr: last(3),
+                    blended_shadows_masked_psnr: last(5),
                     corners_masked_psnr: corners_psnr,
                 });
                 bar.inc(1);
@@ -380,10 +403,11 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
             light_field: mean(&scores[k][1])?,
             interpolation: mean(&scores[k][2])?,
             planar: mean(&scores[k][3])?,
+            blended_shadows: mean(&scores[k][5])?,
             corners: metrics::mean_comparison(&scores[k][4]),
         });
     }
-    let (s, r) = (median(static_ms), median(relit_ms));
+    let (s, r, b) = (median(static_ms), median(relit_ms), median(blended_ms));
     let report = Report {
         asset: args.asset.display().to_string(),
         adapter: gpu.adapter_summary(),
@@ -396,6 +420,8 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
         static_ms: s,
         relit_ms: r,
         relit_over_static: r / s,
+        blended_ms: b,
+        blended_over_static: b / s,
         kinds: reports,
         per_light,
     };
@@ -404,19 +430,21 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
         report.asset, report.shadows, args.views, args.size, report.adapter
     );
     println!(
-        "frame ms: static {s:.2}, relit {r:.2} ({:.3}×); GPU memory {:.1} MiB, {} bytes per \
-         light state per camera",
+        "frame ms: static {s:.2}, relit {r:.2} ({:.3}×), blended shadows {b:.2} ({:.3}×); GPU \
+         memory {:.1} MiB, {} bytes per light state per camera",
         r / s,
+        b / s,
         report.gpu_bytes as f64 / 1_048_576.0,
         report.bytes_per_light_state_per_camera
     );
     println!(
         "kind      lights  masked  ∩ masks  wrong px  | LF masked  interp masked | planar masked \
-         | corners masked"
+         | blended masked | corners masked"
     );
     for k in &report.kinds {
         println!(
-            "{:<8}  {:>6}  {:>6.2}  {:>7.2}  {:>8.0}  | {:>9.2}  {:>13.2} | {:>13.2} | {:>14.2}",
+            "{:<8}  {:>6}  {:>6.2}  {:>7.2}  {:>8.0}  | {:>9.2}  {:>13.2} | {:>13.2} | {:>14.2} | \
+             {:>14.2}",
             k.kind,
             k.lights,
             k.total.masked_psnr,
@@ -425,6 +453,7 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
             k.light_field.masked_psnr,
             k.interpolation.masked_psnr,
             k.planar.masked_psnr,
+            k.blended_shadows.masked_psnr,
             k.corners.as_ref().map_or(f64::NAN, |c| c.masked_psnr)
         );
     }
