@@ -117,7 +117,10 @@ fn shadow_visible(x: vec3<f32>) -> Shadow {
         return Shadow(true, 0u);
     }
     let loc = locate(sphere_entry(o, d), g_level);
+    let eye_step = g_step;
+    g_step = SHADOW_STEP_SCALE * eye_step;
     let m = march_refined(o, d, t_in, t_out, 1e30, loc.cameras, loc.weights, camera(loc.cameras.x), camera(loc.cameras.y), camera(loc.cameras.z));
+    g_step = eye_step;
     return Shadow(!m.hit, m.fetches);
 }
 
@@ -231,6 +234,7 @@ fn give_back(slot: u32) {
 // How far before the shaded point (in steps) a shadow ray's surface must lie to shadow it: the
 // eye's and the shadow ray's marches each place a surface within the tolerance (half a step).
 const SHADOW_CLEARANCE: f32 = 1.0;
+const SHADOW_STEP_SCALE: f32 = 2.0;
 
 // What `shade` counts per camera for an edge-aware pixel: one footprint and four colour loads.
 const LAYER_SHADE_FETCHES: u32 = 5u;
