@@ -22,7 +22,7 @@ pub use gpu_data::shader_source;
 pub use options::{
     COMPOSITING_VARIABLE, Compositing, DEFAULT_FIXED_STEP, DEFAULT_GUIDE, DEFAULT_REFINED_STEP,
     InteriorBlocks, LIGHT_BLEND_VARIABLE, MAX_GUIDE, MIN_STEP, Method, RenderError, RenderOptions,
-    ResolvedOptions, Switches, UploadOptions,
+    ResolvedOptions, SHADOW_RAYS_VARIABLE, Switches, UploadOptions,
 };
 pub use passes::PASS_TIMING_VARIABLE;
 pub use upload::field_bytes;
