@@ -125,6 +125,7 @@ fn relit_texel(p: vec2<i32>, k: u32) -> RelitTexel {
     let cos_l = max(dot(n, params.light_dir.xyz), 0.0);
     let ratio = select(0.0, min(cos_l / max(denominator, 1e-6), 1.0), denominator > 1e-6);
     let c = min(a.rgb + direct * select(1.0, ratio, w.w > 0.5), vec3<f32>(1.0));
+    let ambient = min(a.rgb, vec3<f32>(1.0));
     // The proxies that weigh in and are lit; the albedo · (1 − ambient) they agree on.
     let brightest = vec3<f32>(max(max(da.r, da.g), da.b), max(max(db.r, db.g), db.b), max(max(dc.r, dc.g), dc.b));
     let weighs = w.xyz > vec3<f32>(0.0);
@@ -133,10 +134,10 @@ fn relit_texel(p: vec2<i32>, k: u32) -> RelitTexel {
     let k_rgb = (lw.x * da + lw.y * db + lw.z * dc) / max(dot(lw, cosines), 1e-6);
     let k_max = max(max(k_rgb.r, k_rgb.g), k_rgb.b);
     let shadowed = weighs & !lit & (cosines * k_max > vec3<f32>(SHADOW_EVIDENCE));
-    let contested = any(lit) & any(shadowed) & (w.w > 0.5);
-    let full = min(a.rgb + k_rgb * cos_l, vec3<f32>(1.0)) - min(a.rgb, vec3<f32>(1.0));
-    let soft = c - min(a.rgb, vec3<f32>(1.0));
-    return RelitTexel(vec4<f32>(c, a.a), soft, full, select(0.0, 1.0, contested));
+    // Read only with shadow rays, which need the normal (`light_weights.w` 1).
+    let contested = any(lit) & any(shadowed);
+    let full = min(a.rgb + k_rgb * cos_l, vec3<f32>(1.0)) - ambient;
+    return RelitTexel(vec4<f32>(c, a.a), c - ambient, full, select(0.0, 1.0, contested));
 }
 
 // Texel p of camera k's colour map: the base state's, or in a relit frame (`params.lit`)
@@ -152,28 +153,30 @@ fn color_texel(p: vec2<i32>, k: u32) -> vec4<f32> {
 // normalized by their sum (four texels: a bilinear sample would mix colours across a
 // silhouette; docs/marcher.md).
 fn layer_color(k: u32, tc: vec2<f32>, bw: vec4<f32>) -> vec4<f32> {
-    let n = i32(params.resolution);
-    let base = vec2<i32>(floor(tc - 0.5));
-    let i0 = clamp(base, vec2<i32>(0), vec2<i32>(n - 1));
-    let i1 = clamp(base + 1, vec2<i32>(0), vec2<i32>(n - 1));
-    let sum = bw.x * color_texel(vec2<i32>(i0.x, i0.y), k)
-        + bw.y * color_texel(vec2<i32>(i1.x, i0.y), k)
-        + bw.z * color_texel(vec2<i32>(i0.x, i1.y), k)
-        + bw.w * color_texel(vec2<i32>(i1.x, i1.y), k);
+    let f = footprint(tc);
+    let sum = bw.x * color_texel(f.xy, k)
+        + bw.y * color_texel(f.zy, k)
+        + bw.z * color_texel(f.xw, k)
+        + bw.w * color_texel(f.zw, k);
     return sum / max(bw.x + bw.y + bw.z + bw.w, 1e-12);
+}
+
+// The 2×2 footprint of texel coordinates tc, clamped to the map: (x, y) its first texel, (z, w)
+// its last; the texels in `Probe::layer_weights`' order are xy, zy, xw, zw.
+fn footprint(tc: vec2<f32>) -> vec4<i32> {
+    let last = vec2<i32>(i32(params.resolution) - 1);
+    let base = vec2<i32>(floor(tc - 0.5));
+    return vec4<i32>(clamp(base, vec2<i32>(0), last), clamp(base + 1, vec2<i32>(0), last));
 }
 
 // `layer_color` in a relit frame, with the footprint's contested parts (`RelitTexel`) blended
 // alike.
 fn relit_layer_color(k: u32, tc: vec2<f32>, bw: vec4<f32>) -> RelitTexel {
-    let n = i32(params.resolution);
-    let base = vec2<i32>(floor(tc - 0.5));
-    let i0 = clamp(base, vec2<i32>(0), vec2<i32>(n - 1));
-    let i1 = clamp(base + 1, vec2<i32>(0), vec2<i32>(n - 1));
-    let t0 = relit_texel(vec2<i32>(i0.x, i0.y), k);
-    let t1 = relit_texel(vec2<i32>(i1.x, i0.y), k);
-    let t2 = relit_texel(vec2<i32>(i0.x, i1.y), k);
-    let t3 = relit_texel(vec2<i32>(i1.x, i1.y), k);
+    let f = footprint(tc);
+    let t0 = relit_texel(f.xy, k);
+    let t1 = relit_texel(f.zy, k);
+    let t2 = relit_texel(f.xw, k);
+    let t3 = relit_texel(f.zw, k);
     let inv = 1.0 / max(bw.x + bw.y + bw.z + bw.w, 1e-12);
     let wc = bw * vec4<f32>(t0.contested, t1.contested, t2.contested, t3.contested) * inv;
     return RelitTexel(

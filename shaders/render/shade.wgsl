@@ -234,6 +234,8 @@ fn give_back(slot: u32) {
 // How far before the shaded point (in steps) a shadow ray's surface must lie to shadow it: the
 // eye's and the shadow ray's marches each place a surface within the tolerance (half a step).
 const SHADOW_CLEARANCE: f32 = 1.0;
+// A shadow ray's step, in the eye's steps: it only has to find whether a surface lies before
+// the point, not where (docs/marcher.md, "Relit frames").
 const SHADOW_STEP_SCALE: f32 = 2.0;
 
 // What `shade` counts per camera for an edge-aware pixel: one footprint and four colour loads.

@@ -246,7 +246,8 @@ fn side_by_side(path: &std::path::Path, frames: &[&Frame]) -> Result<()> {
         .with_context(|| format!("cannot write {}", path.display()))
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+fn median(values: &[f64]) -> f64 {
+    let mut v = values.to_vec();
     v.sort_by(f64::total_cmp);
     v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
@@ -411,13 +412,15 @@ pub(super) fn bench_lights(args: &LightsArgs) -> Result<()> {
     // Each frame over the static one timed beside it (the same view, back to back): the
     // median of those ratios does not mix views of different cost, nor drift.
     let ratio = |frames: &[f64], base: &[f64]| {
-        median(frames.iter().zip(base).map(|(f, b)| f / b).collect())
+        median(
+            &frames
+                .iter()
+                .zip(base)
+                .map(|(f, b)| f / b)
+                .collect::<Vec<_>>(),
+        )
     };
-    let (s, r, b) = (
-        median(static_ms.clone()),
-        median(relit_ms.clone()),
-        median(blended_ms.clone()),
-    );
+    let (s, r, b) = (median(&static_ms), median(&relit_ms), median(&blended_ms));
     let report = Report {
         asset: args.asset.display().to_string(),
         adapter: gpu.adapter_summary(),
