@@ -171,8 +171,8 @@ fn main() -> Result<()> {
     }
     let report = json!({
         "asset": args.asset.display().to_string(),
-        "cameras": header.geometry.camera_count,
-        "resolution": header.geometry.resolution_px,
+        "cameras": header.camera_count(),
+        "resolution": header.image_size()[0],
         "views": args.views,
         "size": args.size,
         "seed": args.seed,

@@ -797,7 +797,7 @@ pub fn calibrate(
     let mut size = Vec::new();
     for pair in assets.chunks_exact(2) {
         let (full, depth8) = (&pair[0], &pair[1]);
-        let resolution = full.header().geometry.resolution_px;
+        let resolution = full.header().image_size()[0];
         for depth_bits in [16, 8] {
             let psnr = measure_psnr(renderer, full, depth_bits, &CAMERA_COUNTS, &views, &truths)?;
             for (&cameras, masked_psnr) in CAMERA_COUNTS.iter().zip(psnr) {

@@ -307,7 +307,7 @@ impl Calibration {
             0,
             CALIBRATION_SIZE,
         );
-        let max_level = usize::from(asset.header().geometry.camera_level).min(3);
+        let max_level = usize::from(asset.header().camera_level().unwrap_or(0)).min(3);
         let grid = Grid {
             cameras: CAMERA_COUNTS[..=max_level].to_vec(),
             steps: CALIBRATION_STEPS.to_vec(),

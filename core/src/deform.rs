@@ -325,7 +325,7 @@ pub fn changed_pages(
     bytes_per_texel: usize,
     tolerance: u16,
 ) -> Vec<u32> {
-    let side = grid.resolution_px() as usize;
+    let side = grid.width() as usize;
     let differs = |at: usize| -> bool {
         let (a, b) = (
             &base[at..at + bytes_per_texel],

@@ -427,8 +427,8 @@ impl Quality {
     /// automatic-LOD level left.
     pub fn plan(&self, header: &AssetHeader) -> Result<Plan, QualityError> {
         self.validate()?;
-        let max_level = u32::from(header.geometry.camera_level);
-        let max_cameras = header.geometry.camera_count;
+        let max_level = u32::from(header.camera_level().unwrap_or(0));
+        let max_cameras = header.camera_count();
         let options = self.options();
         options.resolve(max_level)?;
         let calibration = |how: &'static str| -> Result<Calibration, QualityError> {

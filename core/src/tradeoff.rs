@@ -82,7 +82,7 @@ impl Grid {
     /// tolerance ½ and 1 step, both methods (the default one with its default guide), its depth precision and 8 bits, 256²
     /// and 512². 96–192 settings.
     pub fn default_for(asset: &AssetFile) -> Grid {
-        let max_level = usize::from(asset.header().geometry.camera_level).min(3);
+        let max_level = usize::from(asset.header().camera_level().unwrap_or(0)).min(3);
         Grid {
             cameras: CAMERA_COUNTS[..=max_level].to_vec(),
             steps: vec![1.0 / 16.0, 1.0 / 32.0, 1.0 / 64.0],
@@ -146,7 +146,7 @@ impl Grid {
         if self.len() > 10_000 {
             return bad(format!("{} settings: at most 10000", self.len()));
         }
-        let max_level = u32::from(asset.header().geometry.camera_level);
+        let max_level = u32::from(asset.header().camera_level().unwrap_or(0));
         for &c in &self.cameras {
             match geometry::level_for_camera_count(c) {
                 Some(l) if l <= max_level => {}

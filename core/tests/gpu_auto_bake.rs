@@ -98,8 +98,8 @@ fn the_chosen_bake_measures_what_the_model_predicted() {
     // The asset holds the chosen setting only, with the report.
     let asset = AssetFile::from_bytes(baked.bytes.clone()).expect("asset");
     let header = asset.header();
-    assert_eq!(header.geometry.camera_count, setting.cameras);
-    assert_eq!(header.geometry.resolution_px, setting.resolution);
+    assert_eq!(header.camera_count(), setting.cameras);
+    assert_eq!(header.image_size()[0], setting.resolution);
     let depth = if setting.depth_bits == 8 {
         Encoding::R8
     } else {

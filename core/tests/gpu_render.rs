@@ -347,7 +347,7 @@ fn bake_places_silhouettes_between_texel_centres() {
 fn without_edges(asset: &AssetFile) -> AssetFile {
     let header = asset.header().clone();
     let mut images = Vec::new();
-    for k in 0..header.geometry.camera_count {
+    for k in 0..header.camera_count() {
         let key = |channel| ImageKey::new(0, 0, k, channel);
         let depth = asset.read_image(key(Channel::Depth)).expect("depth");
         let mut color = asset.read_image(key(Channel::Color)).expect("colour");
@@ -2153,7 +2153,7 @@ fn opaque_layers_composite_alike_on_the_gpu_and_the_cpu() {
         .to_vec();
     let mut images = Vec::new();
     for layer in 0..2u16 {
-        for k in 0..header.geometry.camera_count {
+        for k in 0..header.camera_count() {
             let key = |channel| ImageKey::new(0, 0, k, channel);
             let mut color = asset.read_image(key(Channel::Color)).expect("colour");
             if layer == 1 {

@@ -305,13 +305,13 @@ impl PyLightField {
     /// Number of cameras baked (12, 42, 162 or 642).
     #[getter]
     fn cameras(&self) -> u32 {
-        self.asset.header().geometry.camera_count
+        self.asset.header().camera_count()
     }
 
     /// Side of each camera's parabolic map, pixels.
     #[getter]
     fn resolution(&self) -> u32 {
-        self.asset.header().geometry.resolution_px
+        self.asset.header().image_size()[0]
     }
 
     /// The object's bounding sphere ``((cx, cy, cz), radius)``, world units.
@@ -520,8 +520,8 @@ impl PyLightField {
         format!(
             "LightField(source={:?}, cameras={}, resolution={}, bytes={})",
             h.provenance.source_name,
-            h.geometry.camera_count,
-            h.geometry.resolution_px,
+            h.camera_count(),
+            h.image_size()[0],
             self.asset.file_len()
         )
     }

@@ -360,8 +360,9 @@ impl Layout {
 
     /// Bytes of a whole image of `channel` (≤ 8192² × 4, so it fits `usize` on 64-bit hosts).
     pub fn image_bytes(&self, channel: Channel) -> u64 {
-        let side = u64::from(self.grid.resolution_px());
-        side * side * u64::from(self.bytes_per_texel(channel))
+        u64::from(self.grid.width())
+            * u64::from(self.grid.height())
+            * u64::from(self.bytes_per_texel(channel))
     }
 
     /// Decoded bytes of `page` of a `channel` image (≤ 4096² × 4 < 2³²).

@@ -36,7 +36,12 @@ pub fn camera_count_for_level(level: u8) -> Option<u32> {
 pub enum AssetKind {
     /// Cameras on a sphere around the object, each recording the opposite hemisphere (DESIGN §4).
     Spherical,
+    /// A uv grid of cameras imaging an st rectangle (DESIGN §9; format version 5).
+    TwoPlane,
 }
+
+/// The first format version with the kind `two_plane`.
+pub const TWO_PLANE_SINCE: u32 = 5;
 
 /// How a camera's hemisphere is mapped to its square image.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -59,6 +64,35 @@ pub struct SphericalGeometry {
     pub resolution_px: u32,
     /// Hemisphere-to-image mapping.
     pub map: MapProjection,
+}
+
+/// The planes of a two-plane light field (DESIGN §9's JSON under `planes`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TwoPlaneGeometry {
+    /// The uv and st rectangles, the camera grid and the st resolution.
+    pub planes: crate::two_plane::TwoPlanes,
+}
+
+/// What the images of an asset are: a spherical camera set, or a uv grid of cameras over an st
+/// rectangle. Which one must match [`AssetHeader::kind`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Geometry {
+    /// Kind `spherical`.
+    Spherical(SphericalGeometry),
+    /// Kind `two_plane`.
+    TwoPlane(TwoPlaneGeometry),
+}
+
+impl Geometry {
+    /// The kind this geometry belongs to.
+    pub fn kind(&self) -> AssetKind {
+        match self {
+            Geometry::Spherical(_) => AssetKind::Spherical,
+            Geometry::TwoPlane(_) => AssetKind::TwoPlane,
+        }
+    }
 }
 
 /// The light-field frame: the object's bounding sphere in world units.
@@ -279,7 +313,7 @@ pub struct AssetHeader {
     /// Light-field kind; decides the geometry.
     pub kind: AssetKind,
     /// Camera set and image size.
-    pub geometry: SphericalGeometry,
+    pub geometry: Geometry,
     /// The object's bounding sphere in world units.
     pub frame: LfFrame,
     /// Side of a page in pixels: a power of two in 16..=4096.
@@ -317,12 +351,12 @@ impl AssetHeader {
         let header = Self {
             format_version: MIN_FORMAT_VERSION,
             kind: AssetKind::Spherical,
-            geometry: SphericalGeometry {
+            geometry: Geometry::Spherical(SphericalGeometry {
                 camera_level,
                 camera_count,
                 resolution_px,
                 map: MapProjection::Parabolic,
-            },
+            }),
             frame,
             page_size: DEFAULT_PAGE_SIZE,
             channels: vec![
@@ -359,26 +393,113 @@ impl AssetHeader {
             .map(|c| c.encoding)
     }
 
+    /// A two-plane asset's header (format version 5): RGBA8 colour, `r32f` depth (the stored
+    /// depth `|hit − C| / |S − C|` of DESIGN §9, `+inf` where nothing is hit), one layer, one
+    /// state. `frame` is the bounding sphere of the two rectangles' corners.
+    pub fn new_two_plane(
+        planes: crate::two_plane::TwoPlanes,
+        page_size: u32,
+        provenance: Provenance,
+    ) -> Result<Self> {
+        planes
+            .validate()
+            .map_err(|e| AssetError::Header(e.to_string()))?;
+        let frame = two_plane_frame(&planes);
+        let header = Self {
+            format_version: TWO_PLANE_SINCE,
+            kind: AssetKind::TwoPlane,
+            geometry: Geometry::TwoPlane(TwoPlaneGeometry { planes }),
+            frame,
+            page_size,
+            channels: vec![
+                ChannelDesc {
+                    name: Channel::Color,
+                    encoding: Encoding::Rgba8,
+                },
+                ChannelDesc {
+                    name: Channel::Depth,
+                    encoding: Encoding::R32F,
+                },
+            ],
+            layers: vec![LayerDesc {
+                name: "default".to_owned(),
+                default_opacity: 1.0,
+            }],
+            layer_order: LayerOrder::Depth,
+            states: vec![StateDesc {
+                name: "base".to_owned(),
+                params: serde_json::Map::new(),
+            }],
+            provenance,
+            quality: None,
+        };
+        header.validate()?;
+        Ok(header)
+    }
+
+    /// The spherical geometry, or [`AssetError::Kind`] naming what needed it.
+    ///
+    /// # Errors
+    /// [`AssetError::Kind`] for any other kind.
+    pub fn spherical(&self, what: &'static str) -> Result<&SphericalGeometry> {
+        match &self.geometry {
+            Geometry::Spherical(g) => Ok(g),
+            other => Err(AssetError::Kind {
+                what,
+                kind: other.kind(),
+            }),
+        }
+    }
+
+    /// The icosahedron level of a spherical asset's camera set, `None` for other kinds.
+    pub fn camera_level(&self) -> Option<u8> {
+        match &self.geometry {
+            Geometry::Spherical(g) => Some(g.camera_level),
+            Geometry::TwoPlane(_) => None,
+        }
+    }
+
+    /// The planes of a two-plane asset, `None` for other kinds.
+    pub fn two_plane(&self) -> Option<&crate::two_plane::TwoPlanes> {
+        match &self.geometry {
+            Geometry::TwoPlane(g) => Some(&g.planes),
+            Geometry::Spherical(_) => None,
+        }
+    }
+
     /// Number of cameras (as declared; [`Self::validate`] checks it against the level).
     pub fn camera_count(&self) -> u32 {
-        self.geometry.camera_count
+        match &self.geometry {
+            Geometry::Spherical(g) => g.camera_count,
+            Geometry::TwoPlane(g) => g.planes.camera_count(),
+        }
+    }
+
+    /// Width and height of every image in texels: `resolution_px` squared for a spherical
+    /// asset, the st resolution `[ns, nt]` for a two-plane one.
+    pub fn image_size(&self) -> [u32; 2] {
+        match &self.geometry {
+            Geometry::Spherical(g) => [g.resolution_px; 2],
+            Geometry::TwoPlane(g) => g.planes.st.resolution,
+        }
     }
 
     /// How each image is cut into pages.
     pub fn page_grid(&self) -> Result<PageGrid> {
-        PageGrid::new(self.geometry.resolution_px, self.page_size).ok_or_else(|| {
+        let [width, height] = self.image_size();
+        PageGrid::rect(width, height, self.page_size).ok_or_else(|| {
             AssetError::Header(format!(
-                "resolution {} px with page size {} px gives no valid page grid",
-                self.geometry.resolution_px, self.page_size
+                "images of {width}x{height} px with page size {} px give no valid page grid",
+                self.page_size
             ))
         })
     }
 
     /// Bytes of one whole image of `channel`, or `None` if the channel is not declared.
     pub fn image_bytes(&self, channel: Channel) -> Option<u64> {
-        let side = u64::from(self.geometry.resolution_px);
+        let [w, h] = self.image_size().map(u64::from);
         let bpp = u64::from(self.encoding(channel)?.bytes_per_texel());
-        side.checked_mul(side)?.checked_mul(bpp)
+        w.checked_mul(h)?.checked_mul(bpp)
     }
 
     /// Bytes of every image the header declares once decoded: cameras × `resolution_px`² ×
@@ -387,16 +508,16 @@ impl AssetHeader {
     /// is what a reader must be ready for before it trusts the file. Saturates at `u64::MAX`
     /// instead of overflowing, so a forged header cannot wrap it to a small number.
     pub fn decoded_bytes(&self) -> u64 {
-        let side = u64::from(self.geometry.resolution_px);
+        let [width, height] = self.image_size().map(u64::from);
         let texel_bytes: u64 = self
             .channels
             .iter()
             .map(|c| u64::from(c.encoding.bytes_per_texel()))
             .fold(0, u64::saturating_add);
         [
-            u64::from(self.geometry.camera_count),
-            side,
-            side,
+            u64::from(self.camera_count()),
+            width,
+            height,
             texel_bytes,
             self.layers.len() as u64,
             self.states.len() as u64,
@@ -405,13 +526,18 @@ impl AssetHeader {
         .fold(1, u64::saturating_mul)
     }
 
-    /// The lowest format version that can express this header: 3 with layers in ray order, 2
-    /// with a version-2 encoding, else 1.
+    /// The lowest format version that can express this header: 5 for a two-plane light field,
+    /// 3 with layers in ray order, 2 with a version-2 encoding, else 1.
     pub fn required_version(&self) -> u32 {
         let order = if self.layer_order.is_depth() {
             MIN_FORMAT_VERSION
         } else {
             LAYER_ORDER_SINCE
+        };
+        let order = if self.kind == AssetKind::TwoPlane {
+            order.max(TWO_PLANE_SINCE)
+        } else {
+            order
         };
         self.channels
             .iter()
@@ -464,27 +590,16 @@ impl AssetHeader {
                 self.layer_order, self.format_version
             ));
         }
-        let g = &self.geometry;
-        match camera_count_for_level(g.camera_level) {
-            None => {
-                return bad(format!(
-                    "camera level {} is above the maximum {MAX_CAMERA_LEVEL}",
-                    g.camera_level
-                ));
-            }
-            Some(count) if count != g.camera_count => {
-                return bad(format!(
-                    "camera_count {} does not match camera level {} (which has {count} cameras)",
-                    g.camera_count, g.camera_level
-                ));
-            }
-            Some(_) => {}
-        }
-        if !(1..=MAX_RESOLUTION_PX).contains(&g.resolution_px) {
+        if self.geometry.kind() != self.kind {
             return bad(format!(
-                "resolution {} px is outside 1..={MAX_RESOLUTION_PX}",
-                g.resolution_px
+                "kind {:?} does not match its geometry (which describes a {:?} light field)",
+                self.kind,
+                self.geometry.kind()
             ));
+        }
+        match &self.geometry {
+            Geometry::Spherical(g) => Self::validate_spherical(g)?,
+            Geometry::TwoPlane(g) => self.validate_two_plane(g)?,
         }
         if !self.page_size.is_power_of_two()
             || !(MIN_PAGE_SIZE..=MAX_PAGE_SIZE).contains(&self.page_size)
@@ -520,6 +635,55 @@ impl AssetHeader {
             return bad(format!(
                 "provenance bake_ms {bake_ms} is not a finite, non-negative number"
             ));
+        }
+        Ok(())
+    }
+
+    fn validate_spherical(g: &SphericalGeometry) -> Result<()> {
+        let bad = |msg: String| Err(AssetError::Header(msg));
+        match camera_count_for_level(g.camera_level) {
+            None => {
+                return bad(format!(
+                    "camera level {} is above the maximum {MAX_CAMERA_LEVEL}",
+                    g.camera_level
+                ));
+            }
+            Some(count) if count != g.camera_count => {
+                return bad(format!(
+                    "camera_count {} does not match camera level {} (which has {count} cameras)",
+                    g.camera_count, g.camera_level
+                ));
+            }
+            Some(_) => {}
+        }
+        if !(1..=MAX_RESOLUTION_PX).contains(&g.resolution_px) {
+            return bad(format!(
+                "resolution {} px is outside 1..={MAX_RESOLUTION_PX}",
+                g.resolution_px
+            ));
+        }
+        Ok(())
+    }
+
+    fn validate_two_plane(&self, g: &TwoPlaneGeometry) -> Result<()> {
+        let bad = |msg: String| Err(AssetError::Header(msg));
+        if self.format_version < TWO_PLANE_SINCE {
+            return bad(format!(
+                "kind two_plane needs format version {TWO_PLANE_SINCE} (the header says {})",
+                self.format_version
+            ));
+        }
+        if let Err(e) = g.planes.validate() {
+            return bad(format!("two-plane geometry: {e}"));
+        }
+        if self.encoding(Channel::Depth) != Some(Encoding::R32F)
+            || self.encoding(Channel::Color) != Some(Encoding::Rgba8)
+        {
+            return bad(
+                "a two-plane light field stores rgba8 colour and r32f depth (its depth is not \
+                 bounded by 1)"
+                    .to_owned(),
+            );
         }
         Ok(())
     }
@@ -596,12 +760,40 @@ fn validate_names<'a>(
     Ok(())
 }
 
-/// How a square image is cut into square pages, row-major, edge pages smaller.
+/// The frame recorded for a two-plane light field: the bounding sphere (about the mean) of the
+/// eight corners of its two rectangles.
+pub fn two_plane_frame(planes: &crate::two_plane::TwoPlanes) -> LfFrame {
+    let (right, up) = planes.axes();
+    let mut corners = Vec::with_capacity(8);
+    for (center, [w, h]) in [
+        (planes.uv.center, planes.uv.size),
+        (planes.st.center, planes.st.size),
+    ] {
+        let c = glam::DVec3::from(center);
+        for (sx, sy) in [(-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)] {
+            corners.push(c + sx * w * right + sy * h * up);
+        }
+    }
+    let center = corners.iter().copied().sum::<glam::DVec3>() / 8.0;
+    let radius = corners
+        .iter()
+        .map(|p| (*p - center).length())
+        .fold(0.0, f64::max);
+    LfFrame {
+        center: center.to_array(),
+        radius,
+    }
+}
+
+/// How an image is cut into square pages, row-major, pages on the right and bottom edges
+/// smaller.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct PageGrid {
-    resolution_px: u32,
+    width: u32,
+    height: u32,
     page_size: u32,
     pages_per_row: u32,
+    pages_per_column: u32,
 }
 
 /// A page's pixel rectangle within its image.
@@ -628,21 +820,35 @@ impl PageGrid {
     /// A grid for `resolution_px`² images and `page_size`² pages; `None` if either is zero or
     /// the page count does not fit a `u32`.
     pub fn new(resolution_px: u32, page_size: u32) -> Option<Self> {
-        if resolution_px == 0 || page_size == 0 {
+        Self::rect(resolution_px, resolution_px, page_size)
+    }
+
+    /// A grid for `width × height` images and `page_size`² pages; `None` if any is zero or the
+    /// page count does not fit a `u32`.
+    pub fn rect(width: u32, height: u32, page_size: u32) -> Option<Self> {
+        if width == 0 || height == 0 || page_size == 0 {
             return None;
         }
-        let pages_per_row = resolution_px.div_ceil(page_size);
-        pages_per_row.checked_mul(pages_per_row)?;
+        let pages_per_row = width.div_ceil(page_size);
+        let pages_per_column = height.div_ceil(page_size);
+        pages_per_row.checked_mul(pages_per_column)?;
         Some(Self {
-            resolution_px,
+            width,
+            height,
             page_size,
             pages_per_row,
+            pages_per_column,
         })
     }
 
-    /// Image side in pixels.
-    pub fn resolution_px(&self) -> u32 {
-        self.resolution_px
+    /// Image width in pixels.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Image height in pixels.
+    pub fn height(&self) -> u32 {
+        self.height
     }
 
     /// Page side in pixels.
@@ -650,14 +856,14 @@ impl PageGrid {
         self.page_size
     }
 
-    /// Pages per row (and per column): `ceil(resolution / page_size)`.
+    /// Pages per row: `ceil(width / page_size)`.
     pub fn pages_per_row(&self) -> u32 {
         self.pages_per_row
     }
 
     /// Pages per image.
     pub fn page_count(&self) -> u32 {
-        self.pages_per_row * self.pages_per_row
+        self.pages_per_row * self.pages_per_column
     }
 
     /// The rectangle of page `page = page_row · pages_per_row + page_col`, `None` past the end.
@@ -670,8 +876,8 @@ impl PageGrid {
         Some(PageRect {
             x,
             y,
-            width: self.page_size.min(self.resolution_px - x),
-            height: self.page_size.min(self.resolution_px - y),
+            width: self.page_size.min(self.width - x),
+            height: self.page_size.min(self.height - y),
         })
     }
 }

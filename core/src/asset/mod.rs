@@ -32,10 +32,11 @@ pub use format::{
     Codec, INDEX_ENTRY_LEN, IndexEntry, MAGIC, MAX_HEADER_LEN, PREAMBLE_LEN, Preamble, zstd_bound,
 };
 pub use header::{
-    AssetHeader, AssetKind, Channel, ChannelDesc, DEFAULT_PAGE_SIZE, Encoding, LAYER_ORDER_SINCE,
-    LayerDesc, LayerOrder, LfFrame, MAX_CAMERA_LEVEL, MAX_LAYERS, MAX_PAGE_SIZE, MAX_RESOLUTION_PX,
-    MAX_STATES, MIN_PAGE_SIZE, MapProjection, PageGrid, PageRect, Provenance, SphericalGeometry,
-    StateDesc, camera_count_for_level,
+    AssetHeader, AssetKind, Channel, ChannelDesc, DEFAULT_PAGE_SIZE, Encoding, Geometry,
+    LAYER_ORDER_SINCE, LayerDesc, LayerOrder, LfFrame, MAX_CAMERA_LEVEL, MAX_LAYERS, MAX_PAGE_SIZE,
+    MAX_RESOLUTION_PX, MAX_STATES, MIN_PAGE_SIZE, MapProjection, PageGrid, PageRect, Provenance,
+    SphericalGeometry, StateDesc, TWO_PLANE_SINCE, TwoPlaneGeometry, camera_count_for_level,
+    two_plane_frame,
 };
 pub use reader::AssetFile;
 pub use writer::{AssetWriter, MemoryWriter, encode_asset, with_header, write_asset};
@@ -46,7 +47,8 @@ pub use writer::{AssetWriter, MemoryWriter, encode_asset, with_header, write_ass
 /// lowest version that can express its asset ([`AssetHeader::required_version`]), so assets
 /// without them stay version 1 or 2. Version 4 lets a state other than 0 store only some pages
 /// of an image (deformation states store the pages that changed); the others read from state 0.
-pub const FORMAT_VERSION: u32 = 4;
+/// Version 5 adds the kind `two_plane` (DESIGN §9).
+pub const FORMAT_VERSION: u32 = 5;
 /// The first version whose non-base states may store part of an image.
 pub const PARTIAL_IMAGES_SINCE: u32 = 4;
 /// The oldest version this build reads.
@@ -143,6 +145,14 @@ pub enum AssetError {
     /// The JSON header is malformed or describes an asset outside the format's limits.
     #[error("invalid header: {0}")]
     Header(String),
+    /// The asset is of a kind the operation does not handle.
+    #[error("{what} needs a spherical light field; this asset is {kind:?}")]
+    Kind {
+        /// The operation.
+        what: &'static str,
+        /// The asset's kind.
+        kind: AssetKind,
+    },
     /// The binary page index is malformed or inconsistent with the header.
     #[error("invalid index: {0}")]
     Index(String),

@@ -240,7 +240,7 @@ impl AssetFile {
     pub fn read_image(&self, key: ImageKey) -> Result<Vec<u8>> {
         let entries = self.page_entries(key)?;
         let bpp = self.layout.bytes_per_texel(key.channel) as usize;
-        let side = self.layout.grid.resolution_px() as usize;
+        let side = self.layout.grid.width() as usize;
         // Validated header: ≤ 8192² × 4 bytes.
         let mut image = vec![0u8; self.layout.image_bytes(key.channel) as usize];
         let mut decoder = PageDecoder::new()?;

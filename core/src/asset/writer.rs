@@ -456,7 +456,7 @@ fn compress_pages(
     let mut compressor = zstd::bulk::Compressor::new(ZSTD_LEVEL)
         .map_err(|e| encode_err(pages.first().copied().unwrap_or(0), e))?;
     let bpp = layout.bytes_per_texel(key.channel) as usize;
-    let side = layout.grid.resolution_px() as usize;
+    let side = layout.grid.width() as usize;
     let mut out = Vec::with_capacity(pages.len());
     for (page, rect) in pages
         .iter()

@@ -21,8 +21,8 @@ use super::{GpuLightField, Renderer};
 /// and every proxy direction, [`crate::light`]). The upload stages one layer's worth again on the host
 /// while it runs. Saturates instead of overflowing.
 pub fn field_bytes(header: &AssetHeader) -> u64 {
-    let side = u64::from(header.geometry.resolution_px);
-    let layers = u64::from(Gpu::padded_layers(header.geometry.camera_count));
+    let side = u64::from(header.image_size()[0]);
+    let layers = u64::from(Gpu::padded_layers(header.camera_count()));
     // Deformation states: a whole copy of the base state's maps each.
     let deformations = (0..header.states.len())
         .filter(|&s| crate::deform::is_geometry_state(header, s))
@@ -41,8 +41,8 @@ pub fn field_bytes(header: &AssetHeader) -> u64 {
 /// [`field_bytes`] of the base state alone: what an upload that leaves the other states out
 /// allocates.
 fn base_field_bytes(header: &AssetHeader) -> u64 {
-    let side = u64::from(header.geometry.resolution_px);
-    let layers = u64::from(Gpu::padded_layers(header.geometry.camera_count));
+    let side = u64::from(header.image_size()[0]);
+    let layers = u64::from(Gpu::padded_layers(header.camera_count()));
     [
         layers,
         header.layers.len() as u64,
@@ -80,9 +80,10 @@ impl Renderer {
         options: &UploadOptions,
     ) -> Result<GpuLightField, RenderError> {
         let header = asset.header();
-        let n = header.geometry.resolution_px;
-        let cameras = header.geometry.camera_count;
-        let max_level = u32::from(header.geometry.camera_level);
+        let geometry = header.spherical("the spherical renderer")?;
+        let n = geometry.resolution_px;
+        let cameras = geometry.camera_count;
+        let max_level = u32::from(geometry.camera_level);
         let depth_encoding = header
             .encoding(Channel::Depth)
             .ok_or_else(|| AssetError::Header("no depth channel".to_owned()))?;
@@ -202,8 +203,8 @@ impl Renderer {
         let header = asset.header();
         let layer_count = u16::try_from(header.layers.len())
             .map_err(|_| AssetError::Header("too many layers".to_owned()))?;
-        let n = header.geometry.resolution_px;
-        let cameras = header.geometry.camera_count;
+        let n = header.image_size()[0];
+        let cameras = header.camera_count();
         let mut maps = Vec::with_capacity(header.layers.len());
         let mut union = VisibleBox::default();
         for layer in 0..layer_count {
@@ -311,8 +312,8 @@ impl Renderer {
         let Some(states) = LightStates::of(header)? else {
             return Ok(None);
         };
-        let n = header.geometry.resolution_px;
-        let cameras = header.geometry.camera_count;
+        let n = header.image_size()[0];
+        let cameras = header.camera_count();
         let upload = |state: u16| -> Result<(wgpu::Texture, wgpu::TextureView), RenderError> {
             let mut colors = Vec::with_capacity(cameras as usize);
             for k in 0..cameras {

@@ -294,7 +294,7 @@ fn print_states(path: &std::path::Path) -> Result<()> {
             state.name,
             100.0 * state.fraction,
             state.cameras,
-            asset.header().geometry.camera_count
+            asset.header().camera_count()
         );
     }
     Ok(())

@@ -181,7 +181,9 @@ pub(super) fn bench_tradeoff(args: &TradeoffArgs) -> Result<()> {
     let png = out.join("pareto.png");
     let title = format!(
         "{stem}: {} cameras, {} px maps, {} views/setting — speed against accuracy",
-        header.geometry.camera_count, header.geometry.resolution_px, args.views
+        header.camera_count(),
+        header.image_size()[0],
+        args.views
     );
     plot::pareto_png(&png, &title, &points)?;
     let mut front: Vec<&tradeoff::Point> = points.iter().filter(|p| p.pareto).collect();

@@ -300,8 +300,8 @@ pub(super) fn eval(args: &EvalArgs) -> Result<()> {
         mean_direct_ms: (!direct.is_empty())
             .then(|| direct.iter().sum::<f64>() / direct.len() as f64),
         asset: args.asset.display().to_string(),
-        cameras: header.geometry.camera_count,
-        resolution: header.geometry.resolution_px,
+        cameras: header.camera_count(),
+        resolution: header.image_size()[0],
         asset_bytes: asset.file_len(),
         radius: header.frame.radius,
         settings,

@@ -1,5 +1,6 @@
 //! `lumigraph info`: an asset's header, every page verified.
 
+use lumigraph_core::asset::Geometry;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
@@ -29,13 +30,28 @@ pub(super) fn info(args: &InfoArgs) -> Result<()> {
         h.format_version,
         asset.file_len()
     );
-    println!(
-        "spherical light field: {} cameras (level {}), {}×{} px parabolic maps",
-        h.geometry.camera_count,
-        h.geometry.camera_level,
-        h.geometry.resolution_px,
-        h.geometry.resolution_px
-    );
+    match &h.geometry {
+        Geometry::Spherical(g) => println!(
+            "spherical light field: {} cameras (level {}), {}×{} px parabolic maps",
+            g.camera_count, g.camera_level, g.resolution_px, g.resolution_px
+        ),
+        Geometry::TwoPlane(g) => {
+            let p = &g.planes;
+            println!(
+                "two-plane light field: {}×{} cameras on a {}×{} uv rectangle, {}×{} px images \
+                 of a {}×{} st rectangle, {} apart",
+                p.uv.grid[0],
+                p.uv.grid[1],
+                p.uv.size[0],
+                p.uv.size[1],
+                p.st.resolution[0],
+                p.st.resolution[1],
+                p.st.size[0],
+                p.st.size[1],
+                p.separation()
+            );
+        }
+    }
     println!(
         "decoded size: {} (every image of {} layer(s) × {} state(s)); GPU memory when served: {}",
         describe_bytes(h.decoded_bytes()),
@@ -90,7 +106,7 @@ pub(super) fn info(args: &InfoArgs) -> Result<()> {
             state.stored_pages,
             state.total_pages,
             state.cameras,
-            h.geometry.camera_count,
+            h.camera_count(),
             describe_bytes(state.stored_bytes)
         );
     }

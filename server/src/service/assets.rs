@@ -145,8 +145,8 @@ impl LoadedAsset {
                 .ok()
                 .and_then(|v| v.as_str().map(str::to_owned))
                 .unwrap_or_default(),
-            camera_count: h.geometry.camera_count,
-            resolution_px: h.geometry.resolution_px,
+            camera_count: h.camera_count(),
+            resolution_px: h.image_size()[0],
             layers: h.layers.iter().map(|l| l.name.clone()).collect(),
             layer_opacities: h.layers.iter().map(|l| l.default_opacity).collect(),
             states: h.states.iter().map(|s| s.name.clone()).collect(),
@@ -352,13 +352,12 @@ impl AssetStore {
         let decoded = header.decoded_bytes();
         let max_decoded = self.limits.max_decoded_bytes;
         if decoded > max_decoded {
-            let g = &header.geometry;
+            let [width, height] = header.image_size();
             return Err(LoadError::OverLimit(format!(
-                "the asset decodes to {} ({} cameras × {}² px × {} layers × {} states), above the \
-                 limit of {} per asset (--max-asset-decoded-bytes)",
+                "the asset decodes to {} ({} cameras × {width}×{height} px × {} layers × {} \
+                 states), above the limit of {} per asset (--max-asset-decoded-bytes)",
                 describe_bytes(decoded),
-                g.camera_count,
-                g.resolution_px,
+                header.camera_count(),
                 header.layers.len(),
                 header.states.len(),
                 describe_bytes(max_decoded),

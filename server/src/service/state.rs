@@ -758,8 +758,8 @@ impl AppState {
                 Ok(Ok(asset)) => {
                     tracing::info!(
                         id = asset.id,
-                        cameras = asset.header.geometry.camera_count,
-                        resolution_px = asset.header.geometry.resolution_px,
+                        cameras = asset.header.camera_count(),
+                        resolution_px = asset.header.image_size()[0],
                         "asset loaded"
                     );
                     self.inner.assets.insert(asset);
@@ -925,10 +925,10 @@ fn written_report(path: &std::path::Path) -> Result<serde_json::Value, String> {
     let file = lumigraph_core::asset::AssetFile::open(path)
         .and_then(|file| file.verify_all().map(|()| file))
         .map_err(|e| format!("the baked asset cannot be read: {e}"))?;
-    let geometry = &file.header().geometry;
+    let header = file.header();
     Ok(serde_json::json!({
-        "cameras": geometry.camera_count,
-        "resolution": geometry.resolution_px,
+        "cameras": header.camera_count(),
+        "resolution": header.image_size()[0],
         "asset_bytes": file.file_len(),
         "resumed": true,
     }))
