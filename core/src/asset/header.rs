@@ -444,7 +444,7 @@ impl AssetHeader {
     pub fn spherical(&self, what: &'static str) -> Result<&SphericalGeometry> {
         match &self.geometry {
             Geometry::Spherical(g) => Ok(g),
-            other => Err(AssetError::Kind {
+            other @ Geometry::TwoPlane(_) => Err(AssetError::Kind {
                 what,
                 kind: other.kind(),
             }),
