@@ -413,6 +413,164 @@ pub fn capture(
     Ok(frames)
 }
 
+/// Planes fitted to a bounding sphere (`center`, `radius`): the st plane through the centre,
+/// facing `axis` (the side the cameras are on), the uv plane `3·radius` from it, a uv rectangle
+/// of `2·radius` square (cameras spread over the object's diameter), and the st rectangle just
+/// large enough that every camera sees the whole sphere: half side
+/// `(r + u)·D/(D − r) − u` with `u = radius` the uv half side and `D` the separation. `right`
+/// and `up` follow world +y as up (world +z when `axis` is along y).
+///
+/// # Errors
+/// [`TwoPlaneError`] for a zero or non-finite axis or radius, and the grid and resolution
+/// checks of [`TwoPlanes::validate`].
+pub fn fit_planes(
+    center: DVec3,
+    radius: f64,
+    axis: DVec3,
+    grid: [u32; 2],
+    resolution: [u32; 2],
+) -> Result<TwoPlanes, TwoPlaneError> {
+    if !(center.is_finite() && axis.is_finite()) {
+        return Err(TwoPlaneError::NotFinite("axis"));
+    }
+    if !(radius.is_finite() && radius > 0.0) {
+        return Err(TwoPlaneError::Size("bounding sphere"));
+    }
+    let n = axis
+        .try_normalize()
+        .ok_or(TwoPlaneError::NotFinite("axis"))?;
+    let world_up = if n.cross(DVec3::Y).length() > 1e-3 {
+        DVec3::Y
+    } else {
+        DVec3::Z
+    };
+    let up = (world_up - n * n.dot(world_up)).normalize();
+    let right = up.cross(n);
+    let distance = 3.0 * radius;
+    let uv_half = radius;
+    let st_half = (radius + uv_half) * distance / (distance - radius) - uv_half;
+    let planes = TwoPlanes {
+        right: right.to_array(),
+        up: up.to_array(),
+        uv: UvPlane {
+            center: (center + distance * n).to_array(),
+            size: [2.0 * uv_half; 2],
+            grid,
+        },
+        st: StPlane {
+            center: center.to_array(),
+            size: [2.0 * st_half; 2],
+            resolution,
+        },
+    };
+    planes.validate()?;
+    Ok(planes)
+}
+
+/// What [`bake_to_file`] made.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TwoPlaneBakeReport {
+    /// Cameras captured.
+    pub cameras: u32,
+    /// st resolution `[ns, nt]`.
+    pub resolution: [u32; 2],
+    /// Wall-clock time, ms.
+    pub bake_ms: f64,
+    /// Bytes of the written asset.
+    pub asset_bytes: u64,
+    /// Fraction of all texels that hit the mesh.
+    pub coverage: f64,
+}
+
+/// Why a two-plane bake failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum TwoPlaneBakeError {
+    /// Rendering a camera failed (bad shading, device loss, invalid planes).
+    #[error(transparent)]
+    Render(#[from] ReferenceError),
+    /// Writing the asset failed.
+    #[error(transparent)]
+    Asset(#[from] crate::asset::AssetError),
+}
+
+/// The colour and depth pages of one captured camera, as the asset stores them: straight RGBA8
+/// with alpha 255 where the line hits the mesh and (0, 0, 0, 0) elsewhere, and the depth as
+/// little-endian f32 (`+inf` for no hit).
+pub fn encode_capture(frame: &Frame) -> (Vec<u8>, Vec<u8>) {
+    let mut color = frame.color.clone();
+    for (px, d) in color.chunks_exact_mut(4).zip(&frame.depth) {
+        if d.is_finite() {
+            px[3] = 255;
+        } else {
+            px.copy_from_slice(&[0; 4]);
+        }
+    }
+    let depth = frame
+        .depth
+        .iter()
+        .flat_map(|d| {
+            let d = if d.is_finite() { *d } else { f32::INFINITY };
+            d.to_le_bytes()
+        })
+        .collect();
+    (color, depth)
+}
+
+/// Captures a two-plane light field of `mesh` ([`capture`], one camera at a time) and writes it
+/// to `path` atomically (`.lfa` version 5, kind `two_plane`, docs/format.md §8.7).
+/// `provenance.bake_options` and the bake time are filled in by the caller and here.
+///
+/// # Errors
+/// [`TwoPlaneBakeError`]; on error nothing is left at `path`.
+pub fn bake_to_file(
+    reference: &ReferenceRenderer,
+    mesh: &GpuMesh,
+    planes: &TwoPlanes,
+    shading: &Shading,
+    provenance: crate::asset::Provenance,
+    path: &std::path::Path,
+    progress: &mut dyn FnMut(u32, u32),
+) -> Result<TwoPlaneBakeReport, TwoPlaneBakeError> {
+    use crate::asset::{AssetHeader, AssetWriter, Channel, DEFAULT_PAGE_SIZE, ImageKey};
+    let start = std::time::Instant::now();
+    planes
+        .validate()
+        .map_err(|e| ReferenceError::Projection(e.to_string()))?;
+    let header = AssetHeader::new_two_plane(*planes, DEFAULT_PAGE_SIZE, provenance)?;
+    let mut writer = AssetWriter::create(path, header)?;
+    let [nu, nv] = planes.uv.grid;
+    let total = planes.camera_count();
+    let distance = planes.separation();
+    let mut hits = 0u64;
+    for b in 0..nv {
+        for a in 0..nu {
+            let mut frame = reference.render_projection(mesh, &planes.projection(a, b), shading)?;
+            for d in &mut frame.depth {
+                *d = (f64::from(*d) / distance) as f32;
+            }
+            hits += frame.depth.iter().filter(|d| d.is_finite()).count() as u64;
+            let (color, depth) = encode_capture(&frame);
+            let camera = b * nu + a;
+            writer.add_image(ImageKey::new(0, 0, camera, Channel::Color), &color)?;
+            writer.add_image(ImageKey::new(0, 0, camera, Channel::Depth), &depth)?;
+            progress(camera + 1, total);
+        }
+    }
+    let bake_ms = start.elapsed().as_secs_f64() * 1e3;
+    writer.set_bake_ms(bake_ms);
+    writer.finish()?;
+    let [ns, nt] = planes.st.resolution;
+    let texels = u64::from(total) * u64::from(ns) * u64::from(nt);
+    Ok(TwoPlaneBakeReport {
+        cameras: total,
+        resolution: planes.st.resolution,
+        bake_ms,
+        asset_bytes: std::fs::metadata(path).map_or(0, |m| m.len()),
+        coverage: hits as f64 / texels as f64,
+    })
+}
+
 /// The four cameras (or texels) around a continuous coordinate pair and their bilinear weights,
 /// clamped to the grid `n0 × n1` (`x` along the first axis): `[(x0, y0, w), …]`, weights summing
 /// to 1. Used for the `bilinear` uv filter and the st lookup alike. An empty grid side counts as

@@ -123,9 +123,122 @@ pub struct BakeArgs {
     /// Render with `--layers NAME=OPACITY,...`.
     #[arg(long, value_name = "LAYERS.json")]
     pub layers: Option<PathBuf>,
+    /// A two-plane light field instead of a spherical one: the planes of PLANES.json (DESIGN
+    /// §9), or `auto` to fit them to the mesh's bounding sphere along --axis (printed). One
+    /// off-axis camera per uv grid cell captures colour and depth (docs/two_plane.md).
+    #[arg(
+        long,
+        value_name = "PLANES.json|auto",
+        conflicts_with_all = ["auto", "lights", "states", "animation", "layers"]
+    )]
+    pub two_plane: Option<String>,
+    /// With `--two-plane auto`: the direction from the object towards the cameras.
+    #[arg(
+        long,
+        value_name = "X,Y,Z",
+        default_value = "0,0,1",
+        allow_hyphen_values = true
+    )]
+    pub axis: String,
+    /// With `--two-plane auto`: the uv camera grid, NUxNV.
+    #[arg(long, value_name = "NUxNV", default_value = "8x8")]
+    pub grid: String,
+    /// With `--two-plane auto`: every camera's st resolution, NSxNT.
+    #[arg(long, value_name = "NSxNT", default_value = "256x256")]
+    pub st_res: String,
+}
+
+/// `NxM` as two numbers.
+fn parse_pair(flag: &str, text: &str) -> Result<[u32; 2]> {
+    let parsed = text
+        .split_once(['x', 'X'])
+        .and_then(|(a, b)| Some([a.trim().parse().ok()?, b.trim().parse().ok()?]));
+    parsed.with_context(|| format!("{flag} {text:?}: give two whole numbers as NxM, e.g. 8x8"))
+}
+
+/// `--two-plane PLANES.json|auto`: captures the mesh (or demo) into a two-plane asset.
+fn bake_two_plane(args: &BakeArgs, planes_arg: &str) -> Result<()> {
+    use lumigraph_core::two_plane::{self, TwoPlanes};
+    let shading = args.shading.to_shading()?;
+    let (mesh, mut provenance) = load_source(args.mesh.as_deref(), args.demo)?;
+    let gpu = gpu()?;
+    let reference = ReferenceRenderer::new(gpu);
+    let gpu_mesh = reference
+        .upload(&mesh)
+        .context("cannot upload the mesh to the GPU")?;
+    let planes = if planes_arg == "auto" {
+        let axis: Vec<f64> = args
+            .axis
+            .split(',')
+            .map(|x| x.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .ok()
+            .filter(|v: &Vec<f64>| v.len() == 3)
+            .with_context(|| format!("--axis {:?}: give X,Y,Z", args.axis))?;
+        let planes = two_plane::fit_planes(
+            lumigraph_core::glam::DVec3::from(gpu_mesh.frame.center),
+            gpu_mesh.frame.radius,
+            lumigraph_core::glam::DVec3::new(axis[0], axis[1], axis[2]),
+            parse_pair("--grid", &args.grid)?,
+            parse_pair("--st-res", &args.st_res)?,
+        )
+        .context("cannot fit planes to the mesh")?;
+        println!(
+            "planes fitted to the bounding sphere (centre {:?}, radius {}): {}",
+            gpu_mesh.frame.center,
+            gpu_mesh.frame.radius,
+            serde_json::to_string(&planes)?
+        );
+        planes
+    } else {
+        let path = std::path::Path::new(planes_arg);
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read the planes file {}", path.display()))?;
+        TwoPlanes::from_json(&text).with_context(|| format!("bad planes in {}", path.display()))?
+    };
+    provenance.bake_options = serde_json::json!({
+        "two_plane": planes,
+        "shading": shading,
+    });
+    provenance.lumigraph_version = env!("CARGO_PKG_VERSION").to_owned();
+    provenance.triangles = mesh.triangles.len() as u64;
+    provenance.vertices = mesh.positions.len() as u64;
+    provenance.created_unix = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let bar = progress_bar(u64::from(planes.camera_count()), "capturing cameras");
+    let report = two_plane::bake_to_file(
+        &reference,
+        &gpu_mesh,
+        &planes,
+        &shading,
+        provenance,
+        &args.output,
+        &mut |done, _| bar.set_position(u64::from(done)),
+    )?;
+    bar.finish_and_clear();
+    println!(
+        "baked a two-plane light field: {}x{} cameras of {}x{} px in {:.0} ms, {:.1} % of texels \
+         hit: {} ({:.1} MiB)",
+        planes.uv.grid[0],
+        planes.uv.grid[1],
+        report.resolution[0],
+        report.resolution[1],
+        report.bake_ms,
+        100.0 * report.coverage,
+        args.output.display(),
+        report.asset_bytes as f64 / (1024.0 * 1024.0)
+    );
+    Ok(())
 }
 
 pub(super) fn bake(args: &BakeArgs) -> Result<()> {
+    if let Some(planes) = &args.two_plane {
+        if args.mesh.as_deref().is_some_and(is_volume_path) || args.volume.given() {
+            anyhow::bail!("--two-plane captures meshes; volumes bake spherical light fields");
+        }
+        return bake_two_plane(args, planes);
+    }
     if let Some(path) = &args.mesh
         && is_volume_path(path)
     {
