@@ -11,6 +11,8 @@ pub const BAKE: &str = concat!(
 pub const VOLUME_BAKE: &str = include_str!("../../shaders/volume_bake.wgsl");
 /// The compositing of a multi light field's layers (compute).
 pub const COMPOSITE: &str = include_str!("../../shaders/composite.wgsl");
+/// The two-plane light-field renderer (compute).
+pub const TWO_PLANE: &str = include_str!("../../shaders/two_plane.wgsl");
 /// The reference rasterizer (vertex + fragment).
 pub const REFERENCE: &str = concat!(
     include_str!("../../shaders/shared/mesh.wgsl"),
@@ -40,5 +42,6 @@ pub fn all() -> Vec<(&'static str, String)> {
         ("reference", REFERENCE.to_owned()),
         ("volume_bake", VOLUME_BAKE.to_owned()),
         ("composite", COMPOSITE.to_owned()),
+        ("two_plane", TWO_PLANE.to_owned()),
     ]
 }

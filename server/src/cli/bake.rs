@@ -200,7 +200,7 @@ fn bake_two_plane(args: &BakeArgs, planes_arg: &str) -> Result<()> {
         "two_plane": planes,
         "shading": shading,
     });
-    provenance.lumigraph_version = env!("CARGO_PKG_VERSION").to_owned();
+    env!("CARGO_PKG_VERSION").clone_into(&mut provenance.lumigraph_version);
     provenance.triangles = mesh.triangles.len() as u64;
     provenance.vertices = mesh.positions.len() as u64;
     provenance.created_unix = std::time::SystemTime::now()

@@ -38,6 +38,174 @@ pub struct RenderArgs {
     /// Quality: knobs, a goal or automatic LOD.
     #[command(flatten)]
     pub quality: Quality,
+    /// Two-plane light fields.
+    #[command(flatten)]
+    pub two_plane: TwoPlaneArgs,
+}
+
+/// The flags of a two-plane light field (DESIGN §9, docs/two_plane.md).
+#[derive(Debug, Args)]
+pub struct TwoPlaneArgs {
+    /// uv filter of a two-plane asset: nearest, bilinear (default), dither or depth
+    /// (depth-corrected).
+    #[arg(long, value_name = "FILTER")]
+    pub uv_filter: Option<lumigraph_core::two_plane_render::UvFilter>,
+    /// Focal plane of a two-plane asset: world units from the st plane towards the uv plane.
+    #[arg(long, allow_hyphen_values = true)]
+    pub focus: Option<f64>,
+    /// Synthetic aperture radius in uv cells (0: pinhole).
+    #[arg(long, allow_hyphen_values = true)]
+    pub aperture: Option<f64>,
+    /// Average this many frames of a wide aperture's stratified draws (the view at rest).
+    #[arg(long, value_name = "N", allow_hyphen_values = true)]
+    pub accumulate: Option<u32>,
+    /// Render a stereo pair side by side (left | right), the eyes BASELINE world units apart
+    /// along the view's right axis.
+    #[arg(long, value_name = "BASELINE", allow_hyphen_values = true)]
+    pub stereo: Option<f64>,
+}
+
+impl TwoPlaneArgs {
+    fn given(&self) -> bool {
+        self.uv_filter.is_some()
+            || self.focus.is_some()
+            || self.aperture.is_some()
+            || self.accumulate.is_some()
+            || self.stereo.is_some()
+    }
+
+    fn options(&self) -> lumigraph_core::two_plane_render::TwoPlaneOptions {
+        let mut options = lumigraph_core::two_plane_render::TwoPlaneOptions::default();
+        if let Some(f) = self.uv_filter {
+            options.uv_filter = f;
+        }
+        if let Some(f) = self.focus {
+            options.focus = f;
+        }
+        if let Some(r) = self.aperture {
+            options.aperture = r;
+        }
+        options
+    }
+}
+
+/// `view` with the eye and target moved by `offset` world units along its right axis.
+fn shifted(view: &View, offset: f64) -> Result<View> {
+    let basis = view.basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX)?;
+    let shift = basis.right * offset;
+    let mut out = view.clone();
+    for (e, s) in out.eye.iter_mut().zip(shift.to_array()) {
+        *e += s;
+    }
+    for (t, s) in out.target.iter_mut().zip(shift.to_array()) {
+        *t += s;
+    }
+    Ok(out)
+}
+
+/// Renders one frame of a two-plane asset, averaging `--accumulate` draws.
+fn render_two_plane_frame(
+    renderer: &lumigraph_core::two_plane_render::TwoPlaneRenderer,
+    field: &lumigraph_core::two_plane_render::GpuTwoPlane,
+    view: &View,
+    args: &TwoPlaneArgs,
+) -> Result<Frame> {
+    let mut options = args.options();
+    let draws = args.accumulate.unwrap_or(1);
+    if !(1..=1024).contains(&draws) {
+        bail!("--accumulate {draws}: give 1..=1024 frames");
+    }
+    let mut frame = renderer.render(field, view, &options)?;
+    if draws > 1 {
+        let mut sum: Vec<u32> = frame.color.iter().map(|&c| u32::from(c)).collect();
+        let mut ms = frame.stats.render_ms;
+        for index in 1..draws {
+            options.frame_index = index;
+            let next = renderer.render(field, view, &options)?;
+            ms += next.stats.render_ms;
+            for (s, &c) in sum.iter_mut().zip(&next.color) {
+                *s += u32::from(c);
+            }
+        }
+        frame.color = sum
+            .iter()
+            .map(|&s| ((s + draws / 2) / draws) as u8)
+            .collect();
+        frame.stats.render_ms = ms;
+    }
+    Ok(frame)
+}
+
+/// `render` of a two-plane asset.
+fn render_two_plane(
+    args: &RenderArgs,
+    asset: &AssetFile,
+    views: &[View],
+    many: bool,
+) -> Result<()> {
+    args.quality.check_scene().map_err(|_| {
+        anyhow::anyhow!(
+            "a two-plane light field takes --uv-filter, --focus, --aperture, --accumulate and \
+             --stereo; the spherical quality flags do not apply"
+        )
+    })?;
+    let renderer = lumigraph_core::two_plane_render::TwoPlaneRenderer::new(gpu()?);
+    let field = renderer
+        .upload(asset)
+        .with_context(|| format!("cannot load asset {}", args.asset.display()))?;
+    for (i, view) in views.iter().enumerate() {
+        let frame = match args.two_plane.stereo {
+            None => render_two_plane_frame(&renderer, &field, view, &args.two_plane)?,
+            Some(baseline) => {
+                if !(baseline.is_finite() && baseline >= 0.0) {
+                    bail!("--stereo {baseline}: give a finite baseline ≥ 0");
+                }
+                let left = render_two_plane_frame(
+                    &renderer,
+                    &field,
+                    &shifted(view, -0.5 * baseline)?,
+                    &args.two_plane,
+                )?;
+                let right = render_two_plane_frame(
+                    &renderer,
+                    &field,
+                    &shifted(view, 0.5 * baseline)?,
+                    &args.two_plane,
+                )?;
+                side_by_side(&left, &right)
+            }
+        };
+        write_outputs(&frame, i, many, &args.output, &args.depth)?;
+        println!(
+            "view {i:03}: {:.2} ms ({} px covered)",
+            frame.stats.render_ms,
+            frame.covered_count()
+        );
+    }
+    Ok(())
+}
+
+/// Two frames of one size as one twice as wide: `left | right`.
+fn side_by_side(left: &Frame, right: &Frame) -> Frame {
+    let (w, h) = (left.width as usize, left.height as usize);
+    let mut color = Vec::with_capacity(8 * w * h);
+    let mut depth = Vec::with_capacity(2 * w * h);
+    for row in 0..h {
+        color.extend_from_slice(&left.color[4 * row * w..4 * (row + 1) * w]);
+        color.extend_from_slice(&right.color[4 * row * w..4 * (row + 1) * w]);
+        depth.extend_from_slice(&left.depth[row * w..(row + 1) * w]);
+        depth.extend_from_slice(&right.depth[row * w..(row + 1) * w]);
+    }
+    let mut stats = left.stats.clone();
+    stats.render_ms += right.stats.render_ms;
+    Frame {
+        width: left.width * 2,
+        height: left.height,
+        color,
+        depth,
+        translucent: false,
+        stats,
+    }
 }
 
 /// `lumigraph reference`.
@@ -186,6 +354,17 @@ pub(super) fn render(args: &RenderArgs) -> Result<()> {
     }
     let asset = AssetFile::open(&args.asset)
         .with_context(|| format!("cannot open asset {}", args.asset.display()))?;
+    if asset.header().two_plane().is_some() {
+        return render_two_plane(args, &asset, &views, many);
+    }
+    if args.two_plane.given() {
+        bail!(
+            "--uv-filter, --focus, --aperture, --accumulate and --stereo apply to two-plane light \
+             fields; {} is {:?}",
+            args.asset.display(),
+            asset.header().kind
+        );
+    }
     let plan = args.quality.plan(asset.header())?;
     let renderer = Renderer::new(gpu()?);
     let field = renderer

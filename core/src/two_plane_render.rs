@@ -1,0 +1,614 @@
+//! Rendering two-plane light fields on the GPU (DESIGN §9; `shaders/two_plane.wgsl`,
+//! docs/two_plane.md): one compute pass per frame with a uv filter (nearest, bilinear, the
+//! seed's dither, or depth-corrected), refocus at a focal plane and a synthetic aperture.
+//!
+//! The cameras' images live in two texture arrays, one layer per camera (the seed's mosaic as an
+//! array: bilinear in (s, t) inside a layer, never filtered across (u, v)): RGBA8 colour and
+//! R32F depth. Everything the shader sees is relative to the st plane's centre, in f32.
+
+use std::sync::{Arc, Mutex, PoisonError};
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::asset::{AssetError, AssetFile, Channel, ImageKey};
+use crate::frame::{Frame, FrameStats};
+use crate::gpu::Gpu;
+use crate::render::RenderError;
+use crate::two_plane::TwoPlanes;
+use crate::view::{DEFAULT_MAX_VIEW_PX, View};
+
+/// How the cameras around a ray's uv crossing are combined (`--uv-filter`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase", try_from = "String")]
+pub enum UvFilter {
+    /// The nearest camera.
+    Nearest,
+    /// The four cameras around the crossing, bilinear weights (quadrilinear with the st
+    /// lookup).
+    #[default]
+    Bilinear,
+    /// The nearest camera of a uv position moved by the pixel's 4×4 Bayer threshold along a
+    /// hashed diagonal (seed 001 §3.1): one camera per pixel, the bilinear blend on average.
+    Dither,
+    /// Depth-corrected: the ray is marched through the nearest camera's depth to the surface,
+    /// and the four cameras around the crossing are read where the ray meets it, each only if
+    /// it sees that surface there.
+    Depth,
+}
+
+impl UvFilter {
+    /// Every filter, in the order of the quality tables.
+    pub const ALL: [UvFilter; 4] = [
+        UvFilter::Nearest,
+        UvFilter::Bilinear,
+        UvFilter::Dither,
+        UvFilter::Depth,
+    ];
+
+    /// The name used by the CLI, HTTP and Python.
+    pub fn name(self) -> &'static str {
+        match self {
+            UvFilter::Nearest => "nearest",
+            UvFilter::Bilinear => "bilinear",
+            UvFilter::Dither => "dither",
+            UvFilter::Depth => "depth",
+        }
+    }
+
+    fn code(self) -> u32 {
+        match self {
+            UvFilter::Nearest => 0,
+            UvFilter::Bilinear => 1,
+            UvFilter::Dither => 2,
+            UvFilter::Depth => 3,
+        }
+    }
+}
+
+impl std::fmt::Display for UvFilter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for UvFilter {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        UvFilter::ALL
+            .into_iter()
+            .find(|f| f.name() == s)
+            .ok_or_else(|| format!("uv filter {s:?}: choose nearest, bilinear, dither or depth"))
+    }
+}
+
+impl TryFrom<String> for UvFilter {
+    type Error = String;
+
+    fn try_from(s: String) -> Result<Self, Self::Error> {
+        s.parse()
+    }
+}
+
+/// Default march steps of the depth-corrected filter over the asset's depth range.
+pub const DEFAULT_STEPS: u32 = 48;
+/// Default dither amplitude, in uv cells: thresholds in (−½, ½) cells, so that a pixel picks
+/// each of two neighbouring cameras with its bilinear weight on average.
+pub const DEFAULT_DITHER_AMPLITUDE: f32 = 1.0;
+/// Default number of cameras a synthetic aperture reads per pixel and frame; wider apertures
+/// draw a stratified subset each frame ([`TwoPlaneOptions::sample_budget`]).
+pub const DEFAULT_SAMPLE_BUDGET: u32 = 36;
+/// Largest aperture radius, in uv cells.
+pub const MAX_APERTURE: f64 = 64.0;
+/// Most march steps.
+pub const MAX_STEPS: u32 = 1024;
+
+/// How to render a two-plane light field.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TwoPlaneOptions {
+    /// uv filter (with `aperture` 0).
+    pub uv_filter: UvFilter,
+    /// Focal plane: signed distance from the st plane towards the uv plane, world units (DESIGN
+    /// §9). 0 reads every camera at the ray's own st crossing.
+    pub focus: f64,
+    /// Synthetic aperture radius R in uv cells: 0 is the pinhole view through `uv_filter`;
+    /// R > 0 weights every camera within R + 1 cells per axis by
+    /// `clamp(R + 1 − |Δa|, 0, 1) · clamp(R + 1 − |Δb|, 0, 1)` (a box of 2R + 1 cameras with a
+    /// one-cell linear edge, so the weights move smoothly with the view), each read at the
+    /// focal plane's point.
+    pub aperture: f64,
+    /// March steps of the depth-corrected filter over the asset's depth range.
+    pub steps: u32,
+    /// Depth-corrected filter: a camera joins the blend when the surface it sees where the ray
+    /// meets the marched surface is within this height (world units) of it; `None`: three
+    /// march steps.
+    pub tolerance: Option<f64>,
+    /// Dither amplitude in uv cells.
+    pub dither_amplitude: f32,
+    /// Most cameras an aperture reads per pixel per frame; a wider aperture draws one camera
+    /// per stratum of its window, a new draw for each `frame_index`, and frames averaged over
+    /// indices converge to the full aperture.
+    pub sample_budget: u32,
+    /// Which stratified draw of a wide aperture this frame uses.
+    pub frame_index: u32,
+    /// Colour of empty pixels (RGBA8).
+    pub background: [u8; 4],
+}
+
+impl Default for TwoPlaneOptions {
+    fn default() -> Self {
+        Self {
+            uv_filter: UvFilter::default(),
+            focus: 0.0,
+            aperture: 0.0,
+            steps: DEFAULT_STEPS,
+            tolerance: None,
+            dither_amplitude: DEFAULT_DITHER_AMPLITUDE,
+            sample_budget: DEFAULT_SAMPLE_BUDGET,
+            frame_index: 0,
+            background: [0, 0, 0, 0],
+        }
+    }
+}
+
+impl TwoPlaneOptions {
+    /// Checks every value.
+    ///
+    /// # Errors
+    /// [`RenderError::Option`] naming the bad value.
+    pub fn validate(&self) -> Result<(), RenderError> {
+        let bad = |m: String| Err(RenderError::Option(m));
+        if !self.focus.is_finite() {
+            return bad(format!("focus {} must be finite", self.focus));
+        }
+        if !(self.aperture.is_finite() && (0.0..=MAX_APERTURE).contains(&self.aperture)) {
+            return bad(format!(
+                "aperture {} must be in 0..={MAX_APERTURE} uv cells",
+                self.aperture
+            ));
+        }
+        if !(1..=MAX_STEPS).contains(&self.steps) {
+            return bad(format!("steps {} must be in 1..={MAX_STEPS}", self.steps));
+        }
+        if let Some(t) = self.tolerance
+            && !(t.is_finite() && t > 0.0)
+        {
+            return bad(format!("tolerance {t} must be finite and positive"));
+        }
+        if !(self.dither_amplitude.is_finite() && (0.0..=4.0).contains(&self.dither_amplitude)) {
+            return bad(format!(
+                "dither amplitude {} must be in 0..=4 cells",
+                self.dither_amplitude
+            ));
+        }
+        if !(1..=4096).contains(&self.sample_budget) {
+            return bad(format!(
+                "sample budget {} must be in 1..=4096 cameras",
+                self.sample_budget
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// A two-plane light field on the device.
+pub struct GpuTwoPlane {
+    /// Its planes.
+    pub planes: TwoPlanes,
+    /// Smallest and largest finite stored depth (`[1, 1]` when nothing is hit).
+    pub depth_range: [f32; 2],
+    /// Device bytes of its textures.
+    pub bytes: u64,
+    color: wgpu::Texture,
+    depth: wgpu::Texture,
+    color_view: wgpu::TextureView,
+    depth_view: wgpu::TextureView,
+}
+
+impl Drop for GpuTwoPlane {
+    fn drop(&mut self) {
+        self.color.destroy();
+        self.depth.destroy();
+    }
+}
+
+/// Device bytes [`TwoPlaneRenderer::upload`] allocates for `planes`: RGBA8 and R32F per texel,
+/// for every camera (layers padded as [`Gpu::padded_layers`] does).
+pub fn field_bytes(planes: &TwoPlanes) -> u64 {
+    let [ns, nt] = planes.st.resolution.map(u64::from);
+    u64::from(Gpu::padded_layers(planes.camera_count())) * ns * nt * 8
+}
+
+struct Outputs {
+    pixels: u64,
+    color: wgpu::Buffer,
+    depth: wgpu::Buffer,
+    staging: wgpu::Buffer,
+}
+
+/// The two-plane renderer: one pipeline, output buffers reused across frames of a size.
+pub struct TwoPlaneRenderer {
+    gpu: Arc<Gpu>,
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+    outputs: Mutex<Option<Outputs>>,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct Params {
+    eye: [f32; 3],
+    focus: f32,
+    forward: [f32; 3],
+    focal_px: f32,
+    view_right: [f32; 3],
+    aperture: f32,
+    view_up: [f32; 3],
+    dither_amp: f32,
+    normal: [f32; 3],
+    separation: f32,
+    right: [f32; 3],
+    h_hi: f32,
+    up: [f32; 3],
+    h_lo: f32,
+    uv_center: [f32; 3],
+    tolerance: f32,
+    uv_size: [f32; 2],
+    st_size: [f32; 2],
+    grid: [u32; 2],
+    res: [u32; 2],
+    size: [u32; 2],
+    mode: u32,
+    steps: u32,
+    background: u32,
+    sample_budget: u32,
+    frame_index: u32,
+    pad0: u32,
+}
+
+fn f3(v: DVec3) -> [f32; 3] {
+    v.as_vec3().to_array()
+}
+
+impl TwoPlaneRenderer {
+    /// Builds the pipeline.
+    pub fn new(gpu: Arc<Gpu>) -> TwoPlaneRenderer {
+        let device = &gpu.device;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("two_plane.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(crate::shaders::TWO_PLANE.into()),
+        });
+        let compute = wgpu::ShaderStages::COMPUTE;
+        let texture = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: compute,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                view_dimension: wgpu::TextureViewDimension::D2Array,
+                multisampled: false,
+            },
+            count: None,
+        };
+        let buffer = |binding, ty| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: compute,
+            ty: wgpu::BindingType::Buffer {
+                ty,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let storage = wgpu::BufferBindingType::Storage { read_only: false };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("two-plane"),
+            entries: &[
+                buffer(0, wgpu::BufferBindingType::Uniform),
+                texture(1),
+                texture(2),
+                buffer(3, storage),
+                buffer(4, storage),
+            ],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("two-plane"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("two-plane"),
+            layout: Some(&pipeline_layout),
+            module: &module,
+            entry_point: Some("cs_main"),
+            compilation_options: wgpu::PipelineCompilationOptions::default(),
+            cache: None,
+        });
+        TwoPlaneRenderer {
+            gpu,
+            pipeline,
+            layout,
+            outputs: Mutex::new(None),
+        }
+    }
+
+    /// The device.
+    pub fn gpu(&self) -> &Arc<Gpu> {
+        &self.gpu
+    }
+
+    /// Uploads a two-plane asset, one camera at a time (every page's checksum verified).
+    ///
+    /// # Errors
+    /// [`RenderError::Asset`] for another kind ([`AssetError::Kind`]) or a bad file,
+    /// [`RenderError::Gpu`] when the cameras exceed the device's array layers or the device
+    /// fails.
+    pub fn upload(&self, asset: &AssetFile) -> Result<GpuTwoPlane, RenderError> {
+        let header = asset.header();
+        let planes = *header.two_plane().ok_or(AssetError::Kind {
+            what: "the two-plane renderer",
+            kind: header.kind,
+        })?;
+        let cameras = planes.camera_count();
+        let layers = Gpu::padded_layers(cameras);
+        self.gpu.check_layers(layers)?;
+        let [ns, nt] = planes.st.resolution;
+        let limit = self.gpu.device.limits().max_texture_dimension_2d;
+        if ns > limit || nt > limit {
+            return Err(RenderError::Option(format!(
+                "st resolution {ns}x{nt} exceeds the device's {limit} texels per side"
+            )));
+        }
+        let make = |label, format| {
+            self.gpu.device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d {
+                    width: ns,
+                    height: nt,
+                    depth_or_array_layers: layers,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+                view_formats: &[],
+            })
+        };
+        let color = make("two-plane colour", wgpu::TextureFormat::Rgba8Unorm);
+        let depth = make("two-plane depth", wgpu::TextureFormat::R32Float);
+        let mut range = [f32::INFINITY, f32::NEG_INFINITY];
+        for camera in 0..cameras {
+            for (channel, texture) in [(Channel::Color, &color), (Channel::Depth, &depth)] {
+                let image = asset.read_image(ImageKey::new(0, 0, camera, channel))?;
+                if channel == Channel::Depth {
+                    for d in image.chunks_exact(4) {
+                        let d = f32::from_le_bytes([d[0], d[1], d[2], d[3]]);
+                        if d.is_finite() {
+                            range = [range[0].min(d), range[1].max(d)];
+                        } else if !(d.is_infinite() && d > 0.0) {
+                            return Err(RenderError::Asset(AssetError::Header(format!(
+                                "camera {camera} stores depth {d}: two-plane depth is finite or \
+                                 +inf"
+                            ))));
+                        }
+                    }
+                }
+                self.gpu.queue.write_texture(
+                    wgpu::TexelCopyTextureInfo {
+                        texture,
+                        mip_level: 0,
+                        origin: wgpu::Origin3d {
+                            x: 0,
+                            y: 0,
+                            z: camera,
+                        },
+                        aspect: wgpu::TextureAspect::All,
+                    },
+                    &image,
+                    wgpu::TexelCopyBufferLayout {
+                        offset: 0,
+                        bytes_per_row: Some(ns * 4),
+                        rows_per_image: Some(nt),
+                    },
+                    wgpu::Extent3d {
+                        width: ns,
+                        height: nt,
+                        depth_or_array_layers: 1,
+                    },
+                );
+            }
+        }
+        self.gpu.wait()?;
+        if !(range[0] <= range[1]) {
+            range = [1.0, 1.0];
+        }
+        let view = |t: &wgpu::Texture| crate::gpu::array_view(t);
+        Ok(GpuTwoPlane {
+            planes,
+            depth_range: range,
+            bytes: field_bytes(&planes),
+            color_view: view(&color),
+            depth_view: view(&depth),
+            color,
+            depth,
+        })
+    }
+
+    /// Renders `view` (DESIGN §3) of `field`: pixels whose ray is outside the light field, or
+    /// that see nothing, are `options.background` with depth `+inf`; the others are opaque
+    /// with the z-depth of the surface along the view's forward axis (the depth-corrected
+    /// surface, or the surface stored by the highest-weighted camera).
+    ///
+    /// # Errors
+    /// [`RenderError::View`], [`RenderError::Option`], [`RenderError::Gpu`].
+    pub fn render(
+        &self,
+        field: &GpuTwoPlane,
+        view: &View,
+        options: &TwoPlaneOptions,
+    ) -> Result<Frame, RenderError> {
+        options.validate()?;
+        let max_px = DEFAULT_MAX_VIEW_PX.min(self.gpu.device.limits().max_texture_dimension_2d);
+        let basis = view.basis(max_px)?;
+        let start = std::time::Instant::now();
+        let p = &field.planes;
+        let origin = DVec3::from(p.st.center);
+        let (right, up) = p.axes();
+        let separation = p.separation();
+        let [d_lo, d_hi] = field.depth_range.map(f64::from);
+        // Heights of the stored surfaces, a sliver wider so the march brackets the extremes.
+        let (h_hi, h_lo) = (separation * (1.0 - d_lo), separation * (1.0 - d_hi));
+        let pad = 1e-4 * separation + 1e-3 * (h_hi - h_lo);
+        let (h_hi, h_lo) = ((h_hi + pad).min(separation), h_lo - pad);
+        let tolerance = options
+            .tolerance
+            .unwrap_or(3.0 * (h_hi - h_lo) / f64::from(options.steps));
+        let params = Params {
+            eye: f3(basis.eye - origin),
+            focus: options.focus as f32,
+            forward: f3(basis.forward),
+            focal_px: basis.focal_px as f32,
+            view_right: f3(basis.right),
+            aperture: options.aperture as f32,
+            view_up: f3(basis.true_up),
+            dither_amp: options.dither_amplitude,
+            normal: f3(p.normal()),
+            separation: separation as f32,
+            right: f3(right),
+            h_hi: h_hi as f32,
+            up: f3(up),
+            h_lo: h_lo as f32,
+            uv_center: f3(DVec3::from(p.uv.center) - origin),
+            tolerance: tolerance as f32,
+            uv_size: p.uv.size.map(|x| x as f32),
+            st_size: p.st.size.map(|x| x as f32),
+            grid: p.uv.grid,
+            res: p.st.resolution,
+            size: [basis.width, basis.height],
+            mode: options.uv_filter.code(),
+            steps: options.steps,
+            background: u32::from_le_bytes(options.background),
+            sample_budget: options.sample_budget,
+            frame_index: options.frame_index,
+            pad0: 0,
+        };
+        let device = &self.gpu.device;
+        let uniform = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("two-plane params"),
+            size: std::mem::size_of::<Params>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        self.gpu
+            .queue
+            .write_buffer(&uniform, 0, bytemuck::bytes_of(&params));
+        let pixels = u64::from(basis.width) * u64::from(basis.height);
+        let mut guard = self.outputs.lock().unwrap_or_else(PoisonError::into_inner);
+        if guard.as_ref().is_none_or(|o| o.pixels != pixels) {
+            let make = |label, usage| {
+                device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some(label),
+                    size: pixels * 4,
+                    usage,
+                    mapped_at_creation: false,
+                })
+            };
+            let out = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
+            *guard = Some(Outputs {
+                pixels,
+                color: make("two-plane colour", out),
+                depth: make("two-plane depth", out),
+                staging: device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("two-plane readback"),
+                    size: pixels * 8,
+                    usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                }),
+            });
+        }
+        let outputs = guard
+            .as_ref()
+            .ok_or_else(|| RenderError::Option("no output buffers".to_owned()))?;
+        let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("two-plane"),
+            layout: &self.layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: uniform.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: wgpu::BindingResource::TextureView(&field.color_view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: wgpu::BindingResource::TextureView(&field.depth_view),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: outputs.color.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: outputs.depth.as_entire_binding(),
+                },
+            ],
+        });
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("two-plane"),
+        });
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("two-plane"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.dispatch_workgroups(basis.width.div_ceil(8), basis.height.div_ceil(8), 1);
+        }
+        encoder.copy_buffer_to_buffer(&outputs.color, 0, &outputs.staging, 0, pixels * 4);
+        encoder.copy_buffer_to_buffer(&outputs.depth, 0, &outputs.staging, pixels * 4, pixels * 4);
+        self.gpu.queue.submit([encoder.finish()]);
+        let (color, depth) = self.gpu.map_read_with(&outputs.staging, |bytes| {
+            let (c, d) = bytes.split_at(pixels as usize * 4);
+            let depth: Vec<f32> = d
+                .chunks_exact(4)
+                .map(|x| f32::from_le_bytes([x[0], x[1], x[2], x[3]]))
+                .collect();
+            (c.to_vec(), depth)
+        })?;
+        self.gpu.wait()?;
+        let render_ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(Frame {
+            width: basis.width,
+            height: basis.height,
+            color,
+            depth,
+            translucent: false,
+            stats: FrameStats {
+                render_ms,
+                ..FrameStats::default()
+            },
+        })
+    }
+}
+
+/// Which pixels of `view` lie inside the light field of `planes` (DESIGN §9: the ray meets the
+/// closed uv rectangle at `t_uv ≥ 0` and the closed st rectangle beyond it), row-major; the
+/// region quality is measured over.
+///
+/// # Errors
+/// [`RenderError::View`] for an invalid view.
+pub fn valid_region(planes: &TwoPlanes, view: &View) -> Result<Vec<bool>, RenderError> {
+    let basis = view.basis(DEFAULT_MAX_VIEW_PX)?;
+    let mut mask = Vec::with_capacity(basis.width as usize * basis.height as usize);
+    for i in 0..basis.height {
+        for j in 0..basis.width {
+            mask.push(planes.cross(basis.eye, basis.pixel_dir(i, j)).is_some());
+        }
+    }
+    Ok(mask)
+}
