@@ -31,13 +31,19 @@ struct Params {
     grid: vec2<u32>,
     res: vec2<u32>,
     size: vec2<u32>,
-    mode: u32,
+    pad1: u32,
     steps: u32,
     background: u32,
     sample_budget: u32,
     frame_index: u32,
     pad0: u32,
 }
+
+// One pipeline per mode (override constants): lavapipe runs every lane through all the code a
+// divergent branch holds, so each pipeline carries only its own mode's code.
+// MODE: the uv filter; APERTURE: a synthetic aperture (any MODE).
+override MODE: u32 = 1u;
+override APERTURE: bool = false;
 
 const MODE_NEAREST: u32 = 0u;
 const MODE_BILINEAR: u32 = 1u;
@@ -52,6 +58,8 @@ const INF_BITS: u32 = 0x7f800000u;
 @group(0) @binding(2) var depths: texture_2d_array<f32>;
 @group(0) @binding(3) var<storage, read_write> out_color: array<u32>;
 @group(0) @binding(4) var<storage, read_write> out_depth: array<u32>;
+// Bilinear, clamp to edge: the st lookup inside one camera's layer.
+@group(0) @binding(5) var linear: sampler;
 
 fn camera_pos(a: u32, b: u32) -> vec3<f32> {
     let g = vec2<f32>(params.grid);
@@ -84,20 +92,46 @@ fn lookup(c: vec3<f32>, q: vec3<f32>) -> Lookup {
     return out;
 }
 
-// Bilinear colour of camera `layer` at continuous texel `ji`, the outer half texel clamped to
-// the edge texel: premultiplied (a miss is (0, 0, 0, 0)).
+// Every camera reads the focal point `q` on a line through its own uv position, and these
+// lines meet st at `u·q + (1 − u)·C` with the same `u = D / (D − h_q)` for all: the texel
+// column is affine in the camera column a alone, the row in b alone.
+// ji(a, b) = origin + (a·step.x, b·step.y).
+struct Fan {
+    origin: vec2<f32>,
+    step: vec2<f32>,
+}
+
+fn fan(q: vec3<f32>) -> Fan {
+    let u = params.separation / (params.separation - dot(q, params.normal));
+    let c0 = camera_pos(0u, 0u);
+    let s = u * q + (1.0 - u) * c0;
+    let r = vec2<f32>(params.res);
+    var f: Fan;
+    f.origin = vec2<f32>(
+        (dot(s, params.right) / params.st_size.x + 0.5) * r.x - 0.5,
+        (0.5 - dot(s, params.up) / params.st_size.y) * r.y - 0.5,
+    );
+    let g = vec2<f32>(params.grid);
+    f.step = (1.0 - u) * vec2<f32>(
+        params.uv_size.x / g.x * r.x / params.st_size.x,
+        params.uv_size.y / g.y * r.y / params.st_size.y,
+    );
+    return f;
+}
+
+// The st point of continuous texel coordinates.
+fn st_point(ji: vec2<f32>) -> vec3<f32> {
+    let r = vec2<f32>(params.res);
+    let x = (ji.x + 0.5) / r.x - 0.5;
+    let y = 0.5 - (ji.y + 0.5) / r.y;
+    return x * params.st_size.x * params.right + y * params.st_size.y * params.up;
+}
+
+// Bilinear colour of camera `layer` at continuous texel `ji` (the sampler clamps the outer half
+// texel to the edge texel): premultiplied (a miss is (0, 0, 0, 0)).
 fn color_at(layer: u32, ji: vec2<f32>) -> vec4<f32> {
-    let hi = vec2<f32>(params.res) - vec2<f32>(1.0);
-    let p = clamp(ji, vec2<f32>(0.0), hi);
-    let p0 = floor(p);
-    let f = p - p0;
-    let i0 = vec2<i32>(p0);
-    let i1 = vec2<i32>(min(p0 + vec2<f32>(1.0), hi));
-    let c00 = textureLoad(colors, vec2<i32>(i0.x, i0.y), layer, 0);
-    let c10 = textureLoad(colors, vec2<i32>(i1.x, i0.y), layer, 0);
-    let c01 = textureLoad(colors, vec2<i32>(i0.x, i1.y), layer, 0);
-    let c11 = textureLoad(colors, vec2<i32>(i1.x, i1.y), layer, 0);
-    return mix(mix(c00, c10, f.x), mix(c01, c11, f.x), f.y);
+    let uv = (ji + vec2<f32>(0.5)) / vec2<f32>(params.res);
+    return textureSampleLevel(colors, linear, uv, layer, 0.0);
 }
 
 // Stored depth of the texel nearest `ji` (clamped to the image).
@@ -122,8 +156,12 @@ fn at_height(o: vec3<f32>, d: vec3<f32>, h: f32) -> vec3<f32> {
 // Height of the surface camera (a, b) sees through the point `q`; −inf where it sees nothing
 // or `q` projects off its image.
 fn surface_height(a: u32, b: u32, q: vec3<f32>) -> f32 {
-    let l = lookup(camera_pos(a, b), q);
-    let d = depth_at(b * params.grid.x + a, l.ji);
+    return surface_height_of(camera_pos(a, b), b * params.grid.x + a, q);
+}
+
+fn surface_height_of(c: vec3<f32>, layer: u32, q: vec3<f32>) -> f32 {
+    let l = lookup(c, q);
+    let d = depth_at(layer, l.ji);
     let seen = l.ok && on_st(l.ji) && d < 3.0e38;
     return select(-3.0e38, params.separation * (1.0 - d), seen);
 }
@@ -134,34 +172,69 @@ fn hash(x: u32) -> u32 {
     return (w >> 22u) ^ w;
 }
 
-// The 4×4 Bayer rank of a pixel, 0..15.
+// The 4×4 Bayer rank of a pixel, 0..15 (rows 0 8 2 10 / 12 4 14 6 / 3 11 1 9 / 15 7 13 5):
+// the bits of x ⊕ y and y interleaved, reversed.
 fn bayer4(p: vec2<u32>) -> u32 {
-    let x = p.x & 3u;
-    let y = p.y & 3u;
-    let m = array<u32, 16>(0u, 8u, 2u, 10u, 12u, 4u, 14u, 6u, 3u, 11u, 1u, 9u, 15u, 7u, 13u, 5u);
-    return m[y * 4u + x];
+    let a = (p.x ^ p.y) & 3u;
+    let b = p.y & 3u;
+    return ((a & 1u) << 3u) | ((b & 1u) << 2u) | (a & 2u) | ((b & 2u) >> 1u);
 }
 
 struct Accum {
     color: vec4<f32>,
     weight: f32,
-    // The camera with the largest weight whose lookup hit something: its surface gives the
+    // The camera with the largest weight and where it was read: its surface gives the
     // pixel's depth.
     best_w: f32,
-    best_hit: vec3<f32>,
+    best_cam: vec2<u32>,
+    best_ji: vec2<f32>,
 }
 
-fn add_camera(acc: ptr<function, Accum>, a: u32, b: u32, q: vec3<f32>, w: f32) {
-    let c = camera_pos(a, b);
-    let l = lookup(c, q);
-    let layer = b * params.grid.x + a;
-    let col = color_at(layer, l.ji);
-    (*acc).color += w * col;
+fn add_camera(acc: ptr<function, Accum>, a: u32, b: u32, f: Fan, w: f32) {
+    let ji = f.origin + vec2<f32>(f32(a), f32(b)) * f.step;
+    (*acc).color += w * color_at(b * params.grid.x + a, ji);
     (*acc).weight += w;
-    let d = depth_at(layer, l.ji);
-    if d < 3.0e38 && w > (*acc).best_w {
+    if w > (*acc).best_w {
         (*acc).best_w = w;
-        (*acc).best_hit = c + d * (l.st - c);
+        (*acc).best_cam = vec2<u32>(a, b);
+        (*acc).best_ji = ji;
+    }
+}
+
+// The surface the camera with the largest weight stores where it was read: its nearest texel,
+// else the nearest finite depth of the 2×2 texels around the lookup (a silhouette texel whose
+// blend is covered). `ok` false where all four miss.
+struct Best {
+    hit: vec3<f32>,
+    ok: bool,
+}
+
+fn best_surface(acc: Accum) -> Best {
+    let a = acc.best_cam.x;
+    let b = acc.best_cam.y;
+    let c = camera_pos(a, b);
+    let layer = b * params.grid.x + a;
+    var d = depth_at(layer, acc.best_ji);
+    if !(d < 3.0e38) {
+        let hi = vec2<f32>(params.res) - vec2<f32>(1.0);
+        let p0 = vec2<i32>(floor(clamp(acc.best_ji, vec2<f32>(0.0), hi)));
+        let p1 = vec2<i32>(min(vec2<f32>(p0) + vec2<f32>(1.0), hi));
+        d = min(
+            min(textureLoad(depths, p0, layer, 0).r, textureLoad(depths, vec2<i32>(p1.x, p0.y), layer, 0).r),
+            min(textureLoad(depths, vec2<i32>(p0.x, p1.y), layer, 0).r, textureLoad(depths, p1, layer, 0).r),
+        );
+    }
+    var out: Best;
+    out.ok = d < 3.0e38;
+    out.hit = c + select(0.0, d, out.ok) * (st_point(acc.best_ji) - c);
+    return out;
+}
+
+// Adds camera (a, b) read at `hit` if the surface it sees there is within the tolerance of the
+// marched height `h`.
+fn agreeing(acc: ptr<function, Accum>, a: u32, b: u32, hit: vec3<f32>, f: Fan, h: f32, w: f32) {
+    if w > 0.0 && abs(surface_height(a, b, hit) - h) <= params.tolerance {
+        add_camera(acc, a, b, f, w);
     }
 }
 
@@ -204,14 +277,15 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     acc.color = vec4<f32>(0.0);
     acc.weight = 0.0;
     acc.best_w = -1.0;
-    acc.best_hit = vec3<f32>(0.0);
+    acc.best_cam = vec2<u32>(0u);
+    acc.best_ji = vec2<f32>(0.0);
     var surface = false;
     var hit = vec3<f32>(0.0);
 
-    if params.aperture > 0.0 {
+    if APERTURE {
         // Synthetic aperture: every camera within R cells per axis, weighted by a box of
         // width 2R + 1 with a one-cell linear edge, each read at the focal plane's point.
-        let q = at_height(o, d, params.focus);
+        let q = fan(at_height(o, d, params.focus));
         let r = params.aperture;
         let lo = vec2<u32>(max(ceil(cell - vec2<f32>(r + 1.0)), vec2<f32>(0.0)));
         let hi = vec2<u32>(min(floor(cell + vec2<f32>(r + 1.0)), g - vec2<f32>(1.0)));
@@ -250,63 +324,63 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 }
             }
         }
-    } else if params.mode == MODE_DEPTH {
+    } else if MODE == MODE_DEPTH {
         // Depth-corrected: march the ray through the nearest camera's depth map to the
         // surface it sees, then read every camera around the ray's uv crossing where the ray
         // meets that surface, keeping those that see the same surface there.
         let n = vec2<u32>(round(cell));
-        let steps = max(params.steps, 1u);
+        // The ray's depth range projects to a short segment of the nearest camera's image
+        // (the parallax of at most half a cell): two steps per texel of it suffice.
+        let c0 = camera_pos(n.x, n.y);
+        let seg = lookup(c0, at_height(o, d, params.h_hi)).ji - lookup(c0, at_height(o, d, params.h_lo)).ji;
+        let texels = max(abs(seg.x), abs(seg.y));
+        let steps = clamp(u32(ceil(2.0 * texels)) + 1u, 2u, max(params.steps, 2u));
         let dh = (params.h_hi - params.h_lo) / f32(steps);
+        let layer0 = n.y * params.grid.x + n.x;
         var h_prev = params.h_hi;
         var found = false;
-        var above = params.h_hi;
         var below = params.h_hi;
         for (var k = 0u; k <= steps; k++) {
             let h = params.h_hi - f32(k) * dh;
-            if h <= surface_height(n.x, n.y, at_height(o, d, h)) {
-                // Bracketed between the last point above the surface and this one; bisect.
-                above = h_prev;
+            let hs = surface_height_of(c0, layer0, at_height(o, d, h));
+            // The first sample at or below the surface, close to it: where the ray passed
+            // behind a silhouette (the depth jumps) the gap is large, and the march goes on.
+            if h <= hs && hs - h <= params.tolerance + dh {
+                found = true;
                 below = h;
-                for (var r = 0u; r < REFINE; r++) {
-                    let mid = 0.5 * (above + below);
-                    if mid <= surface_height(n.x, n.y, at_height(o, d, mid)) {
-                        below = mid;
-                    } else {
-                        above = mid;
-                    }
-                }
-                // A true crossing ends on the surface; where the ray passed behind a
-                // silhouette (the depth jumps), the gap stays large: march on.
-                if surface_height(n.x, n.y, at_height(o, d, below)) - below <= params.tolerance {
-                    found = true;
-                    break;
-                }
+                break;
             }
             h_prev = h;
         }
         if found {
+            // Bisect between the last sample above the surface and the first below it.
+            var above = h_prev;
+            for (var r = 0u; r < REFINE; r++) {
+                let mid = 0.5 * (above + below);
+                if mid <= surface_height_of(c0, layer0, at_height(o, d, mid)) {
+                    below = mid;
+                } else {
+                    above = mid;
+                }
+            }
             let h_star = below;
             hit = at_height(o, d, h_star);
             surface = true;
             let c0 = vec2<u32>(floor(cell));
             let c1 = min(c0 + vec2<u32>(1u), last);
             let f = cell - floor(cell);
-            let corners = array<vec2<u32>, 4>(c0, vec2<u32>(c1.x, c0.y), vec2<u32>(c0.x, c1.y), c1);
-            let weights = array<f32, 4>((1.0 - f.x) * (1.0 - f.y), f.x * (1.0 - f.y), (1.0 - f.x) * f.y, f.x * f.y);
-            for (var i = 0u; i < 4u; i++) {
-                let cam = corners[i];
-                let hs = surface_height(cam.x, cam.y, hit);
-                if abs(hs - h_star) <= params.tolerance && weights[i] > 0.0 {
-                    add_camera(&acc, cam.x, cam.y, hit, weights[i]);
-                }
-            }
+            let q = fan(hit);
+            agreeing(&acc, c0.x, c0.y, hit, q, h_star, (1.0 - f.x) * (1.0 - f.y));
+            agreeing(&acc, c1.x, c0.y, hit, q, h_star, f.x * (1.0 - f.y));
+            agreeing(&acc, c0.x, c1.y, hit, q, h_star, (1.0 - f.x) * f.y);
+            agreeing(&acc, c1.x, c1.y, hit, q, h_star, f.x * f.y);
             if acc.color.a <= 0.0 {
-                add_camera(&acc, n.x, n.y, hit, 1.0);
+                add_camera(&acc, n.x, n.y, q, 1.0);
             }
         }
     } else {
-        let q = at_height(o, d, params.focus);
-        if params.mode == MODE_BILINEAR {
+        let q = fan(at_height(o, d, params.focus));
+        if MODE == MODE_BILINEAR {
             let c0 = vec2<u32>(floor(cell));
             let c1 = min(c0 + vec2<u32>(1u), last);
             let f = cell - floor(cell);
@@ -316,7 +390,7 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             add_camera(&acc, c1.x, c1.y, q, f.x * f.y);
         } else {
             var pick = cell;
-            if params.mode == MODE_DITHER {
+            if MODE == MODE_DITHER {
                 // Seed 001 §3.1: the uv coordinate moves by the pixel's Bayer threshold, in
                 // (−½, ½) cells times the amplitude, along a hashed diagonal (±1, ±1).
                 let threshold = (f32(bayer4(gid.xy)) + 0.5) / 16.0 - 0.5;
@@ -338,10 +412,11 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let rgb = acc.color.rgb / acc.color.a;
     out_color[idx] = pack4x8unorm(vec4<f32>(rgb, 1.0));
     if !surface {
-        hit = acc.best_hit;
-        if acc.best_w < 0.0 {
+        let best = best_surface(acc);
+        if !best.ok {
             return;
         }
+        hit = best.hit;
     }
     out_depth[idx] = bitcast<u32>(dot(hit - o, params.forward));
 }

@@ -223,16 +223,22 @@ pub fn field_bytes(planes: &TwoPlanes) -> u64 {
 
 struct Outputs {
     pixels: u64,
+    uniform: wgpu::Buffer,
     color: wgpu::Buffer,
     depth: wgpu::Buffer,
-    staging: wgpu::Buffer,
+    /// A staging copy, where the adapter cannot map the buffers the shader writes.
+    staging: Option<wgpu::Buffer>,
 }
 
 /// The two-plane renderer: one pipeline, output buffers reused across frames of a size.
 pub struct TwoPlaneRenderer {
     gpu: Arc<Gpu>,
-    pipeline: wgpu::ComputePipeline,
+    module: wgpu::ShaderModule,
+    pipeline_layout: wgpu::PipelineLayout,
+    /// One pipeline per uv filter, and one for the aperture, compiled on first use.
+    pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 5],
     layout: wgpu::BindGroupLayout,
+    sampler: wgpu::Sampler,
     outputs: Mutex<Option<Outputs>>,
 }
 
@@ -260,7 +266,7 @@ struct Params {
     grid: [u32; 2],
     res: [u32; 2],
     size: [u32; 2],
-    mode: u32,
+    pad1: u32,
     steps: u32,
     background: u32,
     sample_budget: u32,
@@ -281,11 +287,11 @@ impl TwoPlaneRenderer {
             source: wgpu::ShaderSource::Wgsl(crate::shaders::TWO_PLANE.into()),
         });
         let compute = wgpu::ShaderStages::COMPUTE;
-        let texture = |binding| wgpu::BindGroupLayoutEntry {
+        let texture = |binding, filterable| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: compute,
             ty: wgpu::BindingType::Texture {
-                sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                sample_type: wgpu::TextureSampleType::Float { filterable },
                 view_dimension: wgpu::TextureViewDimension::D2Array,
                 multisampled: false,
             },
@@ -306,31 +312,69 @@ impl TwoPlaneRenderer {
             label: Some("two-plane"),
             entries: &[
                 buffer(0, wgpu::BufferBindingType::Uniform),
-                texture(1),
-                texture(2),
+                texture(1, true),
+                texture(2, false),
                 buffer(3, storage),
                 buffer(4, storage),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 5,
+                    visibility: compute,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
             ],
+        });
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("two-plane st"),
+            address_mode_u: wgpu::AddressMode::ClampToEdge,
+            address_mode_v: wgpu::AddressMode::ClampToEdge,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            ..Default::default()
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("two-plane"),
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("two-plane"),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some("cs_main"),
-            compilation_options: wgpu::PipelineCompilationOptions::default(),
-            cache: None,
-        });
         TwoPlaneRenderer {
             gpu,
-            pipeline,
+            module,
+            pipeline_layout,
+            pipelines: Default::default(),
             layout,
+            sampler,
             outputs: Mutex::new(None),
         }
+    }
+
+    /// The pipeline of a mode: the uv filter's, or the aperture's.
+    fn pipeline(&self, options: &TwoPlaneOptions) -> &wgpu::ComputePipeline {
+        let aperture = options.aperture > 0.0;
+        let slot = if aperture {
+            4
+        } else {
+            options.uv_filter.code() as usize
+        };
+        self.pipelines[slot].get_or_init(|| {
+            let constants = [
+                ("MODE", f64::from(options.uv_filter.code())),
+                ("APERTURE", if aperture { 1.0 } else { 0.0 }),
+            ];
+            self.gpu
+                .device
+                .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some("two-plane"),
+                    layout: Some(&self.pipeline_layout),
+                    module: &self.module,
+                    entry_point: Some("cs_main"),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants: &constants,
+                        ..Default::default()
+                    },
+                    cache: None,
+                })
+        })
     }
 
     /// The device.
@@ -360,7 +404,7 @@ impl TwoPlaneRenderer {
                 "st resolution {ns}x{nt} exceeds the device's {limit} texels per side"
             )));
         }
-        let make = |label, format| {
+        let make = |label, format: wgpu::TextureFormat| {
             self.gpu.device.create_texture(&wgpu::TextureDescriptor {
                 label: Some(label),
                 size: wgpu::Extent3d {
@@ -487,7 +531,7 @@ impl TwoPlaneRenderer {
             grid: p.uv.grid,
             res: p.st.resolution,
             size: [basis.width, basis.height],
-            mode: options.uv_filter.code(),
+            pad1: 0,
             steps: options.steps,
             background: u32::from_le_bytes(options.background),
             sample_budget: options.sample_budget,
@@ -495,49 +539,57 @@ impl TwoPlaneRenderer {
             pad0: 0,
         };
         let device = &self.gpu.device;
-        let uniform = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("two-plane params"),
-            size: std::mem::size_of::<Params>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        self.gpu
-            .queue
-            .write_buffer(&uniform, 0, bytemuck::bytes_of(&params));
         let pixels = u64::from(basis.width) * u64::from(basis.height);
         let mut guard = self.outputs.lock().unwrap_or_else(PoisonError::into_inner);
         if guard.as_ref().is_none_or(|o| o.pixels != pixels) {
-            let make = |label, usage| {
+            let make = |label, size, usage| {
                 device.create_buffer(&wgpu::BufferDescriptor {
                     label: Some(label),
-                    size: pixels * 4,
+                    size,
                     usage,
                     mapped_at_creation: false,
                 })
             };
-            let out = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
+            // On a CPU adapter the results are mapped where the shader wrote them.
+            let direct = self.gpu.maps_primary_buffers();
+            let out = wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | if direct {
+                    wgpu::BufferUsages::MAP_READ
+                } else {
+                    wgpu::BufferUsages::empty()
+                };
             *guard = Some(Outputs {
                 pixels,
-                color: make("two-plane colour", out),
-                depth: make("two-plane depth", out),
-                staging: device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some("two-plane readback"),
-                    size: pixels * 8,
-                    usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                    mapped_at_creation: false,
+                uniform: make(
+                    "two-plane params",
+                    std::mem::size_of::<Params>() as u64,
+                    wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                ),
+                color: make("two-plane colour", pixels * 4, out),
+                depth: make("two-plane depth", pixels * 4, out),
+                staging: (!direct).then(|| {
+                    make(
+                        "two-plane readback",
+                        pixels * 8,
+                        wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                    )
                 }),
             });
         }
         let outputs = guard
             .as_ref()
             .ok_or_else(|| RenderError::Option("no output buffers".to_owned()))?;
+        self.gpu
+            .queue
+            .write_buffer(&outputs.uniform, 0, bytemuck::bytes_of(&params));
         let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("two-plane"),
             layout: &self.layout,
             entries: &[
                 wgpu::BindGroupEntry {
                     binding: 0,
-                    resource: uniform.as_entire_binding(),
+                    resource: outputs.uniform.as_entire_binding(),
                 },
                 wgpu::BindGroupEntry {
                     binding: 1,
@@ -555,6 +607,10 @@ impl TwoPlaneRenderer {
                     binding: 4,
                     resource: outputs.depth.as_entire_binding(),
                 },
+                wgpu::BindGroupEntry {
+                    binding: 5,
+                    resource: wgpu::BindingResource::Sampler(&self.sampler),
+                },
             ],
         });
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -565,22 +621,33 @@ impl TwoPlaneRenderer {
                 label: Some("two-plane"),
                 timestamp_writes: None,
             });
-            pass.set_pipeline(&self.pipeline);
+            pass.set_pipeline(self.pipeline(options));
             pass.set_bind_group(0, &bind, &[]);
             pass.dispatch_workgroups(basis.width.div_ceil(8), basis.height.div_ceil(8), 1);
         }
-        encoder.copy_buffer_to_buffer(&outputs.color, 0, &outputs.staging, 0, pixels * 4);
-        encoder.copy_buffer_to_buffer(&outputs.depth, 0, &outputs.staging, pixels * 4, pixels * 4);
+        if let Some(staging) = &outputs.staging {
+            encoder.copy_buffer_to_buffer(&outputs.color, 0, staging, 0, pixels * 4);
+            encoder.copy_buffer_to_buffer(&outputs.depth, 0, staging, pixels * 4, pixels * 4);
+        }
         self.gpu.queue.submit([encoder.finish()]);
-        let (color, depth) = self.gpu.map_read_with(&outputs.staging, |bytes| {
-            let (c, d) = bytes.split_at(pixels as usize * 4);
+        let read = |c: &[u8], d: &[u8]| {
             let depth: Vec<f32> = d
                 .chunks_exact(4)
                 .map(|x| f32::from_le_bytes([x[0], x[1], x[2], x[3]]))
                 .collect();
             (c.to_vec(), depth)
-        })?;
-        self.gpu.wait()?;
+        };
+        let split = pixels as usize * 4;
+        let (color, depth) = match &outputs.staging {
+            Some(staging) => self
+                .gpu
+                .map_read_with(staging, |bytes| read(&bytes[..split], &bytes[split..]))?,
+            None => self
+                .gpu
+                .map_read_many(&[&outputs.color, &outputs.depth], |bytes| {
+                    read(bytes[0], bytes[1])
+                })?,
+        };
         let render_ms = start.elapsed().as_secs_f64() * 1e3;
         Ok(Frame {
             width: basis.width,
@@ -611,4 +678,63 @@ pub fn valid_region(planes: &TwoPlanes, view: &View) -> Result<Vec<bool>, Render
         }
     }
     Ok(mask)
+}
+
+/// The evaluation views of a two-plane light field: `n` square views of `size_px`, eyes beyond
+/// the uv plane (0.3 to 1 plane separations behind it, within 0.6 of the uv rectangle's half
+/// size of its centre), looking at the st plane's centre (moved by up to a tenth of the st
+/// rectangle) with the field of view that spans 0.6 of the st rectangle's height; `up` is the
+/// planes' `up`. Drawn from `seed`.
+pub fn evaluation_views(planes: &TwoPlanes, n: usize, size_px: u32, seed: u64) -> Vec<View> {
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+    let (right, up) = planes.axes();
+    let normal = planes.normal();
+    let separation = planes.separation();
+    let uv = DVec3::from(planes.uv.center);
+    let st = DVec3::from(planes.st.center);
+    let [uw, uh] = planes.uv.size;
+    let [sw, sh] = planes.st.size;
+    (0..n)
+        .map(|_| {
+            let back: f64 = rng.random_range(0.3..1.0);
+            let x: f64 = rng.random_range(-0.6..0.6);
+            let y: f64 = rng.random_range(-0.6..0.6);
+            let tx: f64 = rng.random_range(-0.1..0.1);
+            let ty: f64 = rng.random_range(-0.1..0.1);
+            let eye = uv + back * separation * normal + 0.5 * (x * uw * right + y * uh * up);
+            let target = st + tx * sw * right + ty * sh * up;
+            let distance = (target - eye).length();
+            let yfov_deg = 2.0 * (0.3 * sh / distance).atan().to_degrees();
+            View {
+                eye: eye.to_array(),
+                target: target.to_array(),
+                up: up.to_array(),
+                yfov_deg,
+                width: size_px,
+                height: size_px,
+            }
+        })
+        .collect()
+}
+
+/// `frame` with every pixel outside `region` emptied (colour `background`, depth `+inf`): the
+/// reference restricted to the light field's valid region, or a render to the same pixels.
+///
+/// # Panics
+/// Never for matching sizes; a `region` shorter than the frame leaves the rest as it is.
+pub fn restrict(frame: &Frame, region: &[bool], background: [u8; 4]) -> Frame {
+    let mut out = frame.clone();
+    for ((px, d), &inside) in out
+        .color
+        .chunks_exact_mut(4)
+        .zip(out.depth.iter_mut())
+        .zip(region)
+    {
+        if !inside {
+            px.copy_from_slice(&background);
+            *d = f32::INFINITY;
+        }
+    }
+    out
 }

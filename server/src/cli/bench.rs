@@ -44,6 +44,10 @@ pub enum BenchCommand {
     /// Playback cost of an asset baked with --animation: frames rendered in turn against the
     /// static frame, interleaved.
     Animation(super::bench_animation::AnimationArgs),
+    /// Capture a mesh into two-plane light fields (uv grids × st resolutions) and score every
+    /// uv filter against the reference over the valid region from views beyond the uv plane,
+    /// with pinhole, 5×5-aperture and accumulated full-aperture timings.
+    TwoPlane(super::bench_two_plane::TwoPlaneArgs),
 }
 
 /// `lumigraph bench tradeoff`. Lists are comma-separated; steps accept fractions (`1/32`).

@@ -14,6 +14,7 @@ mod bench_animation;
 mod bench_import;
 mod bench_lights;
 mod bench_states;
+mod bench_two_plane;
 mod common;
 mod eval;
 mod healthcheck;
@@ -84,6 +85,7 @@ pub fn run(cli: Cli) -> Result<()> {
             BenchCommand::States(args) => bench_states::bench_states(&args),
             BenchCommand::Import(args) => bench_import::bench_import(&args),
             BenchCommand::Animation(args) => bench_animation::bench_animation(&args),
+            BenchCommand::TwoPlane(args) => bench_two_plane::bench_two_plane(&args),
         },
         Command::Serve(args) => serve::serve(&args),
         Command::Healthcheck(args) => healthcheck::healthcheck(&args),
