@@ -377,6 +377,17 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             if acc.color.a <= 0.0 {
                 add_camera(&acc, n.x, n.y, q, 1.0);
             }
+        } else {
+            // The nearest camera sees no surface along the ray (it may be hidden from it):
+            // the plain bilinear blend at the focal plane decides.
+            let q = fan(at_height(o, d, params.focus));
+            let c0 = vec2<u32>(floor(cell));
+            let c1 = min(c0 + vec2<u32>(1u), last);
+            let f = cell - floor(cell);
+            add_camera(&acc, c0.x, c0.y, q, (1.0 - f.x) * (1.0 - f.y));
+            add_camera(&acc, c1.x, c0.y, q, f.x * (1.0 - f.y));
+            add_camera(&acc, c0.x, c1.y, q, (1.0 - f.x) * f.y);
+            add_camera(&acc, c1.x, c1.y, q, f.x * f.y);
         }
     } else {
         let q = fan(at_height(o, d, params.focus));
