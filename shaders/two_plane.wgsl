@@ -323,6 +323,18 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
                     }
                 }
             }
+            // Normalised by the whole window's weight (separable), not the drawn cameras':
+            // each draw is then an unbiased estimate of the full aperture's premultiplied
+            // colour, and frames average to it.
+            var wa = 0.0;
+            for (var a = lo.x; a <= hi.x; a++) {
+                wa += clamp(r + 1.0 - abs(f32(a) - cell.x), 0.0, 1.0);
+            }
+            var wb = 0.0;
+            for (var b = lo.y; b <= hi.y; b++) {
+                wb += clamp(r + 1.0 - abs(f32(b) - cell.y), 0.0, 1.0);
+            }
+            acc.weight = wa * wb;
         }
     } else if MODE == MODE_DEPTH {
         // Depth-corrected: march the ray through the nearest camera's depth map to the

@@ -146,7 +146,7 @@ pub enum AssetError {
     #[error("invalid header: {0}")]
     Header(String),
     /// The asset is of a kind the operation does not handle.
-    #[error("{what} needs a spherical light field; this asset is {kind:?}")]
+    #[error("{what} does not handle {kind:?} light fields")]
     Kind {
         /// The operation.
         what: &'static str,
