@@ -196,10 +196,10 @@ fn uv_filters_refocus_and_aperture_match_the_cpu_reference() {
                     match expected(&planes, basis.eye, basis.pixel_dir(i, j), &options) {
                         None => {
                             assert!(!region[p]);
-                            if got != background {
-                                border += 1;
-                            } else {
+                            if got == background {
                                 assert!(z.is_infinite() && z > 0.0, "depth {z} outside");
+                            } else {
+                                border += 1;
                             }
                         }
                         Some((color, st)) => {
