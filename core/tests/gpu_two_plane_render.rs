@@ -187,7 +187,7 @@ fn uv_filters_refocus_and_aperture_match_the_cpu_reference() {
                 ..TwoPlaneOptions::default()
             };
             let frame = renderer.render(&field, v, &options).expect("render");
-            let (mut inside, mut close, mut border, mut worst) = (0, 0, 0, 0.0f64);
+            let (mut inside, mut close, mut border, mut worst) = (0u32, 0u32, 0u32, 0.0f64);
             for i in 0..basis.height {
                 for j in 0..basis.width {
                     let p = (i * basis.width + j) as usize;
@@ -226,7 +226,7 @@ fn uv_filters_refocus_and_aperture_match_the_cpu_reference() {
                     }
                 }
             }
-            let pixels = (basis.width * basis.height) as usize;
+            let pixels = basis.width * basis.height;
             let label = format!("{filter} focus {focus} aperture {aperture}");
             assert!(inside > pixels / 4, "{label}: {inside} pixels inside");
             assert!(
@@ -234,7 +234,7 @@ fn uv_filters_refocus_and_aperture_match_the_cpu_reference() {
                 "{label}: {border} border pixels differ"
             );
             assert!(
-                close as f64 >= 0.995 * inside as f64,
+                f64::from(close) >= 0.995 * f64::from(inside),
                 "{label}: {close} of {inside} within 2 codes"
             );
             assert!(worst <= 12.0, "{label}: worst {worst} codes");
@@ -320,7 +320,7 @@ fn stratified_aperture_draws_converge_to_the_full_aperture() {
     }
     assert!(total > 1000, "{total}");
     assert!(
-        close as f64 >= 0.98 * f64::from(total),
+        f64::from(close) >= 0.98 * f64::from(total),
         "{close} of {total} within 3 codes"
     );
     assert!(
@@ -565,7 +565,7 @@ fn bad_options_and_other_kinds_are_refused() {
             "budget",
         ),
     ] {
-        let err = renderer.render(&field, &v, &options).err().expect(what);
+        let err = renderer.render(&field, &v, &options).expect_err(what);
         assert!(err.to_string().contains(what), "{err}");
     }
     let mut bad_view = v.clone();
