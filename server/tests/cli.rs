@@ -2314,3 +2314,306 @@ fn lumigraph_core_fixtures() -> PathBuf {
     }
     dir
 }
+
+/// A two-plane light field end to end: `bake --two-plane auto` (and from a planes file),
+/// `info`, `render` with every uv filter, refocus, an accumulated aperture and a stereo pair;
+/// bad planes, flags of the other kind and bad values fail cleanly.
+#[test]
+fn two_plane_bake_info_render_and_errors() {
+    let asset = path("two-plane.lfa");
+    let o = lumigraph(&[
+        "bake",
+        "--demo",
+        "-o",
+        s(&asset),
+        "--two-plane",
+        "auto",
+        "--axis",
+        "0,0,1",
+        "--grid",
+        "3x3",
+        "--st-res",
+        "40x32",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        out.contains("planes fitted") && out.contains("3x3 cameras of 40x32 px"),
+        "{out}"
+    );
+    let info = lumigraph(&["info", s(&asset)]);
+    let text = String::from_utf8_lossy(&info.stdout);
+    assert!(
+        info.status.success(),
+        "{}",
+        String::from_utf8_lossy(&info.stderr)
+    );
+    // 9 cameras × 40 × 32 × (4 + 4) bytes; on the GPU the same (9 layers need no padding).
+    assert!(text.contains("lumigraph asset v5"), "{text}");
+    assert!(
+        text.contains("two-plane light field: 3×3 cameras"),
+        "{text}"
+    );
+    assert!(text.contains("decoded size: 92160 bytes"), "{text}");
+    assert!(
+        text.contains("GPU memory when served: 92160 bytes"),
+        "{text}"
+    );
+
+    // The demo's bounding sphere has radius 3.55 about the origin: uv at z = 10.65.
+    let view = write(
+        "two-plane-view.json",
+        br#"{"eye": [0.5, 0.3, 14], "target": [0, 0, 0], "yfov_deg": 30, "width": 48, "height": 40}"#,
+    );
+    for extra in [
+        &["--uv-filter", "nearest"][..],
+        &["--uv-filter", "bilinear", "--focus", "1.5"],
+        &["--uv-filter", "dither"],
+        &["--uv-filter", "depth"],
+        &["--aperture", "1", "--focus", "-0.5", "--accumulate", "4"],
+    ] {
+        let png = path("two-plane.png");
+        let npy = path("two-plane.npy");
+        let mut args = vec![
+            "render",
+            s(&asset),
+            "--view",
+            s(&view),
+            "-o",
+            s(&png),
+            "--depth",
+            s(&npy),
+        ];
+        args.extend_from_slice(extra);
+        let o = lumigraph(&args);
+        assert!(
+            o.status.success(),
+            "{extra:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let (w, h, rgba) = lumigraph_core::image_io::read_png_rgba8(&png).expect("png");
+        assert_eq!((w, h), (48, 40));
+        let (_, _, depth) = lumigraph_core::image_io::read_depth(&npy).expect("npy");
+        let covered = rgba.chunks_exact(4).filter(|p| p[3] > 0).count();
+        assert!(covered > 100, "{extra:?}: {covered} covered");
+        assert_eq!(
+            covered,
+            depth.iter().filter(|z| z.is_finite()).count(),
+            "{extra:?}"
+        );
+    }
+    let stereo = path("stereo.png");
+    let o = lumigraph(&[
+        "render",
+        s(&asset),
+        "--view",
+        s(&view),
+        "-o",
+        s(&stereo),
+        "--stereo",
+        "0.4",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (w, h, rgba) = lumigraph_core::image_io::read_png_rgba8(&stereo).expect("png");
+    assert_eq!((w, h), (96, 40));
+    let half = |x0: usize| -> Vec<u8> {
+        (0..40)
+            .flat_map(|row| rgba[4 * (row * 96 + x0)..4 * (row * 96 + x0 + 48)].to_vec())
+            .collect()
+    };
+    assert_ne!(half(0), half(48), "the eyes see different images");
+
+    // From a planes file: the same planes as `auto` chose give the same light field.
+    let planes_json = out
+        .lines()
+        .find_map(|l| l.split_once("): ").map(|(_, json)| json.to_owned()))
+        .expect("printed planes");
+    let planes = write("planes.json", planes_json.as_bytes());
+    let again = path("two-plane-file.lfa");
+    let o = lumigraph(&["bake", "--demo", "-o", s(&again), "--two-plane", s(&planes)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (a, b) = (
+        lumigraph_core::asset::AssetFile::open(&asset).expect("open"),
+        lumigraph_core::asset::AssetFile::open(&again).expect("open"),
+    );
+    assert_eq!(a.header().geometry, b.header().geometry);
+    for key in a.index().iter().map(|e| e.key) {
+        assert_eq!(
+            a.read_image(key).expect("a"),
+            b.read_image(key).expect("b"),
+            "{key}"
+        );
+    }
+
+    let bad_planes = write(
+        "bad-planes.json",
+        planes_json.replace("\"grid\"", "\"cells\"").as_bytes(),
+    );
+    assert_fails(
+        &[
+            "bake",
+            "--demo",
+            "-o",
+            s(&path("x.lfa")),
+            "--two-plane",
+            s(&bad_planes),
+        ],
+        "unknown field",
+    );
+    assert_fails(
+        &[
+            "bake",
+            "--demo",
+            "-o",
+            s(&path("x.lfa")),
+            "--two-plane",
+            s(&path("missing.json")),
+        ],
+        "cannot read the planes file",
+    );
+    assert_fails(
+        &[
+            "bake",
+            "--demo",
+            "-o",
+            s(&path("x.lfa")),
+            "--two-plane",
+            "auto",
+            "--grid",
+            "3y3",
+        ],
+        "--grid",
+    );
+    assert_fails(
+        &[
+            "bake",
+            "--demo",
+            "-o",
+            s(&path("x.lfa")),
+            "--two-plane",
+            "auto",
+            "--grid",
+            "64x64",
+        ],
+        "uv grid",
+    );
+    assert_fails(
+        &[
+            "bake",
+            "--demo",
+            "-o",
+            s(&path("x.lfa")),
+            "--two-plane",
+            "auto",
+            "--axis",
+            "0,0,0",
+        ],
+        "axis",
+    );
+    assert_fails(
+        &[
+            "bake",
+            "--demo",
+            "-o",
+            s(&path("x.lfa")),
+            "--two-plane",
+            "auto",
+            "--lights",
+            "12",
+        ],
+        "--lights",
+    );
+    assert!(!path("x.lfa").exists());
+    let png = s(&path("bad.png")).to_owned();
+    assert_fails(
+        &[
+            "render",
+            s(&asset),
+            "--view",
+            s(&view),
+            "-o",
+            &png,
+            "--lod",
+            "12",
+        ],
+        "two-plane",
+    );
+    assert_fails(
+        &[
+            "render",
+            s(&asset),
+            "--view",
+            s(&view),
+            "-o",
+            &png,
+            "--uv-filter",
+            "blurry",
+        ],
+        "uv filter",
+    );
+    assert_fails(
+        &[
+            "render",
+            s(&asset),
+            "--view",
+            s(&view),
+            "-o",
+            &png,
+            "--aperture",
+            "-1",
+        ],
+        "aperture",
+    );
+    assert_fails(
+        &[
+            "render",
+            s(&asset),
+            "--view",
+            s(&view),
+            "-o",
+            &png,
+            "--focus",
+            "nan",
+        ],
+        "focus",
+    );
+    assert_fails(
+        &[
+            "render",
+            s(&asset),
+            "--view",
+            s(&view),
+            "-o",
+            &png,
+            "--accumulate",
+            "0",
+        ],
+        "--accumulate",
+    );
+    assert_fails(
+        &[
+            "render",
+            s(&asset),
+            "--view",
+            s(&view),
+            "-o",
+            &png,
+            "--stereo",
+            "-1",
+        ],
+        "--stereo",
+    );
+    assert_fails(
+        &[
+            "render",
+            s(demo_asset()),
+            "--view",
+            s(&view),
+            "-o",
+            &png,
+            "--uv-filter",
+            "depth",
+        ],
+        "two-plane",
+    );
+}

@@ -117,20 +117,43 @@ fn render_two_plane_frame(
     }
     let mut frame = renderer.render(field, view, &options)?;
     if draws > 1 {
-        let mut sum: Vec<u32> = frame.color.iter().map(|&c| u32::from(c)).collect();
-        let mut ms = frame.stats.render_ms;
+        // Premultiplied sums over the draws: a pixel is covered where the mean coverage is at
+        // least ½, with the colour of the draws that cover it and the nearest depth they saw.
+        let pixels = frame.pixel_count();
+        let mut rgb = vec![0u32; 3 * pixels];
+        let mut hits = vec![0u32; pixels];
+        let mut depth = vec![f32::INFINITY; pixels];
+        let mut ms = 0.0;
+        let mut add = |next: &Frame| {
+            for p in 0..pixels {
+                if next.depth[p].is_finite() {
+                    hits[p] += 1;
+                    depth[p] = depth[p].min(next.depth[p]);
+                    for k in 0..3 {
+                        rgb[3 * p + k] += u32::from(next.color[4 * p + k]);
+                    }
+                }
+            }
+            ms += next.stats.render_ms;
+        };
+        add(&frame);
         for index in 1..draws {
             options.frame_index = index;
-            let next = renderer.render(field, view, &options)?;
-            ms += next.stats.render_ms;
-            for (s, &c) in sum.iter_mut().zip(&next.color) {
-                *s += u32::from(c);
+            add(&renderer.render(field, view, &options)?);
+        }
+        let background = options.background;
+        for p in 0..pixels {
+            if 2 * hits[p] >= draws {
+                for k in 0..3 {
+                    frame.color[4 * p + k] = ((rgb[3 * p + k] + hits[p] / 2) / hits[p]) as u8;
+                }
+                frame.color[4 * p + 3] = 255;
+                frame.depth[p] = depth[p];
+            } else {
+                frame.color[4 * p..4 * p + 4].copy_from_slice(&background);
+                frame.depth[p] = f32::INFINITY;
             }
         }
-        frame.color = sum
-            .iter()
-            .map(|&s| ((s + draws / 2) / draws) as u8)
-            .collect();
         frame.stats.render_ms = ms;
     }
     Ok(frame)
@@ -350,6 +373,12 @@ pub(super) fn render(args: &RenderArgs) -> Result<()> {
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("json"))
     {
+        if args.two_plane.given() {
+            bail!(
+                "--uv-filter, --focus, --aperture, --accumulate and --stereo apply to two-plane \
+                 light-field assets, not to scenes"
+            );
+        }
         return render_scene(args, &views, many);
     }
     let asset = AssetFile::open(&args.asset)
