@@ -8,7 +8,9 @@ use std::path::{Path, PathBuf};
 
 /// Writes `path` atomically: `fill` receives a buffered writer on a temporary file in the same
 /// directory; on success the file is synced, renamed over `path` and the directory synced (so the
-/// rename itself is durable), on error it is removed.
+/// rename itself is durable), on error it is removed. A `path` that exists and is not a regular
+/// file (a device such as `/dev/null`, a folder, a pipe) is refused before anything is written:
+/// the rename would replace it.
 pub fn atomic_write<E>(
     path: &Path,
     fill: impl FnOnce(&mut BufWriter<File>) -> Result<(), E>,
@@ -16,6 +18,7 @@ pub fn atomic_write<E>(
 where
     E: From<std::io::Error>,
 {
+    check_target(path)?;
     let tmp = temp_path_for(path);
     let result = (|| {
         let file = File::create(&tmp)?;
@@ -35,6 +38,21 @@ where
         let _ = std::fs::remove_file(&tmp);
     }
     result
+}
+
+/// Refuses a target that exists and is not a regular file (a symbolic link to one is fine:
+/// the rename replaces the link, as for any file).
+pub fn check_target(path: &Path) -> std::io::Result<()> {
+    match std::fs::symlink_metadata(path) {
+        Ok(meta) if !(meta.is_file() || meta.file_type().is_symlink()) => Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!(
+                "{} exists and is not a regular file; give a file path",
+                path.display()
+            ),
+        )),
+        _ => Ok(()),
+    }
 }
 
 /// Makes the entries of `dir` durable: after a file is created, renamed or removed in it, an
@@ -89,6 +107,8 @@ pub fn temp_path_for(path: &Path) -> PathBuf {
 #[cfg(test)]
 mod tests {
     use super::*;
+    #[cfg(unix)]
+    use std::os::unix::fs::FileTypeExt;
 
     #[test]
     fn writes_and_cleans_up_on_error() {
@@ -103,6 +123,29 @@ mod tests {
         assert!(err.is_err());
         // The old content survives and no temp file is left behind.
         assert_eq!(std::fs::read(&target).unwrap(), b"hello");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    /// A device or a folder at the target is refused, untouched, with nothing left behind
+    /// (renaming over `/dev/null` would replace the device with a file).
+    #[cfg(unix)]
+    #[test]
+    fn targets_that_are_not_regular_files_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let folder = dir.path().join("folder");
+        std::fs::create_dir(&folder).unwrap();
+        for target in [Path::new("/dev/null"), folder.as_path()] {
+            let err = atomic_write::<std::io::Error>(target, |w| w.write_all(b"x")).unwrap_err();
+            assert_eq!(err.kind(), std::io::ErrorKind::InvalidInput, "{err}");
+            assert!(err.to_string().contains("not a regular file"), "{err}");
+        }
+        assert!(folder.is_dir());
+        assert!(
+            std::fs::metadata("/dev/null")
+                .unwrap()
+                .file_type()
+                .is_char_device()
+        );
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 

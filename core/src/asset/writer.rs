@@ -47,6 +47,7 @@ impl AssetWriter {
         let target = path.as_ref().to_path_buf();
         // Validate before touching the file system: an invalid header leaves nothing behind.
         Layout::new(&header)?;
+        crate::fsutil::check_target(&target)?;
         let tmp = temp_path_for(&target);
         let file = File::create_new(&tmp)?;
         let mut writer = Self {
