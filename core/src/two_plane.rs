@@ -519,7 +519,7 @@ pub fn encode_capture(frame: &Frame) -> (Vec<u8>, Vec<u8>) {
 
 /// Captures a two-plane light field of `mesh` ([`capture`], one camera at a time) and writes it
 /// to `path` atomically (`.lfa` version 5, kind `two_plane`, docs/format.md §8.7).
-/// `provenance.bake_options` and the bake time are filled in by the caller and here.
+/// `provenance.bake_options` is the caller's; the bake time is filled in here.
 ///
 /// # Errors
 /// [`TwoPlaneBakeError`]; on error nothing is left at `path`.
@@ -532,13 +532,91 @@ pub fn bake_to_file(
     path: &std::path::Path,
     progress: &mut dyn FnMut(u32, u32),
 ) -> Result<TwoPlaneBakeReport, TwoPlaneBakeError> {
-    use crate::asset::{AssetHeader, AssetWriter, Channel, DEFAULT_PAGE_SIZE, ImageKey};
-    let start = std::time::Instant::now();
+    let header = two_plane_header(planes, provenance)?;
+    let mut writer = crate::asset::AssetWriter::create(path, header)?;
+    let (bake_ms, coverage) = capture_each(
+        reference,
+        mesh,
+        planes,
+        shading,
+        progress,
+        &mut |key, bytes| writer.add_image(key, bytes),
+    )?;
+    writer.set_bake_ms(bake_ms);
+    writer.finish()?;
+    Ok(TwoPlaneBakeReport {
+        cameras: planes.camera_count(),
+        resolution: planes.st.resolution,
+        bake_ms,
+        asset_bytes: std::fs::metadata(path).map_or(0, |m| m.len()),
+        coverage,
+    })
+}
+
+/// [`bake_to_file`] into memory: the encoded asset and its report.
+///
+/// # Errors
+/// [`TwoPlaneBakeError`].
+pub fn bake_to_bytes(
+    reference: &ReferenceRenderer,
+    mesh: &GpuMesh,
+    planes: &TwoPlanes,
+    shading: &Shading,
+    provenance: crate::asset::Provenance,
+    progress: &mut dyn FnMut(u32, u32),
+) -> Result<(Vec<u8>, TwoPlaneBakeReport), TwoPlaneBakeError> {
+    let header = two_plane_header(planes, provenance)?;
+    let mut writer = crate::asset::MemoryWriter::new(header)?;
+    let (bake_ms, coverage) = capture_each(
+        reference,
+        mesh,
+        planes,
+        shading,
+        progress,
+        &mut |key, bytes| writer.add_image(key, bytes),
+    )?;
+    writer.set_bake_ms(bake_ms);
+    let bytes = writer.finish()?;
+    let report = TwoPlaneBakeReport {
+        cameras: planes.camera_count(),
+        resolution: planes.st.resolution,
+        bake_ms,
+        asset_bytes: bytes.len() as u64,
+        coverage,
+    };
+    Ok((bytes, report))
+}
+
+fn two_plane_header(
+    planes: &TwoPlanes,
+    provenance: crate::asset::Provenance,
+) -> Result<crate::asset::AssetHeader, TwoPlaneBakeError> {
     planes
         .validate()
         .map_err(|e| ReferenceError::Projection(e.to_string()))?;
-    let header = AssetHeader::new_two_plane(*planes, DEFAULT_PAGE_SIZE, provenance)?;
-    let mut writer = AssetWriter::create(path, header)?;
+    Ok(crate::asset::AssetHeader::new_two_plane(
+        *planes,
+        crate::asset::DEFAULT_PAGE_SIZE,
+        provenance,
+    )?)
+}
+
+/// Where [`capture_each`] hands each image: a file or an in-memory writer.
+type ImageSink<'a> =
+    dyn FnMut(crate::asset::ImageKey, &[u8]) -> Result<(), crate::asset::AssetError> + 'a;
+
+/// Captures every camera and hands its colour and depth images to `add`: the wall time (ms)
+/// and the fraction of texels that hit.
+fn capture_each(
+    reference: &ReferenceRenderer,
+    mesh: &GpuMesh,
+    planes: &TwoPlanes,
+    shading: &Shading,
+    progress: &mut dyn FnMut(u32, u32),
+    add: &mut ImageSink<'_>,
+) -> Result<(f64, f64), TwoPlaneBakeError> {
+    use crate::asset::{Channel, ImageKey};
+    let start = std::time::Instant::now();
     let [nu, nv] = planes.uv.grid;
     let total = planes.camera_count();
     let distance = planes.separation();
@@ -552,23 +630,17 @@ pub fn bake_to_file(
             hits += frame.depth.iter().filter(|d| d.is_finite()).count() as u64;
             let (color, depth) = encode_capture(&frame);
             let camera = b * nu + a;
-            writer.add_image(ImageKey::new(0, 0, camera, Channel::Color), &color)?;
-            writer.add_image(ImageKey::new(0, 0, camera, Channel::Depth), &depth)?;
+            add(ImageKey::new(0, 0, camera, Channel::Color), &color)?;
+            add(ImageKey::new(0, 0, camera, Channel::Depth), &depth)?;
             progress(camera + 1, total);
         }
     }
-    let bake_ms = start.elapsed().as_secs_f64() * 1e3;
-    writer.set_bake_ms(bake_ms);
-    writer.finish()?;
     let [ns, nt] = planes.st.resolution;
     let texels = u64::from(total) * u64::from(ns) * u64::from(nt);
-    Ok(TwoPlaneBakeReport {
-        cameras: total,
-        resolution: planes.st.resolution,
-        bake_ms,
-        asset_bytes: std::fs::metadata(path).map_or(0, |m| m.len()),
-        coverage: hits as f64 / texels as f64,
-    })
+    Ok((
+        start.elapsed().as_secs_f64() * 1e3,
+        hits as f64 / texels as f64,
+    ))
 }
 
 /// The four cameras (or texels) around a continuous coordinate pair and their bilinear weights,

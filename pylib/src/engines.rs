@@ -7,6 +7,7 @@ use lumigraph_core::bake::Baker;
 use lumigraph_core::gpu::{Gpu, GpuError};
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::Renderer;
+use lumigraph_core::two_plane_render::TwoPlaneRenderer;
 use lumigraph_core::volume::bake::VolumeBaker;
 use pyo3::prelude::*;
 
@@ -14,6 +15,7 @@ static BAKER: OnceLock<Baker> = OnceLock::new();
 static RENDERER: OnceLock<Renderer> = OnceLock::new();
 static REFERENCE: OnceLock<ReferenceRenderer> = OnceLock::new();
 static VOLUME_BAKER: OnceLock<VolumeBaker> = OnceLock::new();
+static TWO_PLANE: OnceLock<TwoPlaneRenderer> = OnceLock::new();
 
 /// The shared device (`Gpu::shared` remembers a failure, so a missing driver is reported on
 /// every call with the same message).
@@ -46,6 +48,15 @@ pub fn renderer() -> Result<&'static Renderer, GpuError> {
     }
     let gpu = gpu()?;
     Ok(RENDERER.get_or_init(|| Renderer::new(gpu)))
+}
+
+/// The two-plane light-field renderer; call with the GIL released.
+pub fn two_plane_renderer() -> Result<&'static TwoPlaneRenderer, GpuError> {
+    if let Some(renderer) = TWO_PLANE.get() {
+        return Ok(renderer);
+    }
+    let gpu = gpu()?;
+    Ok(TWO_PLANE.get_or_init(|| TwoPlaneRenderer::new(gpu)))
 }
 
 /// The reference rasterizer; call with the GIL released.

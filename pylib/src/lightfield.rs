@@ -14,6 +14,7 @@ use lumigraph_core::lod::LodError;
 use lumigraph_core::quality::{Plan, Quality, QualityError};
 use lumigraph_core::render::GpuLightField;
 use lumigraph_core::shading::Shading;
+use lumigraph_core::two_plane_render::{GpuTwoPlane, TwoPlaneOptions};
 use lumigraph_core::view::View;
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
@@ -42,6 +43,7 @@ pub struct PyLightField {
     asset: Arc<AssetFile>,
     origin: Origin,
     gpu: Mutex<Option<Arc<GpuLightField>>>,
+    two_plane: Mutex<Option<Arc<GpuTwoPlane>>>,
 }
 
 impl PyLightField {
@@ -50,7 +52,53 @@ impl PyLightField {
             asset: Arc::new(asset),
             origin,
             gpu: Mutex::new(None),
+            two_plane: Mutex::new(None),
         }
+    }
+
+    /// Uploads a two-plane asset once; call with the GIL released.
+    fn uploaded_two_plane(&self) -> PyResult<Arc<GpuTwoPlane>> {
+        let mut slot = self
+            .two_plane
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(field) = slot.as_ref() {
+            return Ok(field.clone());
+        }
+        let renderer = engines::two_plane_renderer().map_err(|e| errors::gpu_for_render(&e))?;
+        let field = Arc::new(
+            renderer
+                .upload(&self.asset)
+                .map_err(|e| errors::render(&e))?,
+        );
+        *slot = Some(field.clone());
+        Ok(field)
+    }
+
+    /// Renders every view of a two-plane asset with `options` (GIL released).
+    fn render_two_plane(
+        &self,
+        py: Python<'_>,
+        views: &[View],
+        options: &TwoPlaneOptions,
+        background: Option<[u8; 4]>,
+    ) -> PyResult<Vec<PyFrame>> {
+        let frames: Vec<Frame> = py.detach(|| {
+            let field = self.uploaded_two_plane()?;
+            let renderer = engines::two_plane_renderer().map_err(|e| errors::gpu_for_render(&e))?;
+            views
+                .iter()
+                .map(|v| {
+                    renderer
+                        .render(&field, v, options)
+                        .map_err(|e| errors::render(&e))
+                })
+                .collect::<PyResult<Vec<Frame>>>()
+        })?;
+        Ok(frames
+            .into_iter()
+            .map(|f| PyFrame::new(f, background))
+            .collect())
     }
 
     /// Uploads once; call with the GIL released.
@@ -192,6 +240,28 @@ fn json_of(value: &Bound<'_, PyAny>) -> PyResult<serde_json::Value> {
 }
 
 /// The quality request of keyword arguments (core `Quality`: the same keys as the HTTP body).
+/// The keyword options of a two-plane render (`uv_filter`, `focus`, `aperture`, `steps`,
+/// `tolerance`, `dither_amplitude`, `sample_budget`, `frame_index`).
+fn two_plane_options_of(kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<TwoPlaneOptions> {
+    let mut map = serde_json::Map::new();
+    if let Some(kwargs) = kwargs {
+        for (key, value) in kwargs.iter() {
+            map.insert(key.extract::<String>()?, json_of(&value)?);
+        }
+    }
+    let options: TwoPlaneOptions =
+        serde_json::from_value(serde_json::Value::Object(map)).map_err(|e| {
+            PyValueError::new_err(format!(
+                "two-plane render options (uv_filter, focus, aperture, steps, tolerance, \
+                 dither_amplitude, sample_budget, frame_index): {e}"
+            ))
+        })?;
+    options
+        .validate()
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    Ok(options)
+}
+
 fn quality_of(kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<Quality> {
     let mut map = serde_json::Map::new();
     if let Some(kwargs) = kwargs {
@@ -302,13 +372,35 @@ impl PyLightField {
         py.import("json")?.call_method1("loads", (text,))
     }
 
-    /// Number of cameras baked (12, 42, 162 or 642).
+    /// Number of cameras baked (12, 42, 162 or 642; a two-plane light field: nu·nv).
     #[getter]
     fn cameras(&self) -> u32 {
         self.asset.header().camera_count()
     }
 
-    /// Side of each camera's parabolic map, pixels.
+    /// The kind of light field: ``"spherical"`` or ``"two_plane"``.
+    #[getter]
+    fn kind(&self) -> &'static str {
+        if self.asset.header().two_plane().is_some() {
+            "two_plane"
+        } else {
+            "spherical"
+        }
+    }
+
+    /// The planes of a two-plane light field (DESIGN §9's JSON as a dict), None for a spherical
+    /// one.
+    #[getter]
+    fn planes<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        let Some(planes) = self.asset.header().two_plane() else {
+            return Ok(None);
+        };
+        let text =
+            serde_json::to_string(planes).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        Ok(Some(py.import("json")?.call_method1("loads", (text,))?))
+    }
+
+    /// Side of each camera's parabolic map, pixels (a two-plane light field: its st width).
     #[getter]
     fn resolution(&self) -> u32 {
         self.asset.header().image_size()[0]
@@ -373,8 +465,15 @@ impl PyLightField {
         quality: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<PyFrame> {
         let view = view::parse_view(view)?;
-        let plan = self.plan(&quality_of(quality)?)?;
         let background = background.map(parse_background).transpose()?;
+        if self.asset.header().two_plane().is_some() {
+            let options = two_plane_options_of(quality)?;
+            return self
+                .render_two_plane(py, &[view], &options, background)?
+                .pop()
+                .ok_or_else(|| errors::RenderError::new_err("no frame rendered"));
+        }
+        let plan = self.plan(&quality_of(quality)?)?;
         self.render_all(py, &[view], &plan, background)?
             .pop()
             .ok_or_else(|| errors::RenderError::new_err("no frame rendered"))
@@ -393,6 +492,15 @@ impl PyLightField {
         quality: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Vec<PyFrame>> {
         let views = view::parse_views(views)?;
+        if self.asset.header().two_plane().is_some() {
+            let options = two_plane_options_of(quality)?;
+            for v in &views {
+                v.basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX)
+                    .map_err(|e| PyValueError::new_err(e.to_string()))?;
+            }
+            let background = background.map(parse_background).transpose()?;
+            return self.render_two_plane(py, &views, &options, background);
+        }
         let plan = self.plan(&quality_of(quality)?)?;
         for v in &views {
             v.basis(lumigraph_core::view::DEFAULT_MAX_VIEW_PX)
@@ -732,6 +840,99 @@ pub fn bake(
                 .bake_states_to_bytes(&core_mesh, &state_bake, &options, &provenance, &mut report)
                 .map_err(|e| errors::bake(&e))?
         };
+        PyResult::Ok((bytes, callback_error))
+    })?;
+    if let Some(error) = callback_error {
+        return Err(error);
+    }
+    let asset = py
+        .detach(|| AssetFile::from_bytes(bytes.clone()))
+        .map_err(|e| errors::asset(&e, None))?;
+    Ok(PyLightField::new(asset, Origin::Memory(Arc::new(bytes))))
+}
+
+/// Native two-plane bake on a `Mesh` (the Python `bake_two_plane` converts other inputs, the
+/// planes and the progress flag). `planes`: DESIGN §9's JSON, or None to fit them to the mesh's
+/// bounding sphere along `axis` with `grid` and `st_res`.
+#[pyfunction]
+#[pyo3(signature = (mesh, *, planes, axis, grid, st_res, light, ambient, specular, unlit, shadows, progress))]
+#[allow(clippy::too_many_arguments, clippy::fn_params_excessive_bools)]
+pub fn bake_two_plane(
+    py: Python<'_>,
+    mesh: Bound<'_, PyMesh>,
+    planes: Option<String>,
+    axis: [f64; 3],
+    grid: [u32; 2],
+    st_res: [u32; 2],
+    light: [f32; 3],
+    ambient: f32,
+    specular: Option<(f32, f32)>,
+    unlit: bool,
+    shadows: bool,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<PyLightField> {
+    if let Some(callback) = &progress
+        && !callback.bind(py).is_callable()
+    {
+        return Err(PyTypeError::new_err(
+            "progress must be a bool or a callable(done, total)",
+        ));
+    }
+    let shading = shading(light, ambient, specular, unlit, shadows)?;
+    let explicit = planes
+        .as_deref()
+        .map(lumigraph_core::two_plane::TwoPlanes::from_json)
+        .transpose()
+        .map_err(|e| PyValueError::new_err(format!("planes: {e}")))?;
+    let m = mesh.get();
+    let core_mesh = m.mesh.clone();
+    let mut provenance = Provenance {
+        source_name: m.source_name.clone(),
+        source_sha256: m.source_sha256.clone(),
+        lumigraph_version: env!("CARGO_PKG_VERSION").to_owned(),
+        triangles: core_mesh.triangles.len() as u64,
+        vertices: core_mesh.positions.len() as u64,
+        created_unix: std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs()),
+        ..Provenance::default()
+    };
+    let (bytes, callback_error) = py.detach(|| {
+        let reference = engines::reference().map_err(|e| errors::gpu_for_render(&e))?;
+        let gpu_mesh = reference
+            .upload(&core_mesh)
+            .map_err(|e| errors::BakeError::new_err(e.to_string()))?;
+        let planes = match explicit {
+            Some(p) => p,
+            None => lumigraph_core::two_plane::fit_planes(
+                lumigraph_core::glam::DVec3::from(gpu_mesh.frame.center),
+                gpu_mesh.frame.radius,
+                lumigraph_core::glam::DVec3::from(axis),
+                grid,
+                st_res,
+            )
+            .map_err(|e| PyValueError::new_err(format!("cannot fit planes: {e}")))?,
+        };
+        provenance.bake_options = serde_json::json!({"two_plane": planes, "shading": shading});
+        let mut callback_error: Option<PyErr> = None;
+        let mut report = |done: u32, total: u32| {
+            if let (Some(callback), None) = (&progress, &callback_error) {
+                Python::attach(|py| {
+                    if let Err(e) = callback.call1(py, (done, total)) {
+                        callback_error = Some(e);
+                    }
+                });
+            }
+        };
+        let (bytes, _) = lumigraph_core::two_plane::bake_to_bytes(
+            reference,
+            &gpu_mesh,
+            &planes,
+            &shading,
+            provenance,
+            &mut report,
+        )
+        .map_err(|e| errors::BakeError::new_err(e.to_string()))?;
         PyResult::Ok((bytes, callback_error))
     })?;
     if let Some(error) = callback_error {

@@ -42,6 +42,7 @@ from ._lumigraph import (
     orbit_views,
 )
 from ._lumigraph import bake as _bake
+from ._lumigraph import bake_two_plane as _bake_two_plane
 from ._lumigraph import bake_volume as _bake_volume
 from ._lumigraph import reference_render as _reference_render
 from ._lumigraph import reference_volume as _reference_volume
@@ -64,6 +65,7 @@ __all__ = [
     "as_mesh",
     "bake_animation",
     "bake_mesh",
+    "bake_two_plane",
     "bake_volume",
     "device_info",
     "metrics",
@@ -311,6 +313,73 @@ def bake_mesh(
         shadows=shadows,
         lights=lights,
         states=None if states is None else [(name, as_mesh(m)) for name, m in states.items()],
+    )
+
+
+def bake_two_plane(
+    mesh: MeshLike,
+    *,
+    planes: Mapping[str, Any] | str | os.PathLike[str] = "auto",
+    axis: Sequence[float] = (0.0, 0.0, 1.0),
+    grid: tuple[int, int] = (8, 8),
+    st_res: tuple[int, int] = (256, 256),
+    light: Sequence[float] = DEFAULT_LIGHT,
+    ambient: float = DEFAULT_AMBIENT,
+    specular: tuple[float, float] | None = None,
+    unlit: bool = False,
+    shadows: bool = False,
+    progress: bool | Callable[[int, int], object] = True,
+) -> LightField:
+    """Captures a mesh into a two-plane light field L(u, v, s, t) on the GPU (GIL released).
+
+    One off-axis camera per uv grid cell images the st rectangle (DESIGN §9): colour and the
+    stored depth ``|hit - C| / |S - C|`` of the first surface beyond the camera, geometry
+    between the planes included. Render with ``lf.render(view, uv_filter=..., focus=...,
+    aperture=...)`` (docs/two_plane.md).
+
+    Args:
+        mesh: any :func:`as_mesh` input.
+        planes: ``"auto"`` to fit the planes to the mesh's bounding sphere along ``axis`` (st
+            through its centre, uv three radii from it; ``lf.planes`` says what was chosen),
+            DESIGN §9's plane JSON as a dict, or a path to such a JSON file.
+        axis: with ``"auto"``: the direction from the object towards the cameras.
+        grid: with ``"auto"``: cameras ``(nu, nv)``, at most 2048 in all.
+        st_res: with ``"auto"``: each camera's image ``(ns, nt)`` in texels.
+        light, ambient, specular, unlit, shadows: shading, as :func:`bake_mesh`.
+        progress: True prints progress to stderr; a callable gets ``(done, total)``.
+
+    Returns:
+        The :class:`LightField` (``kind == "two_plane"``, in memory; :meth:`LightField.save`
+        writes it).
+
+    Raises:
+        ValueError: invalid planes (the message names the rule), a bad axis, grid or
+            resolution. MeshError: invalid mesh. BakeError: the device failed.
+    """
+    import json
+
+    if isinstance(planes, str) and planes == "auto":
+        text = None
+    elif isinstance(planes, Mapping):
+        text = json.dumps(dict(planes))
+    elif isinstance(planes, (str, os.PathLike)):
+        with open(planes, encoding="utf-8") as f:
+            text = f.read()
+    else:
+        raise TypeError("planes must be 'auto', a dict or a path to a JSON file")
+    native = as_mesh(mesh)
+    return _bake_two_plane(
+        native,
+        planes=text,
+        axis=tuple(float(x) for x in axis),
+        grid=(int(grid[0]), int(grid[1])),
+        st_res=(int(st_res[0]), int(st_res[1])),
+        light=tuple(light),
+        ambient=ambient,
+        specular=specular,
+        unlit=unlit,
+        shadows=shadows,
+        progress=_progress_callback(progress),
     )
 
 

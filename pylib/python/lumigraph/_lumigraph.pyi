@@ -9,7 +9,7 @@ import numpy.typing as npt
 __version__: str
 __all__ = [
     "AssetError", "BakeError", "Frame", "LightField", "LumigraphError", "Mesh", "MeshError",
-    "RenderError", "View", "bake", "bake_volume", "compare", "depth_error", "device_info", "mae", "masked_psnr",
+    "RenderError", "View", "bake", "bake_two_plane", "bake_volume", "compare", "depth_error", "device_info", "mae", "masked_psnr",
     "orbit_views", "psnr", "reference_render", "reference_volume", "ssim", "__version__",
 ]
 
@@ -35,6 +35,15 @@ class _Quality(TypedDict, total=False):
     state: str | None
     time: float | None
     frame: int | None
+    # Two-plane light fields (``lf.kind == "two_plane"``) take these instead (tolerance in
+    # world units there): docs/two_plane.md.
+    uv_filter: str | None
+    focus: float | None
+    aperture: float | None
+    steps: int | None
+    dither_amplitude: float | None
+    sample_budget: int | None
+    frame_index: int | None
 
 _Image = Frame | npt.ArrayLike
 
@@ -143,6 +152,10 @@ class LightField:
     @property
     def deformations(self) -> list[dict[str, Any]]: ...
     @property
+    def kind(self) -> str: ...
+    @property
+    def planes(self) -> dict[str, Any] | None: ...
+    @property
     def cameras(self) -> int: ...
     @property
     def resolution(self) -> int: ...
@@ -213,6 +226,20 @@ def bake(
     lights: int | None = None,
     states: Sequence[tuple[str, Mesh]] | None = None,
     animation: tuple[str, str | None, float] | None = None,
+) -> LightField: ...
+def bake_two_plane(
+    mesh: Mesh,
+    *,
+    planes: str | None,
+    axis: Sequence[float],
+    grid: Sequence[int],
+    st_res: Sequence[int],
+    light: Sequence[float],
+    ambient: float,
+    specular: tuple[float, float] | None,
+    unlit: bool,
+    shadows: bool,
+    progress: Callable[[int, int], object] | None,
 ) -> LightField: ...
 def reference_render(
     mesh: Mesh,
