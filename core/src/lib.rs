@@ -65,6 +65,7 @@ pub mod shaders;
 pub mod shading;
 pub mod tradeoff;
 pub mod two_plane;
+pub mod two_plane_io;
 pub mod two_plane_render;
 pub mod view;
 pub mod volume;

@@ -2617,3 +2617,175 @@ fn two_plane_bake_info_render_and_errors() {
         "two-plane",
     );
 }
+
+/// `export --images` then `import --layout grid` round-trips a two-plane asset bit for bit
+/// (colour, depth and planes); the Stanford names read the same; the mosaic tiles every camera;
+/// malformed grids, inconsistent sizes, hostile sizes and the unsupported lenslet layout fail
+/// cleanly.
+#[test]
+fn two_plane_import_export_round_trip_and_errors() {
+    let asset = path("io-two-plane.lfa");
+    let o = lumigraph(&[
+        "bake",
+        "--demo",
+        "-o",
+        s(&asset),
+        "--two-plane",
+        "auto",
+        "--grid",
+        "3x2",
+        "--st-res",
+        "24x20",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let images = path("io-images");
+    let o = lumigraph(&["export", s(&asset), "--images", s(&images)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(images.join("001_002.png").is_file() && images.join("001_002.npy").is_file());
+    let again = path("io-again.lfa");
+    let o = lumigraph(&["import", s(&images), "-o", s(&again)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (a, b) = (
+        lumigraph_core::asset::AssetFile::open(&asset).expect("open"),
+        lumigraph_core::asset::AssetFile::open(&again).expect("open"),
+    );
+    assert_eq!(a.header().geometry, b.header().geometry);
+    assert_eq!(a.index().len(), b.index().len());
+    for key in a.index().iter().map(|e| e.key) {
+        assert_eq!(
+            a.read_image(key).expect("a"),
+            b.read_image(key).expect("b"),
+            "{key}"
+        );
+    }
+
+    // The mosaic: 3 × 2 tiles of 24 × 20, camera (a, b) at tile (a, b).
+    let mosaic = path("io-mosaic.png");
+    let o = lumigraph(&["export", s(&asset), "--mosaic", s(&mosaic)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (w, h, rgba) = lumigraph_core::image_io::read_png_rgba8(&mosaic).expect("png");
+    assert_eq!((w, h), (72, 40));
+    let camera_4 = a
+        .read_image(lumigraph_core::asset::ImageKey::new(
+            0,
+            0,
+            4,
+            lumigraph_core::asset::Channel::Color,
+        ))
+        .expect("camera 4");
+    for i in 0..20usize {
+        let row = &rgba[4 * ((20 + i) * 72 + 24)..4 * ((20 + i) * 72 + 48)];
+        assert_eq!(row, &camera_4[4 * 24 * i..4 * 24 * (i + 1)], "row {i}");
+    }
+
+    // Stanford names (rows and columns first, camera positions after), no depth, no planes:
+    // the default placement, depth on the st plane.
+    let stanford = path("io-stanford");
+    std::fs::create_dir_all(&stanford).expect("dir");
+    for b in 0..2 {
+        for a in 0..3 {
+            let src = images.join(format!("{b:03}_{a:03}.png"));
+            let dst = stanford.join(format!("out_{b:02}_{a:02}_-859.738525_{}.5_.png", 1000 + a));
+            std::fs::copy(src, dst).expect("copy");
+        }
+    }
+    let imported = path("io-stanford.lfa");
+    let o = lumigraph(&[
+        "import",
+        s(&stanford),
+        "-o",
+        s(&imported),
+        "--layout",
+        "stanford",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("no depth"));
+    let c = lumigraph_core::asset::AssetFile::open(&imported).expect("open");
+    let planes = c.header().two_plane().expect("two-plane");
+    assert_eq!((planes.uv.grid, planes.st.resolution), ([3, 2], [24, 20]));
+    let color =
+        lumigraph_core::asset::ImageKey::new(0, 0, 5, lumigraph_core::asset::Channel::Color);
+    assert_eq!(
+        c.read_image(color).expect("c"),
+        a.read_image(color).expect("a")
+    );
+    let view = write(
+        "io-view.json",
+        br#"{"eye": [0.3, 0.2, 2.5], "target": [0, 0, 0], "yfov_deg": 40, "width": 32, "height": 32}"#,
+    );
+    let o = lumigraph(&[
+        "render",
+        s(&imported),
+        "--view",
+        s(&view),
+        "-o",
+        s(&path("io.png")),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    // Malformed folders.
+    let broken = |name: &str, files: &[(&str, u32, u32)]| -> PathBuf {
+        let dir = path(name);
+        std::fs::create_dir_all(&dir).expect("dir");
+        for (file, w, h) in files {
+            lumigraph_core::image_io::write_png_rgba8(
+                &dir.join(file),
+                *w,
+                *h,
+                &vec![7u8; (*w * *h * 4) as usize],
+            )
+            .expect("png");
+        }
+        dir
+    };
+    let out = s(&path("io-bad.lfa")).to_owned();
+    let missing = broken(
+        "io-missing",
+        &[("0_0.png", 4, 4), ("0_1.png", 4, 4), ("1_0.png", 4, 4)],
+    );
+    assert_fails(
+        &["import", s(&missing), "-o", &out],
+        "row 1 column 1 has no image",
+    );
+    let sizes = broken("io-sizes", &[("0_0.png", 4, 4), ("0_1.png", 5, 4)]);
+    assert_fails(&["import", s(&sizes), "-o", &out], "is 5 x 4 px");
+    let unnamed = broken("io-unnamed", &[("left.png", 4, 4)]);
+    assert_fails(&["import", s(&unnamed), "-o", &out], "no row and column");
+    let twice = broken("io-twice", &[("0_0.png", 4, 4), ("a0_0.png", 4, 4)]);
+    assert_fails(
+        &["import", s(&twice), "-o", &out],
+        "both name row 0 column 0",
+    );
+    let huge = broken("io-huge", &[("0_0.png", 9000, 1)]);
+    assert_fails(&["import", s(&huge), "-o", &out], "at most 8192");
+    let empty = broken("io-empty", &[]);
+    assert_fails(&["import", s(&empty), "-o", &out], "no PNG images");
+    let partial = broken("io-partial", &[("0_0.png", 4, 4), ("0_1.png", 4, 4)]);
+    lumigraph_core::image_io::write_depth_npy(&partial.join("0_0.npy"), 4, 4, &[1.0; 16])
+        .expect("npy");
+    assert_fails(&["import", s(&partial), "-o", &out], "give all or none");
+    assert_fails(
+        &["import", s(&images), "-o", &out, "--layout", "lenslet"],
+        "lenslet",
+    );
+    assert_fails(
+        &["import", s(&images), "-o", &out, "--layout", "tiles"],
+        "layout",
+    );
+    assert_fails(
+        &[
+            "import",
+            s(&images),
+            "-o",
+            &out,
+            "--planes",
+            s(&write("io-planes.json", br#"{"right": [1, 0, 0]}"#)),
+        ],
+        "missing field",
+    );
+    assert_fails(
+        &["export", s(demo_asset()), "--images", s(&path("io-x"))],
+        "Spherical",
+    );
+    assert!(!path("io-bad.lfa").exists());
+}

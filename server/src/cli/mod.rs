@@ -23,6 +23,7 @@ mod info;
 mod plot;
 mod render;
 mod serve;
+mod two_plane_io;
 
 pub use args::{DepthArgs, ShadingArgs, ViewArgs};
 pub use bake::BakeArgs;
@@ -58,6 +59,11 @@ pub enum Command {
     /// Turn external renders (perspective colour + unfiltered z-depth images with their DESIGN
     /// §3 views) into a spherical light field through depth reliefs (seed 000 §3.4).
     ImportViews(import_views::ImportViewsArgs),
+    /// Import a folder of images on a camera grid (or the Stanford archive layout) as a
+    /// two-plane light field.
+    Import(two_plane_io::ImportArgs),
+    /// Export a two-plane light field as per-camera images (+ depth) or the plenoptic mosaic.
+    Export(two_plane_io::ExportArgs),
     /// Benchmarks: `bench tradeoff` sweeps the quality knobs (speed against accuracy).
     Bench(BenchArgs),
     /// Serve the HTTP/WebSocket render service and the web viewer (bakes the demo on first start).
@@ -79,6 +85,8 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Eval(args) => eval::eval(&args),
         Command::Info(args) => info::info(&args),
         Command::ImportViews(args) => import_views::import_views(&args),
+        Command::Import(args) => two_plane_io::import(&args),
+        Command::Export(args) => two_plane_io::export(&args),
         Command::Bench(args) => match args.command {
             BenchCommand::Tradeoff(args) => bench::bench_tradeoff(&args),
             BenchCommand::Lights(args) => bench_lights::bench_lights(&args),
