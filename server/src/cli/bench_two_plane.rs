@@ -9,6 +9,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use lumigraph_core::asset::AssetFile;
 use lumigraph_core::frame::Frame;
+use lumigraph_core::image_io;
 use lumigraph_core::metrics;
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::shading::Shading;
@@ -65,6 +66,11 @@ struct Row {
     wrong_surface_px: f64,
     valid_px: f64,
     ms: f64,
+    /// Mean bytes of the frame as the stream sends it: JPEG at the interactive quality (50),
+    /// JPEG at the still quality (90), lossless WebP (black background).
+    jpeg50_bytes: f64,
+    jpeg90_bytes: f64,
+    webp_bytes: f64,
 }
 
 #[derive(Debug, Serialize)]
@@ -221,8 +227,14 @@ fn sweep(
                 };
                 let (mut psnr, mut ssim, mut wrong, mut valid, mut ms) =
                     (0.0, 0.0, 0.0, 0.0, Vec::new());
+                let mut bytes = [0.0f64; 3];
                 for (view, (region, truth)) in views.iter().zip(&truths) {
                     let (frame, t) = timed(renderer, &field, view, &options, args.repeats)?;
+                    let rgba = frame.with_background([0, 0, 0, 255]);
+                    let (w, h) = (frame.width, frame.height);
+                    bytes[0] += image_io::encode_jpeg(w, h, &rgba, 50, [0; 3])?.len() as f64;
+                    bytes[1] += image_io::encode_jpeg(w, h, &rgba, 90, [0; 3])?.len() as f64;
+                    bytes[2] += image_io::encode_webp_lossless(w, h, &rgba)?.len() as f64;
                     let frame = restrict(&frame, region, [0; 4]);
                     let c = metrics::compare(&frame, truth)?;
                     psnr += c.masked_psnr;
@@ -241,10 +253,14 @@ fn sweep(
                     wrong_surface_px: wrong / n,
                     valid_px: valid / n,
                     ms: median(ms),
+                    jpeg50_bytes: bytes[0] / n,
+                    jpeg90_bytes: bytes[1] / n,
+                    webp_bytes: bytes[2] / n,
                 };
                 println!(
                     "{}x{} cameras, {}x{} st, {:>8}: masked PSNR {:.2} dB, SSIM {:.4}, wrong \
-                     surface {:.0} px of {:.0} valid, {:.2} ms",
+                     surface {:.0} px of {:.0} valid, {:.2} ms, JPEG 50 / 90 / WebP {:.0} / \
+                     {:.0} / {:.0} bytes",
                     grid[0],
                     grid[1],
                     res[0],
@@ -254,7 +270,10 @@ fn sweep(
                     row.ssim,
                     row.wrong_surface_px,
                     row.valid_px,
-                    row.ms
+                    row.ms,
+                    row.jpeg50_bytes,
+                    row.jpeg90_bytes,
+                    row.webp_bytes
                 );
                 rows.push(row);
             }
