@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Regenerates every table of BENCHMARKS.md (release build, real-mesh fixtures + the demo), one
 # script after another, each into its own folder under OUT_DIR:
-#   bash scripts/bench_all.sh [OUT_DIR]   (default out/bench; about 90 min on 2-core lavapipe)
+#   bash scripts/bench_all.sh [OUT_DIR]   (default out/bench; about 100 min on 2-core lavapipe)
 # Run it on an otherwise idle machine: the timings are only as steady as the host.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -33,6 +33,8 @@ step "deformation states (scripts/bench_states.sh)" "$OUT/states/table.md: 'Defo
 bash scripts/bench_states.sh "$OUT/states"
 step "import of external renders (scripts/bench_import.sh)" "$OUT/import/table.md: 'Import of external renders'"
 bash scripts/bench_import.sh "$OUT/import"
+step "two-plane light fields (scripts/bench_two_plane.sh)" "$OUT/two_plane/table.md: 'Two-plane light fields'"
+bash scripts/bench_two_plane.sh "$OUT/two_plane"
 step "animation (scripts/bench_animation.sh)" "$OUT/animation/table.md: 'Animation'"
 bash scripts/bench_animation.sh "$OUT/animation"
 step "still refinement (scripts/bench_refine.sh)" "$OUT/refine/tables.md: 'Still-frame refinement'"

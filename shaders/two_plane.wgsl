@@ -39,7 +39,7 @@ struct Params {
     pad0: u32,
 }
 
-// One pipeline per mode (override constants): lavapipe runs every lane through all the code a
+// One pipeline per mode (pipeline-overridable constants): lavapipe runs every lane through the code a
 // divergent branch holds, so each pipeline carries only its own mode's code.
 // MODE: the uv filter; APERTURE: a synthetic aperture (any MODE).
 override MODE: u32 = 1u;
