@@ -39,8 +39,8 @@ struct Params {
     pad0: u32,
 }
 
-// One pipeline per mode (pipeline-overridable constants): lavapipe runs every lane through the code a
-// divergent branch holds, so each pipeline carries only its own mode's code.
+// One pipeline per mode (pipeline-overridable constants): a branch on uniform values alone makes
+// lavapipe rebuild the shader whenever the uniform buffer is bound (core/tests/shaders.rs).
 // MODE: the uv filter; APERTURE: a synthetic aperture (any MODE).
 override MODE: u32 = 1u;
 override APERTURE: bool = false;
