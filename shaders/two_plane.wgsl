@@ -230,6 +230,18 @@ fn best_surface(acc: Accum) -> Best {
     return out;
 }
 
+// Adds the four cameras around the continuous camera coordinates `cell` with their bilinear
+// weights (the last row and column clamped), each read through the fan `q`.
+fn add_bilinear(acc: ptr<function, Accum>, cell: vec2<f32>, q: Fan) {
+    let c0 = vec2<u32>(floor(cell));
+    let c1 = min(c0 + vec2<u32>(1u), params.grid - vec2<u32>(1u));
+    let f = cell - floor(cell);
+    add_camera(acc, c0.x, c0.y, q, (1.0 - f.x) * (1.0 - f.y));
+    add_camera(acc, c1.x, c0.y, q, f.x * (1.0 - f.y));
+    add_camera(acc, c0.x, c1.y, q, (1.0 - f.x) * f.y);
+    add_camera(acc, c1.x, c1.y, q, f.x * f.y);
+}
+
 // Adds camera (a, b) read at `hit` if the surface it sees there is within the tolerance of the
 // marched height `h`.
 fn agreeing(acc: ptr<function, Accum>, a: u32, b: u32, hit: vec3<f32>, f: Fan, h: f32, w: f32) {
@@ -392,25 +404,12 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         } else {
             // The nearest camera sees no surface along the ray (it may be hidden from it):
             // the plain bilinear blend at the focal plane decides.
-            let q = fan(at_height(o, d, params.focus));
-            let c0 = vec2<u32>(floor(cell));
-            let c1 = min(c0 + vec2<u32>(1u), last);
-            let f = cell - floor(cell);
-            add_camera(&acc, c0.x, c0.y, q, (1.0 - f.x) * (1.0 - f.y));
-            add_camera(&acc, c1.x, c0.y, q, f.x * (1.0 - f.y));
-            add_camera(&acc, c0.x, c1.y, q, (1.0 - f.x) * f.y);
-            add_camera(&acc, c1.x, c1.y, q, f.x * f.y);
+            add_bilinear(&acc, cell, fan(at_height(o, d, params.focus)));
         }
     } else {
         let q = fan(at_height(o, d, params.focus));
         if MODE == MODE_BILINEAR {
-            let c0 = vec2<u32>(floor(cell));
-            let c1 = min(c0 + vec2<u32>(1u), last);
-            let f = cell - floor(cell);
-            add_camera(&acc, c0.x, c0.y, q, (1.0 - f.x) * (1.0 - f.y));
-            add_camera(&acc, c1.x, c0.y, q, f.x * (1.0 - f.y));
-            add_camera(&acc, c0.x, c1.y, q, (1.0 - f.x) * f.y);
-            add_camera(&acc, c1.x, c1.y, q, f.x * f.y);
+            add_bilinear(&acc, cell, q);
         } else {
             var pick = cell;
             if MODE == MODE_DITHER {

@@ -397,20 +397,31 @@ pub fn capture(
         .map_err(|e| ReferenceError::Projection(e.to_string()))?;
     let [nu, nv] = planes.uv.grid;
     let total = planes.camera_count();
-    let distance = planes.separation();
     let mut frames = Vec::with_capacity(total as usize);
     for b in 0..nv {
         for a in 0..nu {
-            let mut frame = reference.render_projection(mesh, &planes.projection(a, b), shading)?;
-            for d in &mut frame.depth {
-                // The z-depth is in world units; +inf stays +inf.
-                *d = (f64::from(*d) / distance) as f32;
-            }
-            frames.push(frame);
+            frames.push(capture_camera(reference, mesh, planes, (a, b), shading)?);
             progress(b * nu + a + 1, total);
         }
     }
     Ok(frames)
+}
+
+/// Camera `(a, b)`'s capture: its off-axis rasterization with the z-depth (world units) turned
+/// into the stored depth by dividing by the plane separation (`+inf` stays `+inf`).
+fn capture_camera(
+    reference: &ReferenceRenderer,
+    mesh: &GpuMesh,
+    planes: &TwoPlanes,
+    (a, b): (u32, u32),
+    shading: &Shading,
+) -> Result<Frame, ReferenceError> {
+    let distance = planes.separation();
+    let mut frame = reference.render_projection(mesh, &planes.projection(a, b), shading)?;
+    for d in &mut frame.depth {
+        *d = (f64::from(*d) / distance) as f32;
+    }
+    Ok(frame)
 }
 
 /// Planes fitted to a bounding sphere (`center`, `radius`): the st plane through the centre,
@@ -619,14 +630,10 @@ fn capture_each(
     let start = std::time::Instant::now();
     let [nu, nv] = planes.uv.grid;
     let total = planes.camera_count();
-    let distance = planes.separation();
     let mut hits = 0u64;
     for b in 0..nv {
         for a in 0..nu {
-            let mut frame = reference.render_projection(mesh, &planes.projection(a, b), shading)?;
-            for d in &mut frame.depth {
-                *d = (f64::from(*d) / distance) as f32;
-            }
+            let frame = capture_camera(reference, mesh, planes, (a, b), shading)?;
             hits += frame.depth.iter().filter(|d| d.is_finite()).count() as u64;
             let (color, depth) = encode_capture(&frame);
             let camera = b * nu + a;

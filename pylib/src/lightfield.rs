@@ -32,6 +32,23 @@ pub(crate) enum Origin {
     File(PathBuf),
 }
 
+/// The field in `slot`, uploaded by `upload` on first use (the lock held meanwhile, so threads
+/// upload once).
+fn upload_once<T>(
+    slot: &Mutex<Option<Arc<T>>>,
+    upload: impl FnOnce() -> PyResult<T>,
+) -> PyResult<Arc<T>> {
+    let mut slot = slot
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    if let Some(field) = slot.as_ref() {
+        return Ok(field.clone());
+    }
+    let field = Arc::new(upload()?);
+    *slot = Some(field.clone());
+    Ok(field)
+}
+
 /// A spherical light field (an ``.lfa`` asset): open one with :meth:`LightField.open` or make one
 /// with :func:`lumigraph.bake_mesh`, then :meth:`render` any view.
 ///
@@ -58,21 +75,10 @@ impl PyLightField {
 
     /// Uploads a two-plane asset once; call with the GIL released.
     fn uploaded_two_plane(&self) -> PyResult<Arc<GpuTwoPlane>> {
-        let mut slot = self
-            .two_plane
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        if let Some(field) = slot.as_ref() {
-            return Ok(field.clone());
-        }
-        let renderer = engines::two_plane_renderer().map_err(|e| errors::gpu_for_render(&e))?;
-        let field = Arc::new(
-            renderer
-                .upload(&self.asset)
-                .map_err(|e| errors::render(&e))?,
-        );
-        *slot = Some(field.clone());
-        Ok(field)
+        upload_once(&self.two_plane, || {
+            let renderer = engines::two_plane_renderer().map_err(|e| errors::gpu_for_render(&e))?;
+            renderer.upload(&self.asset).map_err(|e| errors::render(&e))
+        })
     }
 
     /// Renders every view of a two-plane asset with `options` (GIL released).
@@ -103,21 +109,10 @@ impl PyLightField {
 
     /// Uploads once; call with the GIL released.
     fn uploaded(&self) -> PyResult<Arc<GpuLightField>> {
-        let mut slot = self
-            .gpu
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        if let Some(field) = slot.as_ref() {
-            return Ok(field.clone());
-        }
-        let renderer = engines::renderer().map_err(|e| errors::gpu_for_render(&e))?;
-        let field = Arc::new(
-            renderer
-                .upload(&self.asset)
-                .map_err(|e| errors::render(&e))?,
-        );
-        *slot = Some(field.clone());
-        Ok(field)
+        upload_once(&self.gpu, || {
+            let renderer = engines::renderer().map_err(|e| errors::gpu_for_render(&e))?;
+            renderer.upload(&self.asset).map_err(|e| errors::render(&e))
+        })
     }
 
     fn encoded(&self) -> PyResult<Arc<Vec<u8>>> {

@@ -129,6 +129,13 @@ pub(super) fn parse_vec3_f64(s: &str) -> Result<[f64; 3], String> {
     Ok([num(x)?, num(y)?, num(z)?])
 }
 
+/// `NxM` (a camera grid or an image size) as two whole numbers.
+pub(super) fn parse_size_pair(s: &str) -> Result<[u32; 2], String> {
+    s.split_once(['x', 'X'])
+        .and_then(|(a, b)| Some([a.trim().parse().ok()?, b.trim().parse().ok()?]))
+        .ok_or_else(|| format!("`{s}`: give two whole numbers as NxM, e.g. 8x8"))
+}
+
 fn parse_pair(s: &str) -> Result<(f32, f32), String> {
     let v = parse_floats(s, 2)?;
     Ok((v[0], v[1]))

@@ -137,23 +137,16 @@ pub struct BakeArgs {
         long,
         value_name = "X,Y,Z",
         default_value = "0,0,1",
+        value_parser = super::args::parse_vec3_f64,
         allow_hyphen_values = true
     )]
-    pub axis: String,
+    pub axis: [f64; 3],
     /// With `--two-plane auto`: the uv camera grid, NUxNV.
-    #[arg(long, value_name = "NUxNV", default_value = "8x8")]
-    pub grid: String,
+    #[arg(long, value_name = "NUxNV", default_value = "8x8", value_parser = super::args::parse_size_pair)]
+    pub grid: [u32; 2],
     /// With `--two-plane auto`: every camera's st resolution, NSxNT.
-    #[arg(long, value_name = "NSxNT", default_value = "256x256")]
-    pub st_res: String,
-}
-
-/// `NxM` as two numbers.
-fn parse_pair(flag: &str, text: &str) -> Result<[u32; 2]> {
-    let parsed = text
-        .split_once(['x', 'X'])
-        .and_then(|(a, b)| Some([a.trim().parse().ok()?, b.trim().parse().ok()?]));
-    parsed.with_context(|| format!("{flag} {text:?}: give two whole numbers as NxM, e.g. 8x8"))
+    #[arg(long, value_name = "NSxNT", default_value = "256x256", value_parser = super::args::parse_size_pair)]
+    pub st_res: [u32; 2],
 }
 
 /// `--two-plane PLANES.json|auto`: captures the mesh (or demo) into a two-plane asset.
@@ -167,20 +160,12 @@ fn bake_two_plane(args: &BakeArgs, planes_arg: &str) -> Result<()> {
         .upload(&mesh)
         .context("cannot upload the mesh to the GPU")?;
     let planes = if planes_arg == "auto" {
-        let axis: Vec<f64> = args
-            .axis
-            .split(',')
-            .map(|x| x.trim().parse::<f64>())
-            .collect::<Result<_, _>>()
-            .ok()
-            .filter(|v: &Vec<f64>| v.len() == 3)
-            .with_context(|| format!("--axis {:?}: give X,Y,Z", args.axis))?;
         let planes = two_plane::fit_planes(
             lumigraph_core::glam::DVec3::from(gpu_mesh.frame.center),
             gpu_mesh.frame.radius,
-            lumigraph_core::glam::DVec3::new(axis[0], axis[1], axis[2]),
-            parse_pair("--grid", &args.grid)?,
-            parse_pair("--st-res", &args.st_res)?,
+            lumigraph_core::glam::DVec3::from(args.axis),
+            args.grid,
+            args.st_res,
         )
         .context("cannot fit planes to the mesh")?;
         println!(

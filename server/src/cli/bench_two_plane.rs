@@ -31,14 +31,14 @@ pub struct TwoPlaneArgs {
     #[arg(long)]
     pub demo: bool,
     /// uv grids, NUxNV, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "8x8,17x17")]
-    pub grids: Vec<String>,
+    #[arg(long, value_delimiter = ',', default_value = "8x8,17x17", value_parser = super::args::parse_size_pair)]
+    pub grids: Vec<[u32; 2]>,
     /// st resolutions, NSxNT, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "256x256,512x512")]
-    pub st_res: Vec<String>,
+    #[arg(long, value_delimiter = ',', default_value = "256x256,512x512", value_parser = super::args::parse_size_pair)]
+    pub st_res: Vec<[u32; 2]>,
     /// Planes fitted along this axis (the side of the cameras), X,Y,Z.
-    #[arg(long, default_value = "0,0,1", allow_hyphen_values = true)]
-    pub axis: String,
+    #[arg(long, default_value = "0,0,1", value_parser = super::args::parse_vec3_f64, allow_hyphen_values = true)]
+    pub axis: [f64; 3],
     /// Views beyond the uv plane.
     #[arg(long, default_value_t = 4)]
     pub views: usize,
@@ -94,12 +94,6 @@ struct Report {
     apertures: Vec<ApertureRow>,
 }
 
-fn pair(text: &str) -> Result<[u32; 2]> {
-    text.split_once(['x', 'X'])
-        .and_then(|(a, b)| Some([a.trim().parse().ok()?, b.trim().parse().ok()?]))
-        .with_context(|| format!("{text:?}: give NxM"))
-}
-
 fn median(mut xs: Vec<f64>) -> f64 {
     xs.sort_by(f64::total_cmp);
     let n = xs.len();
@@ -133,14 +127,6 @@ pub(super) fn bench_two_plane(args: &TwoPlaneArgs) -> Result<()> {
     if !(1..=100).contains(&args.views) || !(1..=100).contains(&args.repeats) {
         bail!("--views and --repeats: 1..=100");
     }
-    let axis: Vec<f64> = args
-        .axis
-        .split(',')
-        .map(|x| x.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .ok()
-        .filter(|v: &Vec<f64>| v.len() == 3)
-        .with_context(|| format!("--axis {:?}: give X,Y,Z", args.axis))?;
     let (mesh, provenance) = load_source(args.mesh.as_deref(), args.demo)?;
     let gpu = gpu()?;
     let reference = ReferenceRenderer::new(gpu.clone());
@@ -153,7 +139,7 @@ pub(super) fn bench_two_plane(args: &TwoPlaneArgs) -> Result<()> {
     ));
     let result = sweep(
         args,
-        &axis,
+        args.axis,
         (&reference, &renderer, &gpu_mesh),
         &shading,
         &provenance,
@@ -180,7 +166,7 @@ pub(super) fn bench_two_plane(args: &TwoPlaneArgs) -> Result<()> {
 /// Every grid × resolution of `args`: the quality rows and the aperture timings.
 fn sweep(
     args: &TwoPlaneArgs,
-    axis: &[f64],
+    axis: [f64; 3],
     (reference, renderer, gpu_mesh): (
         &ReferenceRenderer,
         &TwoPlaneRenderer,
@@ -192,13 +178,12 @@ fn sweep(
 ) -> Result<(Vec<Row>, Vec<ApertureRow>)> {
     let mut rows = Vec::new();
     let mut apertures = Vec::new();
-    for grid_text in &args.grids {
-        for res_text in &args.st_res {
-            let (grid, res) = (pair(grid_text)?, pair(res_text)?);
+    for &grid in &args.grids {
+        for &res in &args.st_res {
             let planes: TwoPlanes = two_plane::fit_planes(
                 lumigraph_core::glam::DVec3::from(gpu_mesh.frame.center),
                 gpu_mesh.frame.radius,
-                lumigraph_core::glam::DVec3::new(axis[0], axis[1], axis[2]),
+                lumigraph_core::glam::DVec3::from(axis),
                 grid,
                 res,
             )?;
