@@ -348,17 +348,37 @@ impl AssetHeader {
                 "camera level {camera_level} is above the maximum {MAX_CAMERA_LEVEL}"
             ))
         })?;
-        let header = Self {
-            format_version: MIN_FORMAT_VERSION,
-            kind: AssetKind::Spherical,
-            geometry: Geometry::Spherical(SphericalGeometry {
+        Self::with_defaults(
+            Geometry::Spherical(SphericalGeometry {
                 camera_level,
                 camera_count,
                 resolution_px,
                 map: MapProjection::Parabolic,
             }),
             frame,
-            page_size: DEFAULT_PAGE_SIZE,
+            DEFAULT_PAGE_SIZE,
+            depth_encoding,
+            provenance,
+        )
+    }
+
+    /// A validated header of `geometry` with the defaults every new asset starts from: the
+    /// lowest format version of its kind, RGBA8 colour and `depth_encoding`, one layer
+    /// `default` at opacity 1 in depth order, one state `base`, no quality report.
+    fn with_defaults(
+        geometry: Geometry,
+        frame: LfFrame,
+        page_size: u32,
+        depth_encoding: Encoding,
+        provenance: Provenance,
+    ) -> Result<Self> {
+        let kind = geometry.kind();
+        let mut header = Self {
+            format_version: MIN_FORMAT_VERSION,
+            kind,
+            geometry,
+            frame,
+            page_size,
             channels: vec![
                 ChannelDesc {
                     name: Channel::Color,
@@ -381,6 +401,7 @@ impl AssetHeader {
             provenance,
             quality: None,
         };
+        header.format_version = header.required_version();
         header.validate()?;
         Ok(header)
     }
@@ -405,36 +426,13 @@ impl AssetHeader {
             .validate()
             .map_err(|e| AssetError::Header(e.to_string()))?;
         let frame = two_plane_frame(&planes);
-        let header = Self {
-            format_version: TWO_PLANE_SINCE,
-            kind: AssetKind::TwoPlane,
-            geometry: Geometry::TwoPlane(TwoPlaneGeometry { planes }),
+        Self::with_defaults(
+            Geometry::TwoPlane(TwoPlaneGeometry { planes }),
             frame,
             page_size,
-            channels: vec![
-                ChannelDesc {
-                    name: Channel::Color,
-                    encoding: Encoding::Rgba8,
-                },
-                ChannelDesc {
-                    name: Channel::Depth,
-                    encoding: Encoding::R32F,
-                },
-            ],
-            layers: vec![LayerDesc {
-                name: "default".to_owned(),
-                default_opacity: 1.0,
-            }],
-            layer_order: LayerOrder::Depth,
-            states: vec![StateDesc {
-                name: "base".to_owned(),
-                params: serde_json::Map::new(),
-            }],
+            Encoding::R32F,
             provenance,
-            quality: None,
-        };
-        header.validate()?;
-        Ok(header)
+        )
     }
 
     /// The spherical geometry, or [`AssetError::Kind`] naming what needed it.
