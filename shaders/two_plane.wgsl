@@ -431,14 +431,16 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if !covered {
         return;
     }
-    let rgb = acc.color.rgb / acc.color.a;
-    out_color[idx] = pack4x8unorm(vec4<f32>(rgb, 1.0));
     if !surface {
+        // A covered pixel has a depth: where the highest-weighted camera sees nothing around
+        // its lookup (the others carry the coverage at a silhouette), the pixel stays empty.
         let best = best_surface(acc);
         if !best.ok {
             return;
         }
         hit = best.hit;
     }
+    let rgb = acc.color.rgb / acc.color.a;
+    out_color[idx] = pack4x8unorm(vec4<f32>(rgb, 1.0));
     out_depth[idx] = bitcast<u32>(dot(hit - o, params.forward));
 }

@@ -9,8 +9,10 @@
 //! are this type's fields: a knob added here reaches every front.
 //!
 //! ```text
-//!  Quality ──validate──▶ plan(header) ──▶ Plan { Options | Goal(calibration) | Lod(ladder) }
-//!                                            └──render(renderer, field, view)──▶ Frame + Decision
+//!  Quality ──validate──▶ plan(header) ──▶ Plan { Options | Goal(calibration) | Lod(ladder)
+//!                                                 | TwoPlane(options) }
+//!                                            ├──render(renderer, field, view)──▶ Frame + Decision
+//!                                            └──render_two_plane(..)──────────▶ Frame + Decision
 //! ```
 
 use std::sync::Arc;
@@ -27,6 +29,7 @@ use crate::lod::{
 };
 use crate::refine::{self, RefineError};
 use crate::render::{GpuLightField, Method, RenderError, RenderOptions, Renderer, ResolvedOptions};
+use crate::two_plane_render::{GpuTwoPlane, TwoPlaneOptions, TwoPlaneRenderer, UvFilter};
 use crate::view::View;
 
 /// Highest icosphere level an asset can hold: knob ranges are checked against it before an
@@ -91,6 +94,10 @@ pub enum QualityError {
     /// A still-refinement sample count out of range.
     #[error(transparent)]
     Refine(#[from] RefineError),
+    /// Options of one kind of light field asked of another (spherical knobs of a two-plane
+    /// asset, or the reverse).
+    #[error("{0}")]
+    Kind(String),
 }
 
 /// How to render: explicit knobs, a goal, or automatic LOD (see the module doc). Every field is
@@ -225,6 +232,24 @@ pub struct Quality {
         arg(long, value_name = "N", allow_hyphen_values = true)
     )]
     pub frame: Option<u32>,
+    /// Two-plane light fields: how the cameras around a ray's uv crossing combine when
+    /// `aperture` is 0: nearest, bilinear (default), dither or depth (depth-corrected;
+    /// docs/two_plane.md).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(feature = "clap", arg(long, value_name = "FILTER"))]
+    #[cfg_attr(feature = "openapi", schema(value_type = Option<String>))]
+    pub uv_filter: Option<UvFilter>,
+    /// Two-plane light fields: the focal plane, a signed distance in world units from the st
+    /// plane towards the uv plane (default 0: the st plane; DESIGN §9).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
+    pub focus: Option<f64>,
+    /// Two-plane light fields: synthetic aperture radius in uv cells (default 0: the pinhole
+    /// view through `uv_filter`). A wide aperture draws a bounded set of cameras per frame;
+    /// `refine` N averages N draws (the full aperture as N grows).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(feature = "clap", arg(long, allow_hyphen_values = true))]
+    pub aperture: Option<f64>,
 }
 
 impl Quality {
@@ -248,6 +273,9 @@ impl Quality {
         "state",
         "time",
         "frame",
+        "uv_filter",
+        "focus",
+        "aperture",
     ];
 
     /// The request of a JSON object holding only quality keys (`null` = absent).
@@ -303,6 +331,58 @@ impl Quality {
             light: self.light,
             state: None,
         }
+    }
+
+    /// The two-plane options of the request (absent: the defaults).
+    pub fn two_plane_options(&self) -> TwoPlaneOptions {
+        let mut options = TwoPlaneOptions::default();
+        if let Some(filter) = self.uv_filter {
+            options.uv_filter = filter;
+        }
+        if let Some(focus) = self.focus {
+            options.focus = focus;
+        }
+        if let Some(aperture) = self.aperture {
+            options.aperture = aperture;
+        }
+        options
+    }
+
+    /// The two-plane keys set, by name.
+    fn two_plane_keys(&self) -> Vec<&'static str> {
+        [
+            ("uv_filter", self.uv_filter.is_some()),
+            ("focus", self.focus.is_some()),
+            ("aperture", self.aperture.is_some()),
+        ]
+        .into_iter()
+        .filter_map(|(name, set)| set.then_some(name))
+        .collect()
+    }
+
+    /// The keys set that only spherical light fields take, by name.
+    fn spherical_keys(&self) -> Vec<&'static str> {
+        [
+            ("lod", self.lod.is_some()),
+            ("step", self.step.is_some()),
+            ("tolerance", self.tolerance.is_some()),
+            ("method", self.method.is_some()),
+            ("guide", self.guide.is_some()),
+            ("target_psnr", self.target_psnr.is_some()),
+            ("budget_ms", self.budget_ms.is_some()),
+            ("auto_lod", self.auto_lod.is_some()),
+            ("lod_min_psnr", self.lod_min_psnr.is_some()),
+            ("lod_max_psnr_drop", self.lod_max_psnr_drop.is_some()),
+            ("lod_blend", self.lod_blend.is_some()),
+            ("layers", self.layers.is_some()),
+            ("light", self.light.is_some()),
+            ("state", self.state.is_some()),
+            ("time", self.time.is_some()),
+            ("frame", self.frame.is_some()),
+        ]
+        .into_iter()
+        .filter_map(|(name, set)| set.then_some(name))
+        .collect()
     }
 
     /// Whether any explicit knob is set.
@@ -391,6 +471,7 @@ impl Quality {
                 "time {t}: give a finite time ≥ 0 in seconds"
             )));
         }
+        self.two_plane_options().validate()?;
         Ok(())
     }
 
@@ -427,6 +508,34 @@ impl Quality {
     /// automatic-LOD level left.
     pub fn plan(&self, header: &AssetHeader) -> Result<Plan, QualityError> {
         self.validate()?;
+        if let Some(planes) = header.two_plane() {
+            let spherical = self.spherical_keys();
+            if !spherical.is_empty() {
+                return Err(QualityError::Kind(format!(
+                    "{} apply to spherical light fields; a two-plane light field takes \
+                     uv_filter, focus, aperture and refine",
+                    spherical.join(", ")
+                )));
+            }
+            return Ok(Plan {
+                strategy: Strategy::TwoPlane(self.two_plane_options()),
+                opacities: Vec::new(),
+                state: None,
+                quality: self.clone(),
+                max_level: 0,
+                max_cameras: planes.camera_count(),
+                center: DVec3::from(header.frame.center),
+                radius: header.frame.radius,
+            });
+        }
+        let two_plane = self.two_plane_keys();
+        if !two_plane.is_empty() {
+            return Err(QualityError::Kind(format!(
+                "{} apply to two-plane light fields; this asset is {}",
+                two_plane.join(", "),
+                header.kind.name()
+            )));
+        }
         let max_level = u32::from(header.camera_level().unwrap_or(0));
         let max_cameras = header.camera_count();
         let options = self.options();
@@ -506,6 +615,8 @@ pub enum Strategy {
     },
     /// The ladder's choice for each view's projected size (one blended pass inside a band).
     Lod(Arc<Ladder>),
+    /// A two-plane light field's options ([`Plan::render_two_plane`]).
+    TwoPlane(TwoPlaneOptions),
 }
 
 /// A quality request planned for one asset: cheap to clone and to share between threads.
@@ -534,6 +645,22 @@ pub struct Decision {
     /// The automatic-LOD decision, with `auto_lod`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lod: Option<LodDecision>,
+    /// The options of a two-plane light field's frame, and the aperture draws it averages.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub two_plane: Option<TwoPlaneDecision>,
+}
+
+/// What a two-plane frame rendered with.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct TwoPlaneDecision {
+    /// uv filter.
+    pub uv_filter: UvFilter,
+    /// Focal plane, world units from st towards uv.
+    pub focus: f64,
+    /// Aperture radius in uv cells.
+    pub aperture: f64,
+    /// Stratified aperture draws averaged.
+    pub draws: u32,
 }
 
 /// A rendered view with the decision behind it.
@@ -563,6 +690,14 @@ impl Decision {
                 ("predicted-psnr", format!("{:.3}", c.predicted_psnr)),
                 ("predicted-ms", format!("{:.3}", c.predicted_ms)),
                 ("goal-met", c.met.to_string()),
+            ]);
+        }
+        if let Some(t) = &self.two_plane {
+            out.extend([
+                ("uv-filter", t.uv_filter.name().to_owned()),
+                ("focus", t.focus.to_string()),
+                ("aperture", t.aperture.to_string()),
+                ("aperture-draws", t.draws.to_string()),
             ]);
         }
         if let Some(d) = &self.lod {
@@ -643,9 +778,17 @@ impl Plan {
                     settings: options.resolve(self.max_level)?,
                     choice: None,
                     lod: None,
+                    two_plane: None,
                 },
                 Job::Single(*options),
             ),
+            Strategy::TwoPlane(_) => {
+                return Err(QualityError::Kind(
+                    "this plan is for a two-plane light field: render it with the two-plane \
+                     renderer"
+                        .to_owned(),
+                ));
+            }
             Strategy::Goal { goal, calibration } => {
                 let choice =
                     calibration.choose(*goal, view.width, view.height, self.max_cameras)?;
@@ -655,6 +798,7 @@ impl Plan {
                         settings: options.resolve(self.max_level)?,
                         choice: Some(choice),
                         lod: None,
+                        two_plane: None,
                     },
                     Job::Single(options),
                 )
@@ -672,6 +816,7 @@ impl Plan {
                         settings: options.resolve(self.max_level)?,
                         choice: None,
                         lod: Some(d),
+                        two_plane: None,
                     },
                     job,
                 )
@@ -704,6 +849,54 @@ impl Plan {
                     .render_layered(field, view, (&a, &b, weight), jitter, opacities)
                     .map_err(QualityError::from)
             })?,
+        };
+        Ok(Rendered { frame, decision })
+    }
+
+    /// The two-plane options of a plan made for a two-plane light field.
+    pub fn two_plane(&self) -> Option<&TwoPlaneOptions> {
+        match &self.strategy {
+            Strategy::TwoPlane(options) => Some(options),
+            _ => None,
+        }
+    }
+
+    /// Renders `view` of a two-plane `field` (the asset the plan was made for): one draw of
+    /// the aperture, or the average of `refine` draws.
+    ///
+    /// # Errors
+    /// [`QualityError::Kind`] for a plan made for a spherical asset; a bad view or a failed
+    /// render.
+    pub fn render_two_plane(
+        &self,
+        renderer: &TwoPlaneRenderer,
+        field: &GpuTwoPlane,
+        view: &View,
+    ) -> Result<Rendered, QualityError> {
+        let options = self.two_plane().ok_or_else(|| {
+            QualityError::Kind(
+                "this plan is for a spherical light field, not a two-plane one".to_owned(),
+            )
+        })?;
+        let draws = self.quality.refine.unwrap_or(1);
+        let frame = renderer.render_accumulated(field, view, options, draws)?;
+        let decision = Decision {
+            settings: ResolvedOptions {
+                level: 0,
+                cameras: field.planes.camera_count(),
+                step: 0.0,
+                tolerance: 0.0,
+                method: Method::Default,
+                guide: 0,
+            },
+            choice: None,
+            lod: None,
+            two_plane: Some(TwoPlaneDecision {
+                uv_filter: options.uv_filter,
+                focus: options.focus,
+                aperture: options.aperture,
+                draws,
+            }),
         };
         Ok(Rendered { frame, decision })
     }
@@ -774,6 +967,9 @@ mod tests {
             state: Some("dent".to_owned()),
             time: Some(0.5),
             frame: Some(3),
+            uv_filter: Some(UvFilter::Depth),
+            focus: Some(0.25),
+            aperture: Some(1.5),
         }
     }
 
@@ -1054,6 +1250,85 @@ mod tests {
             assert!(matches!(e, QualityError::NoCalibration(_)), "{e}");
             assert!(e.to_string().contains("calibrate=true"), "{e}");
         }
+    }
+
+    /// A two-plane header: 4×3 cameras of 16×8 px.
+    fn two_plane_header() -> AssetHeader {
+        let planes = crate::two_plane_io::default_planes([4, 3], [16, 8]);
+        AssetHeader::new_two_plane(planes, 16, crate::asset::Provenance::default()).expect("header")
+    }
+
+    #[test]
+    fn two_plane_plans_take_their_keys_and_refuse_the_marchers() {
+        let tp = two_plane_header();
+        let plan = Quality {
+            uv_filter: Some(UvFilter::Dither),
+            focus: Some(-0.25),
+            aperture: Some(1.5),
+            refine: Some(4),
+            ..Quality::default()
+        }
+        .plan(&tp)
+        .expect("two-plane plan");
+        let options = plan.two_plane().expect("two-plane options");
+        assert_eq!(options.uv_filter, UvFilter::Dither);
+        assert_eq!((options.focus, options.aperture), (-0.25, 1.5));
+        // The spherical renderer refuses a two-plane plan, by kind.
+        let view = View::look_at([0.0, 0.0, 5.0], [0.0; 3], 40.0, 64, 64);
+        assert!(matches!(plan.decide(&view), Err(QualityError::Kind(_))));
+        // Defaults: bilinear, focus 0, pinhole.
+        let plain = Quality::default().plan(&tp).expect("plan");
+        assert_eq!(plain.two_plane(), Some(&TwoPlaneOptions::default()));
+        // Every spherical key is named in the refusal.
+        let err = Quality {
+            lod: Some(12),
+            light: Some(crate::light::LightDirection([0.0, 1.0, 0.0])),
+            ..Quality::default()
+        }
+        .plan(&tp)
+        .expect_err("spherical keys");
+        let text = err.to_string();
+        assert!(matches!(err, QualityError::Kind(_)), "{text}");
+        assert!(text.contains("lod, light apply to spherical"), "{text}");
+        // And the reverse: two-plane keys on a spherical asset.
+        let err = Quality {
+            focus: Some(1.0),
+            aperture: Some(2.0),
+            ..Quality::default()
+        }
+        .plan(&header(false))
+        .expect_err("two-plane keys");
+        assert!(
+            err.to_string().contains(
+                "focus, aperture apply to two-plane light fields; this asset is spherical"
+            ),
+            "{err}"
+        );
+        // Values are checked before any asset: NaN focus, an aperture out of range.
+        for bad in [
+            Quality {
+                focus: Some(f64::NAN),
+                ..Quality::default()
+            },
+            Quality {
+                aperture: Some(-1.0),
+                ..Quality::default()
+            },
+            Quality {
+                aperture: Some(crate::two_plane_render::MAX_APERTURE + 1.0),
+                ..Quality::default()
+            },
+        ] {
+            assert!(bad.validate().is_err(), "{bad:?}");
+        }
+        // A moving stream frame drops the accumulated draws, nothing else.
+        let moving = Quality {
+            aperture: Some(3.0),
+            refine: Some(16),
+            ..Quality::default()
+        }
+        .for_motion();
+        assert_eq!((moving.aperture, moving.refine), (Some(3.0), None));
     }
 }
 

@@ -505,6 +505,13 @@ pub enum TwoPlaneBakeError {
     Asset(#[from] crate::asset::AssetError),
 }
 
+/// Whether a two-plane asset's depth was captured: true for bakes and for imports with depth
+/// images, false for an import of colour alone (whose depth is the st plane everywhere, so the
+/// depth-corrected filter has nothing to correct with).
+pub fn has_captured_depth(header: &crate::asset::AssetHeader) -> bool {
+    header.provenance.bake_options["import"]["depth"] != serde_json::Value::Bool(false)
+}
+
 /// The colour and depth pages of one captured camera, as the asset stores them: straight RGBA8
 /// with alpha 255 where the line hits the mesh and (0, 0, 0, 0) elsewhere, and the depth as
 /// little-endian f32 (`+inf` for no hit).

@@ -20,6 +20,7 @@ use crate::view::{DEFAULT_MAX_VIEW_PX, View};
 
 /// How the cameras around a ray's uv crossing are combined (`--uv-filter`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 #[serde(rename_all = "lowercase", try_from = "String")]
 pub enum UvFilter {
     /// The nearest camera.
@@ -201,10 +202,18 @@ pub struct GpuTwoPlane {
     pub depth_range: [f32; 2],
     /// Device bytes of its textures.
     pub bytes: u64,
+    gpu: Arc<Gpu>,
     color: wgpu::Texture,
     depth: wgpu::Texture,
     color_view: wgpu::TextureView,
     depth_view: wgpu::TextureView,
+}
+
+impl GpuTwoPlane {
+    /// The device its textures live on.
+    pub fn gpu(&self) -> &Arc<Gpu> {
+        &self.gpu
+    }
 }
 
 impl Drop for GpuTwoPlane {
@@ -470,6 +479,7 @@ impl TwoPlaneRenderer {
         }
         let view = |t: &wgpu::Texture| crate::gpu::array_view(t);
         Ok(GpuTwoPlane {
+            gpu: Arc::clone(&self.gpu),
             planes,
             depth_range: range,
             bytes: field_bytes(&planes),
@@ -661,7 +671,75 @@ impl TwoPlaneRenderer {
             },
         })
     }
+
+    /// [`TwoPlaneRenderer::render`] averaged over `draws` stratified aperture draws (frame
+    /// indices `options.frame_index` onwards): what a view at rest accumulates towards the full
+    /// aperture. A pixel is covered where at least half the draws cover it, with the mean
+    /// colour of the draws that do and the nearest depth they saw; `render_ms` is the sum.
+    ///
+    /// # Errors
+    /// As [`TwoPlaneRenderer::render`]; [`RenderError::Option`] for `draws` outside
+    /// 1..=[`MAX_DRAWS`].
+    pub fn render_accumulated(
+        &self,
+        field: &GpuTwoPlane,
+        view: &View,
+        options: &TwoPlaneOptions,
+        draws: u32,
+    ) -> Result<Frame, RenderError> {
+        if !(1..=MAX_DRAWS).contains(&draws) {
+            return Err(RenderError::Option(format!(
+                "{draws} aperture draws: give 1..={MAX_DRAWS}"
+            )));
+        }
+        let mut options = *options;
+        let mut frame = self.render(field, view, &options)?;
+        if draws == 1 {
+            return Ok(frame);
+        }
+        let pixels = frame.pixel_count();
+        let mut rgb = vec![0u32; 3 * pixels];
+        let mut hits = vec![0u32; pixels];
+        let mut depth = vec![f32::INFINITY; pixels];
+        let mut ms = 0.0;
+        let mut add = |next: &Frame| {
+            for p in 0..pixels {
+                if next.depth[p].is_finite() {
+                    hits[p] += 1;
+                    depth[p] = depth[p].min(next.depth[p]);
+                    for k in 0..3 {
+                        rgb[3 * p + k] += u32::from(next.color[4 * p + k]);
+                    }
+                }
+            }
+            ms += next.stats.render_ms;
+        };
+        add(&frame);
+        let first = options.frame_index;
+        for index in 1..draws {
+            options.frame_index = first.wrapping_add(index);
+            add(&self.render(field, view, &options)?);
+        }
+        for p in 0..pixels {
+            if 2 * hits[p] >= draws {
+                for k in 0..3 {
+                    frame.color[4 * p + k] = ((rgb[3 * p + k] + hits[p] / 2) / hits[p]) as u8;
+                }
+                frame.color[4 * p + 3] = 255;
+                frame.depth[p] = depth[p];
+            } else {
+                frame.color[4 * p..4 * p + 4].copy_from_slice(&options.background);
+                frame.depth[p] = f32::INFINITY;
+            }
+        }
+        frame.stats.render_ms = ms;
+        Ok(frame)
+    }
 }
+
+/// Most aperture draws [`TwoPlaneRenderer::render_accumulated`] averages (the still refinement
+/// limit).
+pub const MAX_DRAWS: u32 = crate::refine::MAX_SAMPLES;
 
 /// Which pixels of `view` lie inside the light field of `planes` (DESIGN §9: the ray meets the
 /// closed uv rectangle at `t_uv ≥ 0` and the closed st rectangle beyond it), row-major; the

@@ -283,11 +283,13 @@ def test_viewer_reports_a_bad_link_and_falls_back(server: Server, page: Page) ->
     assert state["a"] == 0.6 and abs(state["d"] - demo["radius"] * 2.8) < 1e-9, state
     assert state["f"] == 40
     assert canvas(page)["sum"] > 0
-    # The URL now holds the state in use, with the key kept for later versions.
+    # The URL now holds the state in use.
     page.wait_for_function("new URLSearchParams(location.search).get('asset') === 'demo'",
                            timeout=5_000)
     params = page.evaluate("Object.fromEntries(new URLSearchParams(location.search))")
-    assert params["focus"] == "3" and "bogus" not in params and params["az"] != "abc", params
+    # focus applies to two-plane light fields only: reported, then dropped from the link.
+    assert "applies to two-plane light fields" in text, text
+    assert "focus" not in params and "bogus" not in params and params["az"] != "abc", params
     assert "light" not in params and "time" not in params, params
     notice.click()
     assert not notice.is_visible()
@@ -616,3 +618,58 @@ def test_viewer_plays_and_pauses_an_animation(
         assert not page.errors, page.errors  # type: ignore[attr-defined]
     finally:
         httpx.delete(f"{server.base_url}/v1/assets/cube", timeout=30)
+
+
+def test_viewer_two_plane_controls_refocus_and_link(
+    server: Server, page: Page, tmp_path: Path
+) -> None:
+    """A two-plane light field shows the uv filter, focus and aperture controls in place of the
+    marcher's knobs; the camera starts on the planes' axis beyond the uv plane; moving the
+    aperture and focus sliders redraws a different frame and puts both in the link, whose
+    image link renders (200, a PNG); a link with `aperture=` reopens with the slider there."""
+    lfa = tmp_path / "tp.lfa"
+    baked = subprocess.run(
+        [str(BIN), "bake", "--demo", "-o", str(lfa), "--two-plane", "auto", "--axis", "0,0,1",
+         "--grid", "5x5", "--st-res", "64x64"],
+        capture_output=True, text=True, env=runtime_env(), timeout=120, check=False,
+    )
+    assert baked.returncode == 0, baked.stderr
+    created = httpx.post(f"{server.base_url}/v1/assets?id=tp-viewer", content=lfa.read_bytes(),
+                         timeout=60)
+    assert created.status_code == 201, created.text
+    try:
+        page.goto(server.base_url + "/?asset=tp-viewer&interactive=0&background=0,0,0,255")
+        page.wait_for_function("window.lumigraphViewer.last && window.lumigraphViewer.last.quality === 1",
+                               timeout=30_000)
+        assert page.is_visible("#two_plane_controls") and not page.is_visible("#spherical_controls")
+        view = page.evaluate("window.lumigraphViewer.lastView")
+        planes = httpx.get(f"{server.base_url}/v1/assets/tp-viewer", timeout=10).json()["planes"]
+        assert view["target"] == planes["st"]["center"], (view, planes)
+        assert view["eye"][2] > planes["uv"]["center"][2], (view, planes)  # beyond uv
+        pinhole = canvas(page)
+        assert pinhole["sum"] > 0
+        first = last(page)
+        page.eval_on_selector("#aperture", "x => { x.value = '2'; x.dispatchEvent(new Event('input')); }")
+        page.eval_on_selector("#focus", "x => { x.value = '3'; x.dispatchEvent(new Event('input')); }")
+        page.wait_for_function(
+            f"window.lumigraphViewer.last.requestId > {first['requestId']}"
+            " && window.lumigraphViewer.last.quality === 1", timeout=30_000)
+        page.wait_for_function("location.search.includes('aperture=2')", timeout=10_000)
+        blurred = canvas(page)
+        assert blurred["hash"] != pinhole["hash"]
+        params = page.evaluate("Object.fromEntries(new URLSearchParams(location.search))")
+        # The focus slider snaps to a thousandth of the plane separation (7.1 here).
+        assert params["aperture"] == "2" and abs(float(params["focus"]) - 3) < 0.01, params
+        assert "lod" not in params and "method" not in params, params
+        image = httpx.get(page.evaluate("window.lumigraphViewer.imageLink()"), timeout=60)
+        assert image.status_code == 200 and image.headers["x-aperture"] == "2", image.text
+        assert Image.open(io.BytesIO(image.content)).format == "PNG"
+        assert not page.errors, page.errors  # type: ignore[attr-defined]
+        # The link reopens with the sliders where they were.
+        page.goto(server.base_url + "/?asset=tp-viewer&interactive=0&aperture=1.5&uv_filter=nearest")
+        page.wait_for_function("window.lumigraphViewer.last && window.lumigraphViewer.last.quality === 1",
+                               timeout=30_000)
+        assert page.eval_on_selector("#aperture", "x => x.value") == "1.5"
+        assert page.eval_on_selector("#uv_filter", "x => x.value") == "nearest"
+    finally:
+        httpx.delete(f"{server.base_url}/v1/assets/tp-viewer", timeout=30)

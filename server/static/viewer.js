@@ -160,14 +160,32 @@
     return [rgb[0], rgb[1], rgb[2], 255];
   }
 
-  function sendSettings() {
-    send({
-      type: "settings",
+  const isTwoPlane = () => !!(state.asset && state.asset.kind === "two_plane");
+
+  // The quality keys of the asset's kind: a two-plane light field takes uv_filter, focus,
+  // aperture and refine (draws averaged at rest); a spherical one the marcher's knobs.
+  function kindSettings() {
+    if (isTwoPlane()) {
+      return {
+        uv_filter: $("uv_filter").value || null,
+        focus: numberOrNull($("focus")) ?? 0,
+        aperture: numberOrNull($("aperture")) ?? 0,
+        refine: (numberOrNull($("aperture")) ?? 0) > 0 ? Math.max(1, Math.min(256, Math.round(numberOrNull($("accumulate")) ?? 8))) : null,
+      };
+    }
+    return {
       lod: parseInt($("lod").value, 10) || null,
       method: $("method").value,
       step: numberOrNull($("step")),
       tolerance: numberOrNull($("tolerance")),
       auto_lod: numberOrNull($("auto_lod")),
+    };
+  }
+
+  function sendSettings() {
+    send({
+      type: "settings",
+      ...kindSettings(),
       still_codec: $("still_codec").value,
       interactive: $("interactive").checked,
       target_fps: numberOrNull($("target_fps")) || 20,
@@ -427,6 +445,14 @@
   // Quality keys the render link takes too; empty controls are left out.
   function qualityParams() {
     const out = [];
+    if (isTwoPlane()) {
+      if ($("uv_filter").value) out.push(["uv_filter", $("uv_filter").value]);
+      for (const id of ["focus", "aperture"]) {
+        const v = numberOrNull($(id));
+        if (v !== null && v !== 0) out.push([id, sig(v, 6)]);
+      }
+      return out;
+    }
     const lod = $("lod").value;
     if (lod && state.asset && Number(lod) !== state.asset.camera_count) out.push(["lod", lod]);
     if ($("method").value !== CONTROL_DEFAULTS.method) out.push(["method", $("method").value]);
@@ -491,13 +517,12 @@
   // The URL's state, checked key by key: a bad value is reported and its default used.
   const URL_KEYS = ["asset", "az", "el", "dist", "target", "yfov_deg", "lod", "method", "step",
     "tolerance", "auto_lod", "still_codec", "interactive", "target_fps", "rest_ms", "background",
-    "layers", "state", "light", "time", "playing", "focus", "reproject"];
-  // Keys reserved for later renderer features: kept in the link, not yet sent.
-  const LATER_KEYS = ["focus"];
+    "layers", "state", "light", "time", "playing", "uv_filter", "focus", "aperture", "reproject"];
+  const UV_FILTERS = ["nearest", "bilinear", "dither", "depth"];
 
   function readUrl() {
     const params = new URLSearchParams(location.search);
-    const out = { problems: [], camera: {}, controls: {}, settings: {}, extra: {} };
+    const out = { problems: [], camera: {}, controls: {}, settings: {}, extra: {}, twoPlane: {} };
     const bad = (k, v, why) => out.problems.push(`${k}=${v}: ${why}; using the default`);
     const num = (k, v, lo, hi) => {
       const x = v.trim() === "" ? NaN : Number(v);
@@ -578,11 +603,13 @@
           }
           break;
         }
-        default:
-          if (LATER_KEYS.includes(k)) {
-            out.extra[k] = v;
-            out.problems.push(`${k}=${v}: not supported by this server yet; kept in the link, not applied`);
-          }
+        // Two-plane keys: checked against the asset's planes once it is known.
+        case "uv_filter":
+          if (UV_FILTERS.includes(v)) out.twoPlane.uv_filter = v; else bad(k, v, `not one of ${UV_FILTERS.join(", ")}`);
+          break;
+        case "focus": { const x = num(k, v, -1e12, 1e12); if (x !== null) out.twoPlane.focus = x; break; }
+        case "aperture": { const x = num(k, v, 0, 64); if (x !== null) out.twoPlane.aperture = x; break; }
+        default: break;
       }
     }
     return out;
@@ -699,10 +726,58 @@
 
   function resetCamera() {
     const a = state.asset;
+    if (a && a.planes) {
+      // On the axis, half the plane separation behind the uv plane, looking at the st centre:
+      // every pixel's ray crosses both planes near the middle of the light field.
+      const st = a.planes.st.center, uv = a.planes.uv.center;
+      const d = sub(uv, st);
+      const sep = Math.hypot(d[0], d[1], d[2]) || 1;
+      state.target = st.slice();
+      state.distance = 1.5 * sep;
+      state.azimuth = Math.atan2(d[0], d[2]);
+      state.elevation = Math.asin(Math.max(-1, Math.min(1, d[1] / sep)));
+      return;
+    }
     state.target = a ? a.center.slice() : [0, 0, 0];
     state.distance = a ? a.radius * 2.8 : 3;
     state.azimuth = 0.6;
     state.elevation = 0.35;
+  }
+
+  // --- two-plane controls: uv filter, focus and aperture sliders --------------------------------
+  // Shown for a two-plane light field in place of the marcher's knobs. Focus runs over the
+  // separation of the planes either side of st; the aperture up to half the wider uv grid.
+  function fillTwoPlane(asset, initial, problems) {
+    const two = asset.kind === "two_plane" && asset.planes;
+    $("two_plane_controls").hidden = !two;
+    $("spherical_controls").hidden = !!two;
+    if (!two) {
+      for (const [k, v] of Object.entries(initial)) {
+        problems.push(`${k}=${v}: applies to two-plane light fields; ignored`);
+      }
+      return;
+    }
+    const p = asset.planes;
+    const sep = Math.hypot(...sub(p.uv.center, p.st.center));
+    const focus = $("focus");
+    focus.min = String(-sep);
+    focus.max = String(0.95 * sep);
+    focus.step = String(sep / 1000);
+    const aperture = $("aperture");
+    aperture.max = String(Math.min(64, Math.max(1, Math.floor(Math.max(...p.uv.grid) / 2))));
+    $("uv_filter").value = initial.uv_filter || "";
+    const clampTo = (el, x) => Math.max(Number(el.min), Math.min(Number(el.max), x));
+    if (initial.focus !== undefined && clampTo(focus, initial.focus) !== initial.focus) {
+      problems.push(`focus=${initial.focus}: outside [${fmt(-sep, 4)}, ${fmt(0.95 * sep, 4)}]; clamped`);
+    }
+    focus.value = String(clampTo(focus, initial.focus ?? 0));
+    aperture.value = String(clampTo(aperture, initial.aperture ?? 0));
+    showTwoPlaneLabels();
+  }
+
+  function showTwoPlaneLabels() {
+    $("focus_label").textContent = sig(Number($("focus").value), 4);
+    $("aperture_label").textContent = $("aperture").value;
   }
 
   function connect(assetId) {
@@ -738,6 +813,11 @@
         if (!same) resetCamera();
         const fromUrl = state.fromUrl;
         state.fromUrl = null;
+        const kept = same ? { uv_filter: $("uv_filter").value || undefined, focus: numberOrNull($("focus")) ?? undefined,
+          aperture: numberOrNull($("aperture")) ?? undefined } : {};
+        const twoPlaneProblems = [];
+        fillTwoPlane(msg.asset, fromUrl ? fromUrl.twoPlane : (msg.asset.kind === "two_plane" ? kept : {}), twoPlaneProblems);
+        if (fromUrl) fromUrl.problems.push(...twoPlaneProblems);
         if (fromUrl) {
           Object.assign(state, fromUrl.camera);
           if (fromUrl.controls.lod !== undefined) {
@@ -844,8 +924,12 @@
   window.addEventListener("resize", () => requestView(false));
 
   reprojectBox.addEventListener("change", () => { if (!reprojectBox.checked && state.warper) state.warper.clear(); });
-  for (const id of ["lod", "method", "step", "tolerance", "auto_lod", "still_codec", "interactive", "target_fps", "rest_ms", "background", "reproject"]) {
+  for (const id of ["lod", "method", "step", "tolerance", "auto_lod", "still_codec", "interactive", "target_fps", "rest_ms", "background", "reproject", "uv_filter", "accumulate"]) {
     $(id).addEventListener("change", () => { sendSettings(); requestView(false); });
+  }
+  // Focus and aperture move like the camera: interactive frames while dragged, a still at rest.
+  for (const id of ["focus", "aperture"]) {
+    $(id).addEventListener("input", () => { showTwoPlaneLabels(); sendSettings(); requestView(false); });
   }
   $("asset").addEventListener("change", (e) => { state.extra = {}; connect(e.target.value); });
   $("state").addEventListener("change", sendState);

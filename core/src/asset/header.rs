@@ -40,6 +40,16 @@ pub enum AssetKind {
     TwoPlane,
 }
 
+impl AssetKind {
+    /// The kind as the header spells it (`spherical`, `two_plane`).
+    pub fn name(self) -> &'static str {
+        match self {
+            AssetKind::Spherical => "spherical",
+            AssetKind::TwoPlane => "two_plane",
+        }
+    }
+}
+
 /// The first format version with the kind `two_plane`.
 pub const TWO_PLANE_SINCE: u32 = 5;
 

@@ -19,8 +19,12 @@ use super::{GpuLightField, Renderer};
 /// camera (padded as [`Gpu::padded_layers`] does) and every layer of the base state, plus one
 /// RGBA8 texel per map texel and camera for each light-state map (the ambient part, the normals
 /// and every proxy direction, [`crate::light`]). The upload stages one layer's worth again on the host
-/// while it runs. Saturates instead of overflowing.
+/// while it runs. Saturates instead of overflowing. A two-plane asset takes
+/// [`crate::two_plane_render::field_bytes`] of its planes.
 pub fn field_bytes(header: &AssetHeader) -> u64 {
+    if let Some(planes) = header.two_plane() {
+        return crate::two_plane_render::field_bytes(planes);
+    }
     let side = u64::from(header.image_size()[0]);
     let layers = u64::from(Gpu::padded_layers(header.camera_count()));
     // Deformation states: a whole copy of the base state's maps each.

@@ -43,20 +43,12 @@ pub struct RenderArgs {
     pub two_plane: TwoPlaneArgs,
 }
 
-/// The flags of a two-plane light field (DESIGN §9, docs/two_plane.md).
+/// The flags of a two-plane light field besides its quality options (`--uv-filter`, `--focus`,
+/// `--aperture`; DESIGN §9, docs/two_plane.md).
 #[derive(Debug, Args)]
 pub struct TwoPlaneArgs {
-    /// uv filter of a two-plane asset: nearest, bilinear (default), dither or depth
-    /// (depth-corrected).
-    #[arg(long, value_name = "FILTER")]
-    pub uv_filter: Option<lumigraph_core::two_plane_render::UvFilter>,
-    /// Focal plane of a two-plane asset: world units from the st plane towards the uv plane.
-    #[arg(long, allow_hyphen_values = true)]
-    pub focus: Option<f64>,
-    /// Synthetic aperture radius in uv cells (0: pinhole).
-    #[arg(long, allow_hyphen_values = true)]
-    pub aperture: Option<f64>,
-    /// Average this many frames of a wide aperture's stratified draws (the view at rest).
+    /// Average this many of a wide aperture's stratified draws (the view at rest; the same as
+    /// --refine for a two-plane light field).
     #[arg(long, value_name = "N", allow_hyphen_values = true)]
     pub accumulate: Option<u32>,
     /// Render a stereo pair side by side (left | right), the eyes BASELINE world units apart
@@ -67,25 +59,7 @@ pub struct TwoPlaneArgs {
 
 impl TwoPlaneArgs {
     fn given(&self) -> bool {
-        self.uv_filter.is_some()
-            || self.focus.is_some()
-            || self.aperture.is_some()
-            || self.accumulate.is_some()
-            || self.stereo.is_some()
-    }
-
-    fn options(&self) -> lumigraph_core::two_plane_render::TwoPlaneOptions {
-        let mut options = lumigraph_core::two_plane_render::TwoPlaneOptions::default();
-        if let Some(f) = self.uv_filter {
-            options.uv_filter = f;
-        }
-        if let Some(f) = self.focus {
-            options.focus = f;
-        }
-        if let Some(r) = self.aperture {
-            options.aperture = r;
-        }
-        options
+        self.accumulate.is_some() || self.stereo.is_some()
     }
 }
 
@@ -103,62 +77,6 @@ fn shifted(view: &View, offset: f64) -> Result<View> {
     Ok(out)
 }
 
-/// Renders one frame of a two-plane asset, averaging `--accumulate` draws.
-fn render_two_plane_frame(
-    renderer: &lumigraph_core::two_plane_render::TwoPlaneRenderer,
-    field: &lumigraph_core::two_plane_render::GpuTwoPlane,
-    view: &View,
-    args: &TwoPlaneArgs,
-) -> Result<Frame> {
-    let mut options = args.options();
-    let draws = args.accumulate.unwrap_or(1);
-    if !(1..=1024).contains(&draws) {
-        bail!("--accumulate {draws}: give 1..=1024 frames");
-    }
-    let mut frame = renderer.render(field, view, &options)?;
-    if draws > 1 {
-        // Premultiplied sums over the draws: a pixel is covered where the mean coverage is at
-        // least ½, with the colour of the draws that cover it and the nearest depth they saw.
-        let pixels = frame.pixel_count();
-        let mut rgb = vec![0u32; 3 * pixels];
-        let mut hits = vec![0u32; pixels];
-        let mut depth = vec![f32::INFINITY; pixels];
-        let mut ms = 0.0;
-        let mut add = |next: &Frame| {
-            for p in 0..pixels {
-                if next.depth[p].is_finite() {
-                    hits[p] += 1;
-                    depth[p] = depth[p].min(next.depth[p]);
-                    for k in 0..3 {
-                        rgb[3 * p + k] += u32::from(next.color[4 * p + k]);
-                    }
-                }
-            }
-            ms += next.stats.render_ms;
-        };
-        add(&frame);
-        for index in 1..draws {
-            options.frame_index = index;
-            add(&renderer.render(field, view, &options)?);
-        }
-        let background = options.background;
-        for p in 0..pixels {
-            if 2 * hits[p] >= draws {
-                for k in 0..3 {
-                    frame.color[4 * p + k] = ((rgb[3 * p + k] + hits[p] / 2) / hits[p]) as u8;
-                }
-                frame.color[4 * p + 3] = 255;
-                frame.depth[p] = depth[p];
-            } else {
-                frame.color[4 * p..4 * p + 4].copy_from_slice(&background);
-                frame.depth[p] = f32::INFINITY;
-            }
-        }
-        frame.stats.render_ms = ms;
-    }
-    Ok(frame)
-}
-
 /// `render` of a two-plane asset.
 fn render_two_plane(
     args: &RenderArgs,
@@ -166,35 +84,36 @@ fn render_two_plane(
     views: &[View],
     many: bool,
 ) -> Result<()> {
-    args.quality.check_scene().map_err(|_| {
-        anyhow::anyhow!(
-            "a two-plane light field takes --uv-filter, --focus, --aperture, --accumulate and \
-             --stereo; the spherical quality flags do not apply"
-        )
-    })?;
+    let mut quality = args.quality.clone();
+    if let Some(draws) = args.two_plane.accumulate {
+        let most = lumigraph_core::two_plane_render::MAX_DRAWS;
+        if !(1..=most).contains(&draws) {
+            bail!("--accumulate {draws}: give 1..={most} draws");
+        }
+        if quality.refine.is_some() {
+            bail!(
+                "give --accumulate or --refine, not both (they are the same for a two-plane asset)"
+            );
+        }
+        quality.refine = Some(draws);
+    }
+    let plan = quality.plan(asset.header())?;
     let renderer = lumigraph_core::two_plane_render::TwoPlaneRenderer::new(gpu()?);
     let field = renderer
         .upload(asset)
         .with_context(|| format!("cannot load asset {}", args.asset.display()))?;
+    let render = |view: &View| -> Result<Frame> {
+        Ok(plan.render_two_plane(&renderer, &field, view)?.frame)
+    };
     for (i, view) in views.iter().enumerate() {
         let frame = match args.two_plane.stereo {
-            None => render_two_plane_frame(&renderer, &field, view, &args.two_plane)?,
+            None => render(view)?,
             Some(baseline) => {
                 if !(baseline.is_finite() && baseline >= 0.0) {
                     bail!("--stereo {baseline}: give a finite baseline ≥ 0");
                 }
-                let left = render_two_plane_frame(
-                    &renderer,
-                    &field,
-                    &shifted(view, -0.5 * baseline)?,
-                    &args.two_plane,
-                )?;
-                let right = render_two_plane_frame(
-                    &renderer,
-                    &field,
-                    &shifted(view, 0.5 * baseline)?,
-                    &args.two_plane,
-                )?;
+                let left = render(&shifted(view, -0.5 * baseline)?)?;
+                let right = render(&shifted(view, 0.5 * baseline)?)?;
                 side_by_side(&left, &right)
             }
         };
@@ -374,10 +293,7 @@ pub(super) fn render(args: &RenderArgs) -> Result<()> {
         .is_some_and(|e| e.eq_ignore_ascii_case("json"))
     {
         if args.two_plane.given() {
-            bail!(
-                "--uv-filter, --focus, --aperture, --accumulate and --stereo apply to two-plane \
-                 light-field assets, not to scenes"
-            );
+            bail!("--accumulate and --stereo apply to two-plane light-field assets, not to scenes");
         }
         return render_scene(args, &views, many);
     }
@@ -388,10 +304,9 @@ pub(super) fn render(args: &RenderArgs) -> Result<()> {
     }
     if args.two_plane.given() {
         bail!(
-            "--uv-filter, --focus, --aperture, --accumulate and --stereo apply to two-plane light \
-             fields; {} is {:?}",
+            "--accumulate and --stereo apply to two-plane light fields; {} is {}",
             args.asset.display(),
-            asset.header().kind
+            asset.header().kind.name()
         );
     }
     let plan = args.quality.plan(asset.header())?;

@@ -10,11 +10,15 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError, RwLock};
 
 use lumigraph_core::asset::{AssetFile, AssetHeader};
-use lumigraph_core::render::{GpuLightField, Renderer, field_bytes};
+use lumigraph_core::gpu::Gpu;
+use lumigraph_core::render::{GpuLightField, field_bytes};
+use lumigraph_core::two_plane::TwoPlanes;
+use lumigraph_core::two_plane_render::GpuTwoPlane;
 use serde::Serialize;
 
 use super::budget::{Charge, MemoryBudget};
 use super::error::AppError;
+use super::render_pool::Engine;
 
 /// Longest accepted asset id.
 pub const MAX_ID_LEN: usize = 64;
@@ -59,10 +63,36 @@ pub struct LoadedAsset {
     /// so an id given to new content gets new tags.
     pub content_id: String,
     /// Colour and depth texture arrays.
-    pub field: GpuLightField,
+    pub field: AssetField,
     /// The asset's share of the memory budget, given back when the last holder drops it (the
     /// moment its textures are freed).
     _charge: MemoryCharge,
+}
+
+/// An asset's textures on the device, by kind.
+pub enum AssetField {
+    /// A spherical light field.
+    Spherical(GpuLightField),
+    /// A two-plane light field.
+    TwoPlane(GpuTwoPlane),
+}
+
+impl AssetField {
+    /// The device the textures live on.
+    pub fn gpu(&self) -> &Arc<Gpu> {
+        match self {
+            AssetField::Spherical(f) => f.gpu(),
+            AssetField::TwoPlane(f) => f.gpu(),
+        }
+    }
+
+    /// Device bytes of the textures.
+    pub fn gpu_bytes(&self) -> u64 {
+        match self {
+            AssetField::Spherical(f) => f.gpu_bytes,
+            AssetField::TwoPlane(f) => f.bytes,
+        }
+    }
 }
 
 /// A share of the store's memory budget and of the server's, released on drop.
@@ -120,6 +150,11 @@ pub struct AssetSummary {
     pub file_bytes: u64,
     /// GPU memory the asset takes, in bytes, charged to the asset memory budget.
     pub gpu_bytes: u64,
+    /// The planes of a two-plane light field (DESIGN §9's JSON): what `focus` and `aperture`
+    /// are measured against.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Object>)]
+    pub planes: Option<TwoPlanes>,
 }
 
 /// An asset's animation.
@@ -141,10 +176,7 @@ impl LoadedAsset {
         let h = &self.header;
         AssetSummary {
             id: self.id.clone(),
-            kind: serde_json::to_value(h.kind)
-                .ok()
-                .and_then(|v| v.as_str().map(str::to_owned))
-                .unwrap_or_default(),
+            kind: h.kind.name().to_owned(),
             camera_count: h.camera_count(),
             resolution_px: h.image_size()[0],
             layers: h.layers.iter().map(|l| l.name.clone()).collect(),
@@ -169,7 +201,8 @@ impl LoadedAsset {
             center: h.frame.center,
             radius: h.frame.radius,
             file_bytes: self.file_bytes,
-            gpu_bytes: self.field.gpu_bytes,
+            gpu_bytes: self.field.gpu_bytes(),
+            planes: h.two_plane().copied(),
         }
     }
 }
@@ -217,14 +250,18 @@ pub fn describe_bytes(bytes: u64) -> String {
 /// any page is decoded.
 pub fn load_file(
     store: &AssetStore,
-    renderer: &Renderer,
+    engine: &Engine,
     id: &str,
     path: &Path,
 ) -> Result<LoadedAsset, LoadError> {
     let file = AssetFile::open(path)?;
     let charge = store.admit(file.header())?;
     file.verify_all()?;
-    let field = renderer.upload(&file)?;
+    let field = if file.header().two_plane().is_some() {
+        AssetField::TwoPlane(engine.two_plane.upload(&file)?)
+    } else {
+        AssetField::Spherical(engine.renderer.upload(&file)?)
+    };
     Ok(LoadedAsset {
         id: id.to_owned(),
         path: path.to_path_buf(),

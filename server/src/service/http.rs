@@ -397,8 +397,7 @@ pub async fn upload_asset(
     let check_id = id.clone();
     let loaded = tokio::task::spawn_blocking(move || {
         let engine = loader.pool().engine();
-        load_file(loader.assets(), &engine.renderer, &check_id, &check_path)
-            .map_err(|e| (e, engine))
+        load_file(loader.assets(), &engine, &check_id, &check_path).map_err(|e| (e, engine))
     })
     .await
     .map_err(|e| AppError::Internal(e.into()))?

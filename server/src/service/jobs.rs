@@ -415,7 +415,7 @@ fn bake_blocking(
             .map_err(|e| format!("bake failed: {e}"))?;
         serde_json::to_value(&report).unwrap_or_default()
     };
-    let asset = load_file(state.assets(), &state.pool().renderer(), &job.asset, &path).map_err(
+    let asset = load_file(state.assets(), &state.pool().engine(), &job.asset, &path).map_err(
         // The file stays in the folder, where a restart with a larger budget loads it.
         |e| format!("the baked asset cannot be loaded: {e}"),
     )?;

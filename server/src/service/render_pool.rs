@@ -11,10 +11,11 @@ use lumigraph_core::lod::LodError;
 use lumigraph_core::quality::{Decision, Plan, Quality, QualityError};
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::Renderer;
+use lumigraph_core::two_plane_render::TwoPlaneRenderer;
 use lumigraph_core::view::View;
 use tokio::sync::{Semaphore, mpsc};
 
-use super::assets::LoadedAsset;
+use super::assets::{AssetField, LoadedAsset};
 use super::budget::{Charge, MemoryBudget, frame_bytes};
 use super::error::AppError;
 
@@ -40,6 +41,8 @@ pub struct Engine {
     pub generation: u64,
     /// The light-field renderer.
     pub renderer: Arc<Renderer>,
+    /// The two-plane light-field renderer (pipelines compiled on first use).
+    pub two_plane: Arc<TwoPlaneRenderer>,
     /// The baker (server-side bakes).
     pub baker: Baker,
     /// The mesh rasterizer (bake calibration).
@@ -52,6 +55,7 @@ impl Engine {
         Self {
             generation,
             renderer: Arc::new(Renderer::new(Arc::clone(&gpu))),
+            two_plane: Arc::new(TwoPlaneRenderer::new(Arc::clone(&gpu))),
             baker: Baker::new(Arc::clone(&gpu)),
             reference: ReferenceRenderer::new(gpu),
         }
@@ -246,10 +250,15 @@ impl RenderPool {
                 "the asset is being uploaded again to a new GPU device; retry shortly".to_owned(),
             ));
         }
-        let renderer = Arc::clone(&engine.renderer);
+        let engine_now = Arc::clone(&engine);
         let result = tokio::task::spawn_blocking(move || {
             let start = Instant::now();
-            let rendered = plan.render(&renderer, &asset.field, &view);
+            let rendered = match &asset.field {
+                AssetField::Spherical(field) => plan.render(&engine_now.renderer, field, &view),
+                AssetField::TwoPlane(field) => {
+                    plan.render_two_plane(&engine_now.two_plane, field, &view)
+                }
+            };
             (rendered, start.elapsed().as_secs_f64() * 1e3)
         })
         .await

@@ -62,11 +62,11 @@ fn whole(key: &str, value: &str) -> Result<u32, AppError> {
         .map_err(|_| invalid(key, "a whole number", value))
 }
 
-/// A quality key's value as the JSON a body would carry: `method`, `layers` and `state`
-/// strings, `light` a vector, the others numbers
+/// A quality key's value as the JSON a body would carry: `method`, `layers`, `state` and
+/// `uv_filter` strings, `light` a vector, the others numbers
 /// (whole numbers stay integers, so `lod=12.5` gets the body's type error).
 fn quality_value(key: &str, value: &str) -> Result<Value, AppError> {
-    if key == "method" || key == "layers" || key == "state" {
+    if matches!(key, "method" | "layers" | "state" | "uv_filter") {
         return Ok(Value::String(value.to_owned()));
     }
     if key == "light" {

@@ -500,8 +500,7 @@ impl AppState {
         let owned = id.to_owned();
         let loaded = tokio::task::spawn_blocking(move || {
             let engine = state.inner.pool.engine();
-            assets::load_file(&state.inner.assets, &engine.renderer, &owned, &path)
-                .map_err(|e| (e, engine))
+            assets::load_file(&state.inner.assets, &engine, &owned, &path).map_err(|e| (e, engine))
         })
         .await
         .map_err(|e| AppError::Internal(e.into()))?;
@@ -749,8 +748,8 @@ impl AppState {
         for (id, path) in files {
             let state = self.clone();
             let loaded = tokio::task::spawn_blocking(move || {
-                let renderer = state.inner.pool.renderer();
-                assets::load_file(&state.inner.assets, &renderer, &id, &path)
+                let engine = state.inner.pool.engine();
+                assets::load_file(&state.inner.assets, &engine, &id, &path)
                     .map_err(|e| (id, path, e))
             })
             .await;

@@ -144,11 +144,29 @@ pub(super) fn validate_settings(
         }
     }
     let quality = Quality::from_json_map(quality_keys).map_err(|e| e.to_string())?;
-    let still = quality.plan(header).map_err(|e| e.to_string())?;
     let mut moving = quality.for_motion();
-    if moving.auto_lod.is_none() {
-        moving.lod = s.interactive_lod.or(moving.lod);
-    }
+    let still = if header.two_plane().is_some() {
+        if s.interactive_lod.is_some() {
+            return Err(
+                "interactive_lod applies to spherical light fields, not to this two-plane one"
+                    .to_owned(),
+            );
+        }
+        // Without a uv filter asked for, resting frames are depth-corrected where depth was
+        // captured and moving ones bilinear: dither inflates every codec's frames, and the
+        // depth-corrected filter costs 3× bilinear's time for the same bytes (BENCHMARKS.md,
+        // "Two-plane light fields").
+        let mut resting = quality.clone();
+        if resting.uv_filter.is_none() && lumigraph_core::two_plane::has_captured_depth(header) {
+            resting.uv_filter = Some(lumigraph_core::two_plane_render::UvFilter::Depth);
+        }
+        resting.plan(header).map_err(|e| e.to_string())?
+    } else {
+        if moving.auto_lod.is_none() {
+            moving.lod = s.interactive_lod.or(moving.lod);
+        }
+        quality.plan(header).map_err(|e| e.to_string())?
+    };
     let motion = moving.plan(header).map_err(|e| e.to_string())?;
     Ok(Effective {
         settings,
