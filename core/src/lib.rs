@@ -52,6 +52,7 @@ pub mod gpu;
 pub mod image_io;
 pub mod import_views;
 pub mod layers;
+pub mod lenslet;
 pub mod light;
 pub mod lod;
 pub mod mesh;

@@ -36,11 +36,13 @@ impl std::str::FromStr for GridLayout {
             "grid" => Ok(GridLayout::Grid),
             "stanford" => Ok(GridLayout::Stanford),
             "lenslet" => Err(
-                "layout lenslet (raw plenoptic images with their calibration) is not supported \
-                 yet; decode the lenslet image into a grid of views first"
+                "layout lenslet is a raw plenoptic image with its calibration, not a grid of \
+                 images: import it with lumigraph::lenslet::import_lenslet"
                     .to_owned(),
             ),
-            other => Err(format!("layout {other:?}: choose grid or stanford")),
+            other => Err(format!(
+                "layout {other:?}: choose grid, stanford or lenslet"
+            )),
         }
     }
 }

@@ -2620,7 +2620,7 @@ fn two_plane_bake_info_render_and_errors() {
 
 /// `export --images` then `import --layout grid` round-trips a two-plane asset bit for bit
 /// (colour, depth and planes); the Stanford names read the same; the mosaic tiles every camera;
-/// malformed grids, inconsistent sizes, hostile sizes and the unsupported lenslet layout fail
+/// malformed grids, inconsistent sizes, hostile sizes and a lenslet import without calibration fail
 /// cleanly.
 #[test]
 fn two_plane_import_export_round_trip_and_errors() {
@@ -2764,9 +2764,10 @@ fn two_plane_import_export_round_trip_and_errors() {
     lumigraph_core::image_io::write_depth_npy(&partial.join("0_0.npy"), 4, 4, &[1.0; 16])
         .expect("npy");
     assert_fails(&["import", s(&partial), "-o", &out], "give all or none");
+    // A folder of images is no lenslet image: no calibration beside it.
     assert_fails(
         &["import", s(&images), "-o", &out, "--layout", "lenslet"],
-        "lenslet",
+        "needs its calibration",
     );
     assert_fails(
         &["import", s(&images), "-o", &out, "--layout", "tiles"],
@@ -2788,4 +2789,74 @@ fn two_plane_import_export_round_trip_and_errors() {
         "Spherical",
     );
     assert!(!path("io-bad.lfa").exists());
+}
+
+/// `import --layout lenslet` on the dev set's light-field microscope image (napari-LF's
+/// metadata.txt as the calibration): the lattice and the views are reported, the asset is a
+/// two-plane light field of 15 × 15 views of 26 × 26 lenslets, and a refocused full-aperture
+/// render of it covers the st square; `--planes` is refused with the lenslet layout.
+#[test]
+fn lenslet_import_of_the_real_microscope_image() {
+    let dir = lumigraph_core_fixtures().join("lightfield/GUVExperim1");
+    let out = path("guv.lfa");
+    let o = lumigraph(&["import", s(&dir), "-o", s(&out), "--layout", "lenslet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("lenslet grid: pitch 15.3") || text.contains("lenslet grid: pitch 15.4"),
+        "{text}"
+    );
+    assert!(
+        text.contains("imported 15x15 views of 26x26 lenslets"),
+        "{text}"
+    );
+    let asset = lumigraph_core::asset::AssetFile::open(&out).expect("open");
+    let planes = *asset.header().two_plane().expect("two-plane");
+    assert_eq!(planes.uv.grid, [15, 15]);
+    // The image file itself also names the import, its folder holding the calibration.
+    let again = path("guv-again.lfa");
+    let image = dir.join("Lightfield_GUVExperim1.tif");
+    let o = lumigraph(&["import", s(&image), "-o", s(&again), "--layout", "lenslet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let view = write(
+        "guv-view.json",
+        format!(
+            r#"{{"eye": [0, 0, {}], "target": [0, 0, 0], "yfov_deg": {}, "width": 64, "height": 64}}"#,
+            1.5 * planes.uv.center[2],
+            2.0 * (0.45 * planes.st.size[0] / (1.5 * planes.uv.center[2])).atan().to_degrees()
+        )
+        .as_bytes(),
+    );
+    let png = path("guv.png");
+    let o = lumigraph(&[
+        "render",
+        s(&out),
+        "--view",
+        s(&view),
+        "-o",
+        s(&png),
+        "--aperture",
+        "7",
+        "--focus",
+        "1",
+        "--accumulate",
+        "4",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (_, _, rgba) = lumigraph_core::image_io::read_png_rgba8(&png).expect("png");
+    let covered = rgba.chunks_exact(4).filter(|p| p[3] > 0).count();
+    assert!(covered > 64 * 64 * 3 / 4, "{covered} covered");
+    assert_fails(
+        &[
+            "import",
+            s(&dir),
+            "-o",
+            s(&path("x.lfa")),
+            "--layout",
+            "lenslet",
+            "--planes",
+            s(&view),
+        ],
+        "--planes does not apply",
+    );
 }

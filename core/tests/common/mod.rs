@@ -14,7 +14,7 @@ use lumigraph_core::mesh::Mesh;
 static FETCH: Mutex<()> = Mutex::new(());
 
 /// The files the fetch script leaves (and checks the SHA-256 of); all present = complete.
-pub const FIXTURE_FILES: [&str; 7] = [
+pub const FIXTURE_FILES: [&str; 11] = [
     "mesh/bunny00.off",
     "mesh/cow.off",
     "mesh/spot.ply",
@@ -22,6 +22,10 @@ pub const FIXTURE_FILES: [&str; 7] = [
     "anim/AnimatedMorphCube.gltf",
     "anim/AnimatedMorphCube.bin",
     "anim/simple_skin.gltf",
+    "lightfield/GUVExperim1/Lightfield_GUVExperim1.tif",
+    "lightfield/GUVExperim1/DarkFrame_GUVExperim1.tif",
+    "lightfield/GUVExperim1/Radiometry_GUVExperim1.tif",
+    "lightfield/GUVExperim1/metadata.txt",
 ];
 
 /// Written once every file is there, so later calls need no lock.

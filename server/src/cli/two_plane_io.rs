@@ -22,7 +22,10 @@ pub struct ImportArgs {
     /// Output asset (.lfa).
     #[arg(short, long)]
     pub output: PathBuf,
-    /// How the files name their camera: grid or stanford.
+    /// How the files name their camera: grid or stanford; or lenslet: SOURCE is a raw
+    /// plenoptic image (or its folder) with a calibration beside it, lenslet.json or
+    /// napari-LF's metadata.txt, naming the radiometry and dark frames and the optics
+    /// (docs/two_plane.md, "Lenslet import").
     #[arg(long, default_value = "grid")]
     pub layout: String,
     /// The planes (DESIGN §9's JSON), instead of the folder's planes.json or the default
@@ -50,7 +53,52 @@ pub struct ExportArgs {
     pub images: Option<PathBuf>,
 }
 
+/// `import --layout lenslet`.
+fn import_lenslet(args: &ImportArgs) -> Result<()> {
+    if args.planes.is_some() {
+        bail!(
+            "--planes does not apply to --layout lenslet: the planes follow from the \
+             calibration (docs/two_plane.md, \"Lenslet import\")"
+        );
+    }
+    let bar = progress_bar(0, "resampling views");
+    let report =
+        lumigraph_core::lenslet::import_lenslet(&args.source, &args.output, &mut |done, total| {
+            bar.set_length(u64::from(total));
+            bar.set_position(u64::from(done));
+        })
+        .with_context(|| format!("cannot import {}", args.source.display()))?;
+    bar.finish_and_clear();
+    let g = &report.grid;
+    let [p1, p2] = g.pitch();
+    println!(
+        "lenslet grid: pitch {p1:.3} x {p2:.3} px, rotation {:.3} deg, a centre at ({:.2}, \
+         {:.2}) px, lattice contrast {:.3} / {:.3}",
+        g.rotation_deg(),
+        g.origin[0],
+        g.origin[1],
+        g.contrast[0],
+        g.contrast[1]
+    );
+    println!(
+        "imported {}x{} views of {}x{} lenslets ({:.1} % of samples inside the pupil; 255 = \
+         {:.4} devignetted; st texel {:.4} um, focus in um above the native focal plane): {}",
+        report.views,
+        report.views,
+        report.lenslets[0],
+        report.lenslets[1],
+        100.0 * report.valid_fraction,
+        report.scale,
+        report.planes.st.size[0] / f64::from(report.lenslets[0]),
+        args.output.display()
+    );
+    Ok(())
+}
+
 pub(super) fn import(args: &ImportArgs) -> Result<()> {
+    if args.layout == "lenslet" {
+        return import_lenslet(args);
+    }
     let layout: GridLayout = args
         .layout
         .parse()
