@@ -22,6 +22,10 @@ FIXTURE_FILES = (
     "anim/AnimatedMorphCube.gltf",
     "anim/AnimatedMorphCube.bin",
     "anim/simple_skin.gltf",
+    "lightfield/GUVExperim1/Lightfield_GUVExperim1.tif",
+    "lightfield/GUVExperim1/DarkFrame_GUVExperim1.tif",
+    "lightfield/GUVExperim1/Radiometry_GUVExperim1.tif",
+    "lightfield/GUVExperim1/metadata.txt",
 )
 
 

@@ -137,3 +137,75 @@ def test_bad_two_plane_options_and_planes_raise(two_plane_lf: lg.LightField, dem
         lg.bake_two_plane(lg.Mesh.demo(), grid=(64, 64), progress=False)
     with pytest.raises(TypeError):
         lg.bake_two_plane(lg.Mesh.demo(), planes=3, progress=False)  # type: ignore[arg-type]
+
+
+def _write_grid(folder: Path, grid: tuple[int, int], size: tuple[int, int]) -> np.ndarray:
+    """Camera images ROW_COL.png with known pixels; returns them as [row, col, y, x, rgba]."""
+    from PIL import Image
+
+    folder.mkdir()
+    rng = np.random.default_rng(3)
+    images = rng.integers(0, 256, size=(grid[1], grid[0], size[1], size[0], 4), dtype=np.uint8)
+    images[..., 3] = 255
+    for r in range(grid[1]):
+        for c in range(grid[0]):
+            Image.fromarray(images[r, c], "RGBA").save(folder / f"{r:03d}_{c:03d}.png")
+    return images
+
+
+def test_import_lightfield_grid_in_memory_and_to_a_file(tmp_path: Path) -> None:
+    _write_grid(tmp_path / "grid", (3, 2), (16, 12))
+    lf = lg.import_lightfield(tmp_path / "grid")
+    assert lf.kind == "two_plane"
+    assert lf.planes is not None
+    assert lf.planes["uv"]["grid"] == [3, 2] and lf.planes["st"]["resolution"] == [16, 12]
+    planes = dict(lf.planes)
+    planes["st"] = {**planes["st"], "size": [2.0, 1.5]}
+    out = tmp_path / "grid.lfa"
+    again = lg.import_lightfield(str(tmp_path / "grid"), layout="grid", planes=planes, output=out)
+    assert out.is_file() and again.planes is not None
+    assert again.planes["st"]["size"] == [2.0, 1.5]
+    frame = again.render({"eye": [0, 0, 2.5], "target": [0, 0, 0], "yfov_deg": 60, "width": 32,
+                          "height": 24}, uv_filter="nearest")
+    assert frame.coverage.any()
+
+
+def test_import_lightfield_errors_are_clear(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError):
+        lg.import_lightfield(tmp_path / "missing")
+    _write_grid(tmp_path / "grid", (2, 2), (8, 8))
+    with pytest.raises(ValueError, match="layout"):
+        lg.import_lightfield(tmp_path / "grid", layout="tiles")
+    with pytest.raises(ValueError, match="needs its calibration"):
+        lg.import_lightfield(tmp_path / "grid", layout="lenslet")
+    with pytest.raises(ValueError, match="planes do not apply"):
+        lg.import_lightfield(tmp_path / "grid", layout="lenslet", planes={"right": [1, 0, 0]})
+    with pytest.raises(TypeError):
+        lg.import_lightfield(tmp_path / "grid", planes=3)  # type: ignore[arg-type]
+    (tmp_path / "grid" / "000_000.png").write_bytes(b"not a png")
+    with pytest.raises(ValueError, match="000_000.png"):
+        lg.import_lightfield(tmp_path / "grid")
+
+
+def test_import_lenslet_microscope_image_refocuses(fixtures: Path) -> None:
+    """The dev set's light-field microscope image (napari-LF's GUV example): 15 x 15 views of
+    26 x 26 lenslets; with the full aperture the vesicle is sharper at the native focal plane
+    than 8 um above or below it (gradient energy over the squared mean: measured about 3.5x)."""
+    lf = lg.import_lightfield(fixtures / "lightfield" / "GUVExperim1", layout="lenslet")
+    planes = lf.planes
+    assert planes is not None
+    assert planes["uv"]["grid"] == [15, 15] and planes["st"]["resolution"] == [26, 26]
+    distance = planes["uv"]["center"][2]
+    st = planes["st"]["size"][0]
+    view = {"eye": [0, 0, 1.5 * distance], "target": [0, 0, 0],
+            "yfov_deg": float(np.degrees(2 * np.arctan(0.45 * st / (1.5 * distance)))),
+            "width": 96, "height": 96}
+
+    def energy(focus: float) -> float:
+        grey = lf.render(view, aperture=7, focus=focus, refine=8).color[..., :3].astype(float)
+        grey = grey.mean(axis=2)
+        gx, gy = np.diff(grey, axis=1)[1:-1, :], np.diff(grey, axis=0)[:, 1:-1]
+        return float((gx[:, :-1] ** 2 + gy[:-1, :] ** 2).mean() / grey.mean() ** 2)
+
+    sharp = energy(0.0)
+    assert sharp > 2.0 * energy(-8.0) and sharp > 2.0 * energy(8.0)

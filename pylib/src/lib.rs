@@ -57,6 +57,7 @@ fn _lumigraph(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(view::orbit_views, m)?)?;
     m.add_function(wrap_pyfunction!(lightfield::bake, m)?)?;
     m.add_function(wrap_pyfunction!(lightfield::bake_two_plane, m)?)?;
+    m.add_function(wrap_pyfunction!(lightfield::import_lightfield, m)?)?;
     m.add_function(wrap_pyfunction!(mesh::reference_render, m)?)?;
     m.add_function(wrap_pyfunction!(volume::reference_volume, m)?)?;
     m.add_function(wrap_pyfunction!(volume::bake_volume, m)?)?;

@@ -86,7 +86,7 @@ impl PyLightField {
         &self,
         py: Python<'_>,
         views: &[View],
-        options: &TwoPlaneOptions,
+        (options, draws): &(TwoPlaneOptions, u32),
         background: Option<[u8; 4]>,
     ) -> PyResult<Vec<PyFrame>> {
         let frames: Vec<Frame> = py.detach(|| {
@@ -96,7 +96,7 @@ impl PyLightField {
                 .iter()
                 .map(|v| {
                     renderer
-                        .render(&field, v, options)
+                        .render_accumulated(&field, v, options, *draws)
                         .map_err(|e| errors::render(&e))
                 })
                 .collect::<PyResult<Vec<Frame>>>()
@@ -237,24 +237,38 @@ fn json_of(value: &Bound<'_, PyAny>) -> PyResult<serde_json::Value> {
 /// The quality request of keyword arguments (core `Quality`: the same keys as the HTTP body).
 /// The keyword options of a two-plane render (`uv_filter`, `focus`, `aperture`, `steps`,
 /// `tolerance`, `dither_amplitude`, `sample_budget`, `frame_index`).
-fn two_plane_options_of(kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<TwoPlaneOptions> {
+fn two_plane_options_of(kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<(TwoPlaneOptions, u32)> {
     let mut map = serde_json::Map::new();
     if let Some(kwargs) = kwargs {
         for (key, value) in kwargs.iter() {
             map.insert(key.extract::<String>()?, json_of(&value)?);
         }
     }
+    // `refine`: aperture draws averaged, as the service's quality key.
+    let draws = match map.remove("refine") {
+        None | Some(serde_json::Value::Null) => 1,
+        Some(value) => value
+            .as_u64()
+            .and_then(|n| u32::try_from(n).ok())
+            .filter(|n| (1..=lumigraph_core::two_plane_render::MAX_DRAWS).contains(n))
+            .ok_or_else(|| {
+                PyValueError::new_err(format!(
+                    "refine {value}: give 1..={} aperture draws",
+                    lumigraph_core::two_plane_render::MAX_DRAWS
+                ))
+            })?,
+    };
     let options: TwoPlaneOptions =
         serde_json::from_value(serde_json::Value::Object(map)).map_err(|e| {
             PyValueError::new_err(format!(
-                "two-plane render options (uv_filter, focus, aperture, steps, tolerance, \
+                "two-plane render options (uv_filter, focus, aperture, refine, steps, tolerance, \
                  dither_amplitude, sample_budget, frame_index): {e}"
             ))
         })?;
     options
         .validate()
         .map_err(|e| PyValueError::new_err(e.to_string()))?;
-    Ok(options)
+    Ok((options, draws))
 }
 
 fn quality_of(kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<Quality> {
@@ -933,6 +947,89 @@ pub fn bake_two_plane(
     if let Some(error) = callback_error {
         return Err(error);
     }
+    let asset = py
+        .detach(|| AssetFile::from_bytes(bytes.clone()))
+        .map_err(|e| errors::asset(&e, None))?;
+    Ok(PyLightField::new(asset, Origin::Memory(Arc::new(bytes))))
+}
+
+/// Native import (the Python `import_lightfield` checks the arguments' types): a folder of
+/// images on a camera grid (`grid`, `stanford`) or a raw lenslet image with its calibration
+/// (`lenslet`) into a two-plane light field, written to `output` (then opened from there) or
+/// held in memory.
+#[pyfunction]
+#[pyo3(signature = (path, *, layout, planes, output))]
+pub fn import_lightfield(
+    py: Python<'_>,
+    path: PathBuf,
+    layout: &str,
+    planes: Option<String>,
+    output: Option<PathBuf>,
+) -> PyResult<PyLightField> {
+    if !path.exists() {
+        return Err(pyo3::exceptions::PyFileNotFoundError::new_err(format!(
+            "{} does not exist",
+            path.display()
+        )));
+    }
+    if layout == "lenslet" && planes.is_some() {
+        return Err(PyValueError::new_err(
+            "planes do not apply to layout='lenslet': they follow from the calibration",
+        ));
+    }
+    let planes = planes
+        .as_deref()
+        .map(lumigraph_core::two_plane::TwoPlanes::from_json)
+        .transpose()
+        .map_err(|e| PyValueError::new_err(format!("planes: {e}")))?;
+    let grid = if layout == "lenslet" {
+        None
+    } else {
+        Some(
+            layout
+                .parse::<lumigraph_core::two_plane_io::GridLayout>()
+                .map_err(PyValueError::new_err)?,
+        )
+    };
+    let target = output.clone().unwrap_or_else(|| {
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos());
+        std::env::temp_dir().join(format!(
+            "lumigraph-import-{}-{nanos}.lfa",
+            std::process::id()
+        ))
+    });
+    let imported = py.detach(|| match grid {
+        None => lumigraph_core::lenslet::import_lenslet(&path, &target, &mut |_, _| {})
+            .map(|_| ())
+            .map_err(|e| e.to_string()),
+        Some(layout) => lumigraph_core::two_plane_io::import_grid(
+            &path,
+            layout,
+            planes,
+            &target,
+            &mut |_, _| {},
+        )
+        .map(|_| ())
+        .map_err(|e| e.to_string()),
+    });
+    if let Err(message) = imported {
+        return Err(PyValueError::new_err(format!(
+            "cannot import {}: {message}",
+            path.display()
+        )));
+    }
+    if output.is_some() {
+        let shown = target.display().to_string();
+        let asset = py
+            .detach(|| AssetFile::open(&target))
+            .map_err(|e| errors::asset(&e, Some(&shown)))?;
+        return Ok(PyLightField::new(asset, Origin::File(target)));
+    }
+    let bytes = std::fs::read(&target);
+    let _ = std::fs::remove_file(&target);
+    let bytes = bytes.map_err(|e| PyValueError::new_err(format!("cannot read the import: {e}")))?;
     let asset = py
         .detach(|| AssetFile::from_bytes(bytes.clone()))
         .map_err(|e| errors::asset(&e, None))?;

@@ -44,6 +44,7 @@ from ._lumigraph import (
 from ._lumigraph import bake as _bake
 from ._lumigraph import bake_two_plane as _bake_two_plane
 from ._lumigraph import bake_volume as _bake_volume
+from ._lumigraph import import_lightfield as _import_lightfield
 from ._lumigraph import reference_render as _reference_render
 from ._lumigraph import reference_volume as _reference_volume
 
@@ -68,6 +69,7 @@ __all__ = [
     "bake_two_plane",
     "bake_volume",
     "device_info",
+    "import_lightfield",
     "metrics",
     "orbit_views",
     "reference_render",
@@ -380,6 +382,58 @@ def bake_two_plane(
         unlit=unlit,
         shadows=shadows,
         progress=_progress_callback(progress),
+    )
+
+
+def import_lightfield(
+    path: str | os.PathLike[str],
+    *,
+    layout: str = "grid",
+    planes: Mapping[str, Any] | str | os.PathLike[str] | None = None,
+    output: str | os.PathLike[str] | None = None,
+) -> LightField:
+    """Imports real light-field data as a two-plane light field (docs/two_plane.md).
+
+    Args:
+        path: ``layout="grid"``: a folder of PNGs, one per camera, whose names end in their row
+            and column (``003_012.png``); ``"stanford"``: the Stanford archive's
+            ``out_ROW_COL_*.png``. Both read an optional ``planes.json`` and a depth ``.npy``
+            beside each image. ``"lenslet"``: a raw plenoptic image, or its folder, with a
+            calibration beside it (``lenslet.json``, or napari-LF's ``metadata.txt``) naming the
+            radiometry and dark frames and the optics; the lenslet grid is found, the image
+            devignetted and resampled to N x N integer views.
+        layout: ``"grid"``, ``"stanford"`` or ``"lenslet"``.
+        planes: grid layouts only: DESIGN §9's plane JSON as a dict or a path, instead of the
+            folder's ``planes.json`` or the default placement.
+        output: write the asset here (atomically) and open it from there; ``None`` keeps it in
+            memory (:meth:`LightField.save` writes it).
+
+    Returns:
+        The :class:`LightField` (``kind == "two_plane"``).
+
+    Raises:
+        FileNotFoundError: ``path`` does not exist. ValueError: a bad layout or planes, a
+            malformed grid, images of mixed sizes, a lenslet image without calibration or with
+            no lenslet grid (the message names the file and the rule).
+    """
+    import json
+
+    if planes is None:
+        text = None
+    elif isinstance(planes, Mapping):
+        text = json.dumps(dict(planes))
+    elif isinstance(planes, (str, os.PathLike)):
+        with open(planes, encoding="utf-8") as f:
+            text = f.read()
+    else:
+        raise TypeError("planes must be None, a dict or a path to a JSON file")
+    if not isinstance(layout, str):
+        raise TypeError("layout must be 'grid', 'stanford' or 'lenslet'")
+    return _import_lightfield(
+        os.fspath(path),
+        layout=layout,
+        planes=text,
+        output=None if output is None else os.fspath(output),
     )
 
 

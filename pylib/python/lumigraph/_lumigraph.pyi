@@ -9,7 +9,7 @@ import numpy.typing as npt
 __version__: str
 __all__ = [
     "AssetError", "BakeError", "Frame", "LightField", "LumigraphError", "Mesh", "MeshError",
-    "RenderError", "View", "bake", "bake_two_plane", "bake_volume", "compare", "depth_error", "device_info", "mae", "masked_psnr",
+    "RenderError", "View", "bake", "bake_two_plane", "bake_volume", "compare", "depth_error", "device_info", "import_lightfield", "mae", "masked_psnr",
     "orbit_views", "psnr", "reference_render", "reference_volume", "ssim", "__version__",
 ]
 
@@ -240,6 +240,13 @@ def bake_two_plane(
     unlit: bool,
     shadows: bool,
     progress: Callable[[int, int], object] | None,
+) -> LightField: ...
+def import_lightfield(
+    path: str | PathLike[str],
+    *,
+    layout: str,
+    planes: str | None,
+    output: str | PathLike[str] | None,
 ) -> LightField: ...
 def reference_render(
     mesh: Mesh,
