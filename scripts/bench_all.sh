@@ -35,6 +35,8 @@ step "import of external renders (scripts/bench_import.sh)" "$OUT/import/table.m
 bash scripts/bench_import.sh "$OUT/import"
 step "two-plane light fields (scripts/bench_two_plane.sh)" "$OUT/two_plane/table.md: 'Two-plane light fields'"
 bash scripts/bench_two_plane.sh "$OUT/two_plane"
+step "lenslet import (scripts/bench_lenslet.sh)" "$OUT/lenslet/table.md: 'Two-plane light fields' / 'Lenslet import'"
+bash scripts/bench_lenslet.sh "$OUT/lenslet"
 step "animation (scripts/bench_animation.sh)" "$OUT/animation/table.md: 'Animation'"
 bash scripts/bench_animation.sh "$OUT/animation"
 step "still refinement (scripts/bench_refine.sh)" "$OUT/refine/tables.md: 'Still-frame refinement'"
