@@ -295,12 +295,14 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var hit = vec3<f32>(0.0);
 
     if APERTURE {
-        // Synthetic aperture: every camera within R cells per axis, weighted by a box of
-        // width 2R + 1 with a one-cell linear edge, each read at the focal plane's point.
+        // Synthetic aperture: the cameras within R cells of the nearest one per axis (2R + 1
+        // when R is whole), weighted by a box with a half-cell linear edge either side of
+        // |Δ| = R + ½ (the weights move smoothly with the view, and at most (2R + 1)² cameras
+        // have weight), each read at the focal plane's point.
         let q = fan(at_height(o, d, params.focus));
         let r = params.aperture;
-        let lo = vec2<u32>(max(ceil(cell - vec2<f32>(r + 1.0)), vec2<f32>(0.0)));
-        let hi = vec2<u32>(min(floor(cell + vec2<f32>(r + 1.0)), g - vec2<f32>(1.0)));
+        let lo = vec2<u32>(max(ceil(cell - vec2<f32>(r + 0.5)), vec2<f32>(0.0)));
+        let hi = vec2<u32>(min(floor(cell + vec2<f32>(r + 0.5)), g - vec2<f32>(1.0)));
         let count = (hi - lo + vec2<u32>(1u));
         let total = count.x * count.y;
         // A stratified subset when the aperture holds more cameras than the budget: the
@@ -311,7 +313,7 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         if total <= budget {
             for (var b = lo.y; b <= hi.y; b++) {
                 for (var a = lo.x; a <= hi.x; a++) {
-                    let w = clamp(r + 1.0 - abs(f32(a) - cell.x), 0.0, 1.0) * clamp(r + 1.0 - abs(f32(b) - cell.y), 0.0, 1.0);
+                    let w = clamp(r + 0.5 - abs(f32(a) - cell.x), 0.0, 1.0) * clamp(r + 0.5 - abs(f32(b) - cell.y), 0.0, 1.0);
                     if w > 0.0 {
                         add_camera(&acc, a, b, q, w);
                     }
@@ -329,7 +331,7 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
                     let h = hash(params.frame_index * 7919u + (sy * strata.x + sx) * 104729u + 17u);
                     let a = x0 + (h & 0xffffu) % (x1 - x0);
                     let b = y0 + (h >> 16u) % (y1 - y0);
-                    let w = clamp(r + 1.0 - abs(f32(a) - cell.x), 0.0, 1.0) * clamp(r + 1.0 - abs(f32(b) - cell.y), 0.0, 1.0);
+                    let w = clamp(r + 0.5 - abs(f32(a) - cell.x), 0.0, 1.0) * clamp(r + 0.5 - abs(f32(b) - cell.y), 0.0, 1.0);
                     if w > 0.0 {
                         add_camera(&acc, a, b, q, w * f32((x1 - x0) * (y1 - y0)));
                     }
@@ -340,11 +342,11 @@ fn cs_main(@builtin(global_invocation_id) gid: vec3<u32>) {
             // colour, and frames average to it.
             var wa = 0.0;
             for (var a = lo.x; a <= hi.x; a++) {
-                wa += clamp(r + 1.0 - abs(f32(a) - cell.x), 0.0, 1.0);
+                wa += clamp(r + 0.5 - abs(f32(a) - cell.x), 0.0, 1.0);
             }
             var wb = 0.0;
             for (var b = lo.y; b <= hi.y; b++) {
-                wb += clamp(r + 1.0 - abs(f32(b) - cell.y), 0.0, 1.0);
+                wb += clamp(r + 0.5 - abs(f32(b) - cell.y), 0.0, 1.0);
             }
             acc.weight = wa * wb;
         }

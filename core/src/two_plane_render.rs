@@ -115,9 +115,11 @@ pub struct TwoPlaneOptions {
     /// §9). 0 reads every camera at the ray's own st crossing.
     pub focus: f64,
     /// Synthetic aperture radius R in uv cells: 0 is the pinhole view through `uv_filter`;
-    /// R > 0 weights every camera within R + 1 cells per axis by
-    /// `clamp(R + 1 − |Δa|, 0, 1) · clamp(R + 1 − |Δb|, 0, 1)` (a box of 2R + 1 cameras with a
-    /// one-cell linear edge, so the weights move smoothly with the view), each read at the
+    /// R > 0 weights every camera within R + ½ cells per axis by
+    /// `clamp(R + ½ − |Δa|, 0, 1) · clamp(R + ½ − |Δb|, 0, 1)` (the 2R + 1 cameras around the
+    /// nearest one per axis for whole R, with a half-cell linear edge either side of the box's
+    /// border so the weights move smoothly with the view: at most (2R + 1)² cameras), each read
+    /// at the
     /// focal plane's point.
     pub aperture: f64,
     /// March steps of the depth-corrected filter over the asset's depth range.

@@ -103,8 +103,8 @@ fn expected(
         let mut list = Vec::new();
         for b in 0..nv {
             for a in 0..nu {
-                let w = (r + 1.0 - (f64::from(a) - x.a).abs()).clamp(0.0, 1.0)
-                    * (r + 1.0 - (f64::from(b) - x.b).abs()).clamp(0.0, 1.0);
+                let w = (r + 0.5 - (f64::from(a) - x.a).abs()).clamp(0.0, 1.0)
+                    * (r + 0.5 - (f64::from(b) - x.b).abs()).clamp(0.0, 1.0);
                 if w > 0.0 {
                     list.push((a, b, w));
                 }

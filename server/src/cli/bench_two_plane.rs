@@ -285,7 +285,10 @@ fn sweep(
                     }
                     total.push(sum);
                 }
-                let side = (2.0 * aperture + 2.0).min(f64::from(grid[0].max(grid[1]))) as u32;
+                // Cameras with weight: |Δ| < R + ½ per axis.
+                let side = (2.0 * aperture + 1.0)
+                    .ceil()
+                    .min(f64::from(grid[0].max(grid[1]))) as u32;
                 let row = ApertureRow {
                     grid,
                     st_resolution: res,
