@@ -30,7 +30,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::asset::{AssetHeader, AssetWriter, Channel, ImageKey, Provenance};
+use crate::asset::{AssetHeader, AssetWriter, Channel, ImageKey};
 use crate::two_plane::{StPlane, TwoPlanes, UvPlane};
 
 /// Largest side of an image the import reads, pixels.
@@ -654,27 +654,19 @@ pub fn import_lenslet(
             resolution: [ns, nt],
         },
     };
-    let provenance = Provenance {
-        source_name: calibration.image.file_name().map_or_else(
-            || calibration.image.display().to_string(),
-            |n| n.to_string_lossy().into_owned(),
-        ),
-        lumigraph_version: env!("CARGO_PKG_VERSION").to_owned(),
-        bake_options: serde_json::json!({"import": {
+    let provenance = crate::two_plane_io::import_provenance(
+        &calibration.image,
+        serde_json::json!({
             "layout": "lenslet",
             "depth": false,
             "grid": grid,
             "scale": scale,
             "calibration": calibration,
-        }}),
-        created_unix: std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs()),
-        ..Provenance::default()
-    };
+        }),
+    );
     let header = AssetHeader::new_two_plane(planes, crate::asset::DEFAULT_PAGE_SIZE, provenance)?;
     let mut writer = AssetWriter::create(output, header)?;
-    let unit_depth: Vec<u8> = (0..texels).flat_map(|_| 1.0f32.to_le_bytes()).collect();
+    let unit_depth = crate::two_plane_io::unit_depth(texels);
     let total = views * views;
     for camera in 0..n * n {
         let view = &samples[camera * texels..(camera + 1) * texels];

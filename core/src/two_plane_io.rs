@@ -149,6 +149,33 @@ pub struct ImportReport {
     pub planes_from_file: bool,
 }
 
+/// The provenance of an import from `source` (its file name): `import` is recorded as the
+/// bake options' `import` object (its `depth: false` tells [`crate::two_plane::has_captured_depth`]
+/// that no depth came with the images).
+pub(crate) fn import_provenance(source: &Path, import: serde_json::Value) -> Provenance {
+    Provenance {
+        source_name: source.file_name().map_or_else(
+            || source.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        ),
+        lumigraph_version: env!("CARGO_PKG_VERSION").to_owned(),
+        bake_options: serde_json::Value::Object(serde_json::Map::from_iter([(
+            "import".to_owned(),
+            import,
+        )])),
+        created_unix: std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs()),
+        ..Provenance::default()
+    }
+}
+
+/// The depth image of `texels` texels that all store depth 1 (on the st plane): the depth of an
+/// import without depth images.
+pub(crate) fn unit_depth(texels: usize) -> Vec<u8> {
+    (0..texels).flat_map(|_| 1.0f32.to_le_bytes()).collect()
+}
+
 /// Imports the PNGs of `dir` as a two-plane light field into `output` (atomically). Rows and
 /// columns must be consecutive from their smallest number and every cell present once; every
 /// image the same size (≤ 8192 a side); at most 2048 cameras. A `.npy` (f32 z, the stored depth
@@ -278,24 +305,14 @@ pub fn import_grid(
         )));
     }
     let depth = with_depth != 0;
-    let provenance = Provenance {
-        source_name: dir.file_name().map_or_else(
-            || dir.display().to_string(),
-            |n| n.to_string_lossy().into_owned(),
-        ),
-        lumigraph_version: env!("CARGO_PKG_VERSION").to_owned(),
-        bake_options: serde_json::json!({"import": {"layout": format!("{layout:?}").to_lowercase(), "depth": depth}}),
-        created_unix: std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs()),
-        ..Provenance::default()
-    };
+    let provenance = import_provenance(
+        dir,
+        serde_json::json!({"layout": format!("{layout:?}").to_lowercase(), "depth": depth}),
+    );
     let header = AssetHeader::new_two_plane(planes, crate::asset::DEFAULT_PAGE_SIZE, provenance)?;
     let mut writer = AssetWriter::create(output, header)?;
     let total = nu as u32 * nv as u32;
-    let unit_depth: Vec<u8> = (0..u64::from(width) * u64::from(height))
-        .flat_map(|_| 1.0f32.to_le_bytes())
-        .collect();
+    let unit_depth = unit_depth(width as usize * height as usize);
     for ((r, c), path) in &cells {
         let (w, h, rgba) = read_png(path)?;
         if [w, h] != resolution {

@@ -73,6 +73,15 @@ impl PyLightField {
         }
     }
 
+    /// A light field held in memory as its encoded bytes, validated (GIL released meanwhile)
+    /// as `LightField.from_bytes` validates.
+    pub(crate) fn from_encoded(py: Python<'_>, bytes: Vec<u8>) -> PyResult<Self> {
+        let asset = py
+            .detach(|| AssetFile::from_bytes(bytes.clone()))
+            .map_err(|e| errors::asset(&e, None))?;
+        Ok(Self::new(asset, Origin::Memory(Arc::new(bytes))))
+    }
+
     /// Uploads a two-plane asset once; call with the GIL released.
     fn uploaded_two_plane(&self) -> PyResult<Arc<GpuTwoPlane>> {
         upload_once(&self.two_plane, || {
@@ -319,11 +328,7 @@ impl PyLightField {
     ///     AssetError: not an asset, unsupported version, truncated or corrupt.
     #[staticmethod]
     fn from_bytes(py: Python<'_>, data: &Bound<'_, PyBytes>) -> PyResult<Self> {
-        let bytes = data.as_bytes().to_vec();
-        let asset = py
-            .detach(|| AssetFile::from_bytes(bytes.clone()))
-            .map_err(|e| errors::asset(&e, None))?;
-        Ok(Self::new(asset, Origin::Memory(Arc::new(bytes))))
+        Self::from_encoded(py, data.as_bytes().to_vec())
     }
 
     /// to_bytes() -> bytes
@@ -854,10 +859,7 @@ pub fn bake(
     if let Some(error) = callback_error {
         return Err(error);
     }
-    let asset = py
-        .detach(|| AssetFile::from_bytes(bytes.clone()))
-        .map_err(|e| errors::asset(&e, None))?;
-    Ok(PyLightField::new(asset, Origin::Memory(Arc::new(bytes))))
+    PyLightField::from_encoded(py, bytes)
 }
 
 /// Native two-plane bake on a `Mesh` (the Python `bake_two_plane` converts other inputs, the
@@ -947,10 +949,7 @@ pub fn bake_two_plane(
     if let Some(error) = callback_error {
         return Err(error);
     }
-    let asset = py
-        .detach(|| AssetFile::from_bytes(bytes.clone()))
-        .map_err(|e| errors::asset(&e, None))?;
-    Ok(PyLightField::new(asset, Origin::Memory(Arc::new(bytes))))
+    PyLightField::from_encoded(py, bytes)
 }
 
 /// Native import (the Python `import_lightfield` checks the arguments' types): a folder of
@@ -1030,8 +1029,5 @@ pub fn import_lightfield(
     let bytes = std::fs::read(&target);
     let _ = std::fs::remove_file(&target);
     let bytes = bytes.map_err(|e| PyValueError::new_err(format!("cannot read the import: {e}")))?;
-    let asset = py
-        .detach(|| AssetFile::from_bytes(bytes.clone()))
-        .map_err(|e| errors::asset(&e, None))?;
-    Ok(PyLightField::new(asset, Origin::Memory(Arc::new(bytes))))
+    PyLightField::from_encoded(py, bytes)
 }

@@ -3,9 +3,7 @@
 //! `bake_volume` bakes one into a semi-transparent light field on the GPU
 //! (`lumigraph_core::volume::bake`).
 
-use std::sync::Arc;
-
-use lumigraph_core::asset::{AssetFile, LayerDesc, Provenance};
+use lumigraph_core::asset::{LayerDesc, Provenance};
 use lumigraph_core::layers::LayerOpacities;
 use lumigraph_core::volume::bake::{VolumeBakeError, VolumeBakeOptions};
 use lumigraph_core::volume::layers::{VolumeLayer, reference_layers};
@@ -17,7 +15,7 @@ use pyo3::exceptions::{PyFileNotFoundError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 
 use crate::frame::PyFrame;
-use crate::lightfield::{Origin, PyLightField};
+use crate::lightfield::PyLightField;
 use crate::{arrays, engines, errors, view};
 
 fn volume_error(error: &VolumeError) -> PyErr {
@@ -214,10 +212,7 @@ pub fn bake_volume(
     if let Some(error) = callback_error {
         return Err(error);
     }
-    let asset = py
-        .detach(|| AssetFile::from_bytes(bytes.clone()))
-        .map_err(|e| errors::asset(&e, None))?;
-    Ok(PyLightField::new(asset, Origin::Memory(Arc::new(bytes))))
+    PyLightField::from_encoded(py, bytes)
 }
 
 /// Native direct ray cast (the Python wrapper documents it).

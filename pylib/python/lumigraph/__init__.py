@@ -318,6 +318,19 @@ def bake_mesh(
     )
 
 
+def _planes_json(planes: object, other: str) -> str:
+    """DESIGN §9's plane JSON text of a dict or of a JSON file's path (``other`` names the
+    caller's third accepted value in the TypeError)."""
+    import json
+
+    if isinstance(planes, Mapping):
+        return json.dumps(dict(planes))
+    if isinstance(planes, (str, os.PathLike)):
+        with open(planes, encoding="utf-8") as f:
+            return f.read()
+    raise TypeError(f"planes must be {other}, a dict or a path to a JSON file")
+
+
 def bake_two_plane(
     mesh: MeshLike,
     *,
@@ -358,17 +371,7 @@ def bake_two_plane(
         ValueError: invalid planes (the message names the rule), a bad axis, grid or
             resolution. MeshError: invalid mesh. BakeError: the device failed.
     """
-    import json
-
-    if isinstance(planes, str) and planes == "auto":
-        text = None
-    elif isinstance(planes, Mapping):
-        text = json.dumps(dict(planes))
-    elif isinstance(planes, (str, os.PathLike)):
-        with open(planes, encoding="utf-8") as f:
-            text = f.read()
-    else:
-        raise TypeError("planes must be 'auto', a dict or a path to a JSON file")
+    text = None if isinstance(planes, str) and planes == "auto" else _planes_json(planes, "'auto'")
     native = as_mesh(mesh)
     return _bake_two_plane(
         native,
@@ -416,17 +419,7 @@ def import_lightfield(
             malformed grid, images of mixed sizes, a lenslet image without calibration or with
             no lenslet grid (the message names the file and the rule).
     """
-    import json
-
-    if planes is None:
-        text = None
-    elif isinstance(planes, Mapping):
-        text = json.dumps(dict(planes))
-    elif isinstance(planes, (str, os.PathLike)):
-        with open(planes, encoding="utf-8") as f:
-            text = f.read()
-    else:
-        raise TypeError("planes must be None, a dict or a path to a JSON file")
+    text = None if planes is None else _planes_json(planes, "None")
     if not isinstance(layout, str):
         raise TypeError("layout must be 'grid', 'stanford' or 'lenslet'")
     return _import_lightfield(
