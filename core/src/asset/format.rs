@@ -326,6 +326,11 @@ pub(crate) struct Layout {
     pub cameras: u32,
     pub color_bpp: u32,
     pub depth_bpp: u32,
+    /// Block compression of each channel's pages.
+    pub color_block: Option<super::BlockCodec>,
+    pub depth_block: Option<super::BlockCodec>,
+    pub color_encoding: super::Encoding,
+    pub depth_encoding: super::Encoding,
     /// Whether states other than 0 may store some pages of an image (version 4 and later).
     pub partial_images: bool,
 }
@@ -347,6 +352,14 @@ impl Layout {
             cameras: header.camera_count(),
             color_bpp: bpp(Channel::Color)?,
             depth_bpp: bpp(Channel::Depth)?,
+            color_block: header.compression(Channel::Color),
+            color_encoding: header
+                .encoding(Channel::Color)
+                .ok_or_else(|| AssetError::Header("no color channel".to_owned()))?,
+            depth_encoding: header
+                .encoding(Channel::Depth)
+                .ok_or_else(|| AssetError::Header("no depth channel".to_owned()))?,
+            depth_block: header.compression(Channel::Depth),
             partial_images: header.format_version >= super::PARTIAL_IMAGES_SINCE,
         })
     }
@@ -365,10 +378,31 @@ impl Layout {
             * u64::from(self.bytes_per_texel(channel))
     }
 
-    /// Decoded bytes of `page` of a `channel` image (≤ 4096² × 4 < 2³²).
+    /// The encoding of `channel`'s texels.
+    pub fn encoding(&self, channel: Channel) -> super::Encoding {
+        match channel {
+            Channel::Color => self.color_encoding,
+            Channel::Depth => self.depth_encoding,
+        }
+    }
+
+    /// The block compression of `channel`'s pages.
+    pub fn block(&self, channel: Channel) -> Option<super::BlockCodec> {
+        match channel {
+            Channel::Color => self.color_block,
+            Channel::Depth => self.depth_block,
+        }
+    }
+
+    /// The `raw_length` of `page` of a `channel` image: its texels' bytes, or its blocks' where
+    /// the channel is block-compressed (≤ 4096² × 4 < 2³²).
     pub fn page_bytes(&self, channel: Channel, page: u32) -> Option<u32> {
         let rect = self.grid.page_rect(page)?;
-        u32::try_from(rect.texels() * u64::from(self.bytes_per_texel(channel))).ok()
+        let bytes = match self.block(channel) {
+            Some(codec) => codec.stored_bytes(rect.width, rect.height),
+            None => rect.texels() * u64::from(self.bytes_per_texel(channel)),
+        };
+        u32::try_from(bytes).ok()
     }
 
     /// Checks that `key` names a layer, state and camera of the asset.

@@ -6,6 +6,7 @@ use std::fmt;
 
 use serde::{Deserialize, Serialize};
 
+use super::block::{BLOCK, BlockCodec};
 use super::{AssetError, FORMAT_VERSION, MIN_FORMAT_VERSION, Result};
 
 /// Highest icosahedron subdivision level of a spherical camera set (642 cameras).
@@ -251,7 +252,14 @@ pub struct ChannelDesc {
     pub name: Channel,
     /// How its texels are stored.
     pub encoding: Encoding,
+    /// Block compression of its pages (format version 6): the pages store 4 × 4 blocks that
+    /// decode to texels in `encoding` (docs/format.md §7.1). Absent: the texels themselves.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub compression: Option<BlockCodec>,
 }
+
+/// The first format version with block-compressed channels.
+pub const BLOCK_COMPRESSION_SINCE: u32 = 6;
 
 /// A named layer (e.g. one volume transfer function), composited at runtime.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -393,10 +401,12 @@ impl AssetHeader {
                 ChannelDesc {
                     name: Channel::Color,
                     encoding: Encoding::Rgba8,
+                    compression: None,
                 },
                 ChannelDesc {
                     name: Channel::Depth,
                     encoding: depth_encoding,
+                    compression: None,
                 },
             ],
             layers: vec![LayerDesc {
@@ -414,6 +424,32 @@ impl AssetHeader {
         header.format_version = header.required_version();
         header.validate()?;
         Ok(header)
+    }
+
+    /// The block compression of `channel`'s pages, if any.
+    pub fn compression(&self, channel: Channel) -> Option<BlockCodec> {
+        self.channels
+            .iter()
+            .find(|c| c.name == channel)
+            .and_then(|c| c.compression)
+    }
+
+    /// Sets `channel`'s block compression and the format version to the lowest that has it.
+    ///
+    /// # Errors
+    /// [`AssetError::Header`] where the codec does not fit the channel's encoding or the images
+    /// are not whole 4 × 4 blocks; the header is then unchanged.
+    pub fn set_compression(&mut self, channel: Channel, codec: Option<BlockCodec>) -> Result<()> {
+        let mut changed = self.clone();
+        for c in &mut changed.channels {
+            if c.name == channel {
+                c.compression = codec;
+            }
+        }
+        changed.format_version = changed.required_version();
+        changed.validate()?;
+        *self = changed;
+        Ok(())
     }
 
     /// The encoding of `channel`, if the header declares it.
@@ -549,7 +585,14 @@ impl AssetHeader {
         };
         self.channels
             .iter()
-            .map(|c| c.encoding.since_version())
+            .map(|c| {
+                let block = if c.compression.is_some() {
+                    BLOCK_COMPRESSION_SINCE
+                } else {
+                    MIN_FORMAT_VERSION
+                };
+                c.encoding.since_version().max(block)
+            })
             .fold(order, u32::max)
     }
 
@@ -724,7 +767,33 @@ impl AssetHeader {
         for channel in Channel::ALL {
             let mut found = self.channels.iter().filter(|c| c.name == channel);
             match (found.next(), found.next()) {
-                (Some(desc), None) if desc.encoding.allowed_for(channel) => {}
+                (Some(desc), None) if desc.encoding.allowed_for(channel) => {
+                    let Some(codec) = desc.compression else {
+                        continue;
+                    };
+                    if self.format_version < BLOCK_COMPRESSION_SINCE {
+                        return Err(AssetError::Header(format!(
+                            "{channel} compression {codec} needs format version \
+                             {BLOCK_COMPRESSION_SINCE} (the header says {})",
+                            self.format_version
+                        )));
+                    }
+                    if !codec.allowed_for(channel, desc.encoding) {
+                        return Err(AssetError::Header(format!(
+                            "the {channel} channel in {:?} cannot use compression {codec} \
+                             (bc1: rgba8 colour; bc7: rgba8 or rgba8_premultiplied colour; bc4: \
+                             r8 depth)",
+                            desc.encoding
+                        )));
+                    }
+                    let [w, h] = self.image_size();
+                    if !w.is_multiple_of(BLOCK) || !h.is_multiple_of(BLOCK) {
+                        return Err(AssetError::Header(format!(
+                            "{channel} compression {codec} needs images of whole {BLOCK}x{BLOCK} \
+                             blocks; they are {w}x{h} px"
+                        )));
+                    }
+                }
                 (Some(desc), None) => {
                     return Err(AssetError::Header(format!(
                         "the {channel} channel cannot use encoding {:?} (color: rgba8; depth: \

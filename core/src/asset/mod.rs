@@ -21,6 +21,7 @@
 //! used, with checked arithmetic, and corrupt input is an [`AssetError`], never a panic or an
 //! allocation larger than the file (or, for decoded images, than the header's validated size).
 
+mod block;
 mod format;
 mod header;
 mod reader;
@@ -28,15 +29,16 @@ mod writer;
 
 use std::fmt;
 
+pub use block::{BLOCK, BlockCodec};
 pub use format::{
     Codec, INDEX_ENTRY_LEN, IndexEntry, MAGIC, MAX_HEADER_LEN, PREAMBLE_LEN, Preamble, zstd_bound,
 };
 pub use header::{
-    AssetHeader, AssetKind, Channel, ChannelDesc, DEFAULT_PAGE_SIZE, Encoding, Geometry,
-    LAYER_ORDER_SINCE, LayerDesc, LayerOrder, LfFrame, MAX_CAMERA_LEVEL, MAX_LAYERS, MAX_PAGE_SIZE,
-    MAX_RESOLUTION_PX, MAX_STATES, MIN_PAGE_SIZE, MapProjection, PageGrid, PageRect, Provenance,
-    SphericalGeometry, StateDesc, TWO_PLANE_SINCE, TwoPlaneGeometry, camera_count_for_level,
-    two_plane_frame,
+    AssetHeader, AssetKind, BLOCK_COMPRESSION_SINCE, Channel, ChannelDesc, DEFAULT_PAGE_SIZE,
+    Encoding, Geometry, LAYER_ORDER_SINCE, LayerDesc, LayerOrder, LfFrame, MAX_CAMERA_LEVEL,
+    MAX_LAYERS, MAX_PAGE_SIZE, MAX_RESOLUTION_PX, MAX_STATES, MIN_PAGE_SIZE, MapProjection,
+    PageGrid, PageRect, Provenance, SphericalGeometry, StateDesc, TWO_PLANE_SINCE,
+    TwoPlaneGeometry, camera_count_for_level, two_plane_frame,
 };
 pub use reader::AssetFile;
 pub use writer::{AssetWriter, MemoryWriter, encode_asset, with_header, write_asset};
@@ -47,8 +49,9 @@ pub use writer::{AssetWriter, MemoryWriter, encode_asset, with_header, write_ass
 /// lowest version that can express its asset ([`AssetHeader::required_version`]), so assets
 /// without them stay version 1 or 2. Version 4 lets a state other than 0 store only some pages
 /// of an image (deformation states store the pages that changed); the others read from state 0.
-/// Version 5 adds the kind `two_plane` (DESIGN §9).
-pub const FORMAT_VERSION: u32 = 5;
+/// Version 5 adds the kind `two_plane` (DESIGN §9), version 6 block-compressed channels
+/// (BC1/BC7 colour, BC4 depth: [`BlockCodec`]).
+pub const FORMAT_VERSION: u32 = 6;
 /// The first version whose non-base states may store part of an image.
 pub const PARTIAL_IMAGES_SINCE: u32 = 4;
 /// The oldest version this build reads.

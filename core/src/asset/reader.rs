@@ -6,8 +6,8 @@ use std::fs::File;
 use std::path::Path;
 
 use super::format::{Layout, PREAMBLE_LEN, Preamble, crc_matches, parse_index};
-use super::header::AssetHeader;
-use super::{AssetError, Codec, ImageKey, IndexEntry, Result};
+use super::header::{AssetHeader, Channel};
+use super::{AssetError, BLOCK, BlockCodec, Codec, ImageKey, IndexEntry, Result};
 
 /// Where the bytes come from.
 enum Source {
@@ -238,22 +238,70 @@ impl AssetFile {
     /// omits it): `resolution_px²` texels, row-major, top row first, in the channel's
     /// encoding. Every page's checksum and decoded size are verified.
     pub fn read_image(&self, key: ImageKey) -> Result<Vec<u8>> {
+        self.assemble(key, true)
+    }
+
+    /// The block compression of `channel`'s pages, if any.
+    pub fn compression(&self, channel: Channel) -> Option<BlockCodec> {
+        self.layout.block(channel)
+    }
+
+    /// Reads the whole image for `key` as its stored 4 × 4 blocks, for a GPU that samples them:
+    /// `(width / 4) × (height / 4)` blocks row-major, top row first (the layout of a
+    /// block-compressed texture's copy). [`AssetError::Header`] if the channel is not
+    /// block-compressed.
+    pub fn read_image_blocks(&self, key: ImageKey) -> Result<Vec<u8>> {
+        if self.layout.block(key.channel).is_none() {
+            return Err(AssetError::Header(format!(
+                "the {} channel is not block-compressed",
+                key.channel
+            )));
+        }
+        self.assemble(key, false)
+    }
+
+    /// The image for `key`: texels (block-compressed pages decoded when `decode_blocks`), or
+    /// the blocks themselves.
+    fn assemble(&self, key: ImageKey, decode_blocks: bool) -> Result<Vec<u8>> {
         let entries = self.page_entries(key)?;
-        let bpp = self.layout.bytes_per_texel(key.channel) as usize;
-        let side = self.layout.grid.width() as usize;
+        let block = self.layout.block(key.channel);
+        let texel_bpp = self.layout.bytes_per_texel(key.channel) as usize;
+        // Blocks: one 'texel' per 4 × 4 block.
+        let (unit, bpp) = match block {
+            Some(codec) if !decode_blocks => (BLOCK as usize, codec.block_bytes() as usize),
+            _ => (1, texel_bpp),
+        };
+        let side = self.layout.grid.width() as usize / unit;
+        let rows = self.layout.grid.height() as usize / unit;
         // Validated header: ≤ 8192² × 4 bytes.
-        let mut image = vec![0u8; self.layout.image_bytes(key.channel) as usize];
+        let mut image = vec![0u8; side * rows * bpp];
         let mut decoder = PageDecoder::new()?;
 
         let mut put_page = |entry: &IndexEntry, stored_bytes: &[u8]| -> Result<()> {
-            let page = decoder.decode(entry, stored_bytes)?;
+            let stored = decoder.decode(entry, stored_bytes)?;
             // Validated at open, so this error is unreachable in practice.
             let rect = self.layout.grid.page_rect(entry.page).ok_or_else(|| {
                 AssetError::Index(format!("page {} is outside the page grid", entry.page))
             })?;
-            let row_bytes = rect.width as usize * bpp;
+            let decoded;
+            let page = match block {
+                Some(codec) if decode_blocks => {
+                    let encoding = self.layout.encoding(key.channel);
+                    decoded = codec
+                        .decode(encoding, stored, rect.width, rect.height)
+                        .ok_or_else(|| AssetError::Page {
+                            key: entry.key,
+                            page: entry.page,
+                            reason: format!("{codec} blocks of the wrong size"),
+                        })?;
+                    decoded.as_slice()
+                }
+                _ => stored,
+            };
+            let row_bytes = rect.width as usize / unit * bpp;
+            let (x, y) = (rect.x as usize / unit, rect.y as usize / unit);
             for (row, src) in page.chunks_exact(row_bytes).enumerate() {
-                let start = ((rect.y as usize + row) * side + rect.x as usize) * bpp;
+                let start = ((y + row) * side + x) * bpp;
                 image[start..start + row_bytes].copy_from_slice(src);
             }
             Ok(())
@@ -291,9 +339,26 @@ impl AssetFile {
             .or_else(|| find(key.in_base_state()))
             .ok_or(AssetError::MissingImage { key })?;
         let mut decoder = PageDecoder::new()?;
+        let block = self.layout.block(key.channel);
+        let rect = self.layout.grid.page_rect(page);
         self.source
             .with_range(entry.offset, entry.length as usize, |bytes| {
-                decoder.decode(entry, bytes).map(<[u8]>::to_vec)
+                let stored = decoder.decode(entry, bytes)?;
+                match (block, rect) {
+                    (Some(codec), Some(rect)) => codec
+                        .decode(
+                            self.layout.encoding(key.channel),
+                            stored,
+                            rect.width,
+                            rect.height,
+                        )
+                        .ok_or_else(|| AssetError::Page {
+                            key: entry.key,
+                            page: entry.page,
+                            reason: format!("{codec} blocks of the wrong size"),
+                        }),
+                    _ => Ok(stored.to_vec()),
+                }
             })
     }
 

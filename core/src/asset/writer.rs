@@ -173,14 +173,15 @@ pub fn encode_asset(
 /// partial images stay partial.
 ///
 /// # Errors
-/// A header whose layout (page grid, layers, states, cameras, encodings) differs from the
-/// asset's, or a page whose checksum fails.
+/// A header whose layout (page grid, layers, states, cameras, encodings, block compression)
+/// differs from the asset's, or a page whose checksum fails.
 pub fn with_header(asset: &super::AssetFile, header: AssetHeader) -> Result<Vec<u8>> {
     let layout = Layout::new(&header)?;
     let old = Layout::new(asset.header())?;
     if (layout.grid, layout.layers, layout.states, layout.cameras)
         != (old.grid, old.layers, old.states, old.cameras)
         || (layout.color_bpp, layout.depth_bpp) != (old.color_bpp, old.depth_bpp)
+        || (layout.color_block, layout.depth_block) != (old.color_block, old.depth_block)
         || header.format_version < asset.header().format_version
     {
         return Err(AssetError::Header(
@@ -469,6 +470,19 @@ fn compress_pages(
             let start = (y * side + rect.x as usize) * bpp;
             raw.extend_from_slice(&bytes[start..start + row_bytes]);
         }
+        let raw = match layout.block(key.channel) {
+            Some(codec) => codec
+                .encode(layout.encoding(key.channel), &raw, rect.width, rect.height)
+                .ok_or_else(|| AssetError::Page {
+                    key,
+                    page,
+                    reason: format!(
+                        "{codec} needs pages of whole 4x4 blocks; this one is {}x{}",
+                        rect.width, rect.height
+                    ),
+                })?,
+            None => raw,
+        };
         let raw_length = raw.len() as u32;
         let compressed = compressor.compress(&raw).map_err(|e| encode_err(page, e))?;
         out.push(if compressed.len() < raw.len() {
