@@ -347,6 +347,8 @@ impl Prediction {
             depth_bits: self.depth_bits,
             lights: None,
             one_sided: false,
+            color_codec: None,
+            depth_codec: None,
         }
     }
 }
@@ -775,6 +777,8 @@ pub fn calibrate(
             depth_bits,
             lights: None,
             one_sided: false,
+            color_codec: None,
+            depth_codec: None,
         };
         let bytes = baker.bake_to_bytes(mesh, &options, source, &mut |done, cameras| {
             progress(AutoStage::CalibrationBake {

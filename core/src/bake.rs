@@ -13,7 +13,8 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use crate::asset::{
-    AssetError, AssetHeader, AssetWriter, Channel, Encoding, ImageKey, MemoryWriter, Provenance,
+    AssetError, AssetHeader, AssetWriter, BlockCodec, Channel, Encoding, ImageKey, MemoryWriter,
+    Provenance,
 };
 use crate::deform::{DEFAULT_TOLERANCE, StateMesh, Tolerance};
 use crate::geometry::{self, CAMERA_COUNTS};
@@ -38,6 +39,9 @@ pub enum BakeError {
     /// Depth bits other than 8 or 16.
     #[error("depth bits {0} must be 8 or 16")]
     BadDepthBits(u8),
+    /// A block codec that does not fit its channel or the bake.
+    #[error("{0}")]
+    BadCodec(String),
     /// Bad shading options.
     #[error(transparent)]
     Shading(#[from] ShadingError),
@@ -86,6 +90,13 @@ pub struct BakeOptions {
     /// business; `false` (the default, left out of the JSON): both sides.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub one_sided: bool,
+    /// Block compression of the colour pages (`bc1` or `bc7`; docs/format.md §7.1); `None`
+    /// (left out of the JSON): RGBA8 texels.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub color_codec: Option<BlockCodec>,
+    /// Block compression of the depth pages (`bc4`, of 8-bit depth); `None`: the texels.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub depth_codec: Option<BlockCodec>,
 }
 
 impl Default for BakeOptions {
@@ -97,6 +108,8 @@ impl Default for BakeOptions {
             depth_bits: 16,
             lights: None,
             one_sided: false,
+            color_codec: None,
+            depth_codec: None,
         }
     }
 }
@@ -128,6 +141,31 @@ impl BakeOptions {
         }
         if self.depth_bits != 8 && self.depth_bits != 16 {
             return Err(BakeError::BadDepthBits(self.depth_bits));
+        }
+        if let Some(codec) = self.color_codec
+            && !codec.allowed_for(Channel::Color, Encoding::Rgba8)
+        {
+            return Err(BakeError::BadCodec(format!(
+                "colour codec {codec}: use bc1 or bc7"
+            )));
+        }
+        if let Some(codec) = self.depth_codec
+            && !codec.allowed_for(Channel::Depth, Encoding::R8)
+        {
+            return Err(BakeError::BadCodec(format!("depth codec {codec}: use bc4")));
+        }
+        if self.depth_codec.is_some() && self.depth_bits != 8 {
+            return Err(BakeError::BadCodec(
+                "depth codec bc4 compresses 8-bit depth: bake with 8 depth bits".to_owned(),
+            ));
+        }
+        if (self.color_codec.is_some() || self.depth_codec.is_some())
+            && !self.resolution.is_multiple_of(crate::asset::BLOCK)
+        {
+            return Err(BakeError::BadCodec(format!(
+                "block compression needs a resolution that is a multiple of 4, not {}",
+                self.resolution
+            )));
         }
         self.shading.validate()?;
         if let Some(count) = self.lights {
@@ -494,6 +532,8 @@ impl Baker {
             depth,
             provenance,
         )?;
+        header.set_compression(Channel::Color, options.color_codec)?;
+        header.set_compression(Channel::Depth, options.depth_codec)?;
         if let Some(count) = options.lights {
             header.states.extend(crate::light::state_descs(count)?);
             header.validate()?;

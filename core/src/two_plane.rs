@@ -550,7 +550,30 @@ pub fn bake_to_file(
     path: &std::path::Path,
     progress: &mut dyn FnMut(u32, u32),
 ) -> Result<TwoPlaneBakeReport, TwoPlaneBakeError> {
-    let header = two_plane_header(planes, provenance)?;
+    bake_to_file_with(
+        reference, mesh, planes, shading, provenance, None, path, progress,
+    )
+}
+
+/// [`bake_to_file`] with the colour pages block-compressed by `color_codec` (`bc1` or `bc7`;
+/// format version 6, docs/format.md §7.1); `None` is [`bake_to_file`].
+///
+/// # Errors
+/// [`TwoPlaneBakeError`] (a codec that does not fit RGBA8 colour, an st resolution that is not
+/// whole 4 × 4 blocks); on error nothing is left at `path`.
+#[allow(clippy::too_many_arguments)]
+pub fn bake_to_file_with(
+    reference: &ReferenceRenderer,
+    mesh: &GpuMesh,
+    planes: &TwoPlanes,
+    shading: &Shading,
+    provenance: crate::asset::Provenance,
+    color_codec: Option<crate::asset::BlockCodec>,
+    path: &std::path::Path,
+    progress: &mut dyn FnMut(u32, u32),
+) -> Result<TwoPlaneBakeReport, TwoPlaneBakeError> {
+    let mut header = two_plane_header(planes, provenance)?;
+    header.set_compression(crate::asset::Channel::Color, color_codec)?;
     let mut writer = crate::asset::AssetWriter::create(path, header)?;
     let (bake_ms, coverage) = capture_each(
         reference,

@@ -228,8 +228,18 @@ impl Drop for GpuTwoPlane {
 /// Device bytes [`TwoPlaneRenderer::upload`] allocates for `planes`: RGBA8 and R32F per texel,
 /// for every camera (layers padded as [`Gpu::padded_layers`] does).
 pub fn field_bytes(planes: &TwoPlanes) -> u64 {
-    let [ns, nt] = planes.st.resolution.map(u64::from);
-    u64::from(Gpu::padded_layers(planes.camera_count())) * ns * nt * 8
+    field_bytes_with(planes, None)
+}
+
+/// [`field_bytes`] of colour kept block-compressed by `color_codec` on the device (what a
+/// device that samples BC textures allocates).
+pub fn field_bytes_with(planes: &TwoPlanes, color_codec: Option<crate::asset::BlockCodec>) -> u64 {
+    let [ns, nt] = planes.st.resolution;
+    let color = color_codec.map_or(u64::from(ns) * u64::from(nt) * 4, |c| {
+        c.stored_bytes(ns, nt)
+    });
+    u64::from(Gpu::padded_layers(planes.camera_count()))
+        * (color + u64::from(ns) * u64::from(nt) * 4)
 }
 
 struct Outputs {
@@ -431,12 +441,27 @@ impl TwoPlaneRenderer {
                 view_formats: &[],
             })
         };
-        let color = make("two-plane colour", wgpu::TextureFormat::Rgba8Unorm);
+        // Block-compressed colour stays compressed where the device samples it cheaply
+        // ([`Gpu::keeps_compressed`]).
+        let blocks = asset
+            .compression(Channel::Color)
+            .filter(|&codec| self.gpu.keeps_compressed(codec))
+            .and_then(|codec| Some((codec, codec.texture_format()?)));
+        let color_format = blocks.map_or(wgpu::TextureFormat::Rgba8Unorm, |(_, f)| f);
+        let color = make("two-plane colour", color_format);
         let depth = make("two-plane depth", wgpu::TextureFormat::R32Float);
         let mut range = [f32::INFINITY, f32::NEG_INFINITY];
         for camera in 0..cameras {
             for (channel, texture) in [(Channel::Color, &color), (Channel::Depth, &depth)] {
-                let image = asset.read_image(ImageKey::new(0, 0, camera, channel))?;
+                let key = ImageKey::new(0, 0, camera, channel);
+                let (image, row_bytes, rows) = match blocks {
+                    Some((codec, _)) if channel == Channel::Color => (
+                        asset.read_image_blocks(key)?,
+                        ns / crate::asset::BLOCK * codec.block_bytes(),
+                        nt / crate::asset::BLOCK,
+                    ),
+                    _ => (asset.read_image(key)?, ns * 4, nt),
+                };
                 if channel == Channel::Depth {
                     for d in image.chunks_exact(4) {
                         let d = f32::from_le_bytes([d[0], d[1], d[2], d[3]]);
@@ -464,8 +489,8 @@ impl TwoPlaneRenderer {
                     &image,
                     wgpu::TexelCopyBufferLayout {
                         offset: 0,
-                        bytes_per_row: Some(ns * 4),
-                        rows_per_image: Some(nt),
+                        bytes_per_row: Some(row_bytes),
+                        rows_per_image: Some(rows),
                     },
                     wgpu::Extent3d {
                         width: ns,
@@ -484,7 +509,7 @@ impl TwoPlaneRenderer {
             gpu: Arc::clone(&self.gpu),
             planes,
             depth_range: range,
-            bytes: field_bytes(&planes),
+            bytes: field_bytes_with(&planes, blocks.map(|(codec, _)| codec)),
             color_view: view(&color),
             depth_view: view(&depth),
             color,

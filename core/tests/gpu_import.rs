@@ -83,6 +83,8 @@ fn imported_renders_match_a_direct_bake_of_their_mesh() {
                 ..Shading::default()
             },
             one_sided: true,
+            color_codec: None,
+            depth_codec: None,
             ..options
         },
     );

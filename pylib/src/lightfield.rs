@@ -727,6 +727,8 @@ pub fn bake(
         depth_bits,
         lights,
         one_sided: false,
+        color_codec: None,
+        depth_codec: None,
     };
     options.validate().map_err(|e| errors::bake(&e))?;
     // An animation: its frames, frame 0 the base mesh.

@@ -386,7 +386,11 @@ impl Gpu {
         // On a CPU adapter "device" memory is host memory: results are mapped where the shaders
         // wrote them instead of copied to a staging buffer first (`maps_primary_buffers`). On a
         // discrete GPU that would make the shaders write across the bus, so it is not asked for.
-        let mut wanted = wgpu::Features::FLOAT32_FILTERABLE | wgpu::Features::SUBGROUP;
+        // Block-compressed textures (BC1-7) where the adapter samples them: block-compressed
+        // assets then stay compressed on the device (`asset::BlockCodec`).
+        let mut wanted = wgpu::Features::FLOAT32_FILTERABLE
+            | wgpu::Features::SUBGROUP
+            | wgpu::Features::TEXTURE_COMPRESSION_BC;
         if is_software {
             wanted |= wgpu::Features::MAPPABLE_PRIMARY_BUFFERS;
         }
@@ -465,6 +469,26 @@ impl Gpu {
         self.device
             .features()
             .contains(wgpu::Features::MAPPABLE_PRIMARY_BUFFERS)
+    }
+
+    /// Whether the device samples BC1-7 block-compressed textures.
+    pub fn samples_bc(&self) -> bool {
+        self.device
+            .features()
+            .contains(wgpu::Features::TEXTURE_COMPRESSION_BC)
+    }
+
+    /// Whether textures of `codec` should stay compressed on this device: it samples BC, and the
+    /// codec is cheap to sample there. A CPU adapter decodes every fetch in software, which
+    /// for BC7 costs 5-14× the frame time of RGBA8 on lavapipe (BENCHMARKS.md "Block
+    /// compression"), so BC7 is decoded on the host there; BC1 samples as fast as RGBA8.
+    /// `LUMIGRAPH_BC_ON_DEVICE=all` keeps every codec the device samples compressed (to
+    /// measure the cost).
+    pub fn keeps_compressed(&self, codec: crate::asset::BlockCodec) -> bool {
+        let all = std::env::var("LUMIGRAPH_BC_ON_DEVICE").is_ok_and(|v| v == "all");
+        codec.texture_format().is_some()
+            && self.samples_bc()
+            && (all || codec == crate::asset::BlockCodec::Bc1 || !self.is_software)
     }
 
     /// Why the device is lost, or `None` while it works.

@@ -20,10 +20,17 @@ use super::{GpuLightField, Renderer};
 /// RGBA8 texel per map texel and camera for each light-state map (the ambient part, the normals
 /// and every proxy direction, [`crate::light`]). The upload stages one layer's worth again on the host
 /// while it runs. Saturates instead of overflowing. A two-plane asset takes
-/// [`crate::two_plane_render::field_bytes`] of its planes.
+/// [`crate::two_plane_render::field_bytes_with`] of its planes (BC1 colour counted compressed).
 pub fn field_bytes(header: &AssetHeader) -> u64 {
     if let Some(planes) = header.two_plane() {
-        return crate::two_plane_render::field_bytes(planes);
+        // BC1 colour stays compressed on every device that samples BC (all desktop GPUs and
+        // lavapipe); BC7 may be decoded on the host (`Gpu::keeps_compressed`): counted whole.
+        return crate::two_plane_render::field_bytes_with(
+            planes,
+            header
+                .compression(Channel::Color)
+                .filter(|&c| c == crate::asset::BlockCodec::Bc1),
+        );
     }
     let side = u64::from(header.image_size()[0]);
     let layers = u64::from(Gpu::padded_layers(header.camera_count()));

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use anyhow::{Context, Result};
 use clap::Args;
 use indicatif::ProgressBar;
-use lumigraph_core::asset::Provenance;
+use lumigraph_core::asset::{BlockCodec, Provenance};
 use lumigraph_core::auto_bake::{self, AutoEngines, AutoStage, AutoTarget};
 use lumigraph_core::bake::{BakeOptions, Baker, StateBake};
 use lumigraph_core::calibration;
@@ -46,6 +46,14 @@ pub struct BakeArgs {
     /// Depth precision: 8 or 16 bits.
     #[arg(long, default_value_t = 16, allow_hyphen_values = true)]
     pub depth_bits: u8,
+    /// Colour pages: raw RGBA8 texels, or block-compressed (bc1: 4 bits per texel, bc7: 8;
+    /// docs/format.md §7.1). Both drop the edge texels (§8.5). Spherical and two-plane bakes.
+    #[arg(long, value_enum, default_value_t = ColorCodec::Raw)]
+    pub color_codec: ColorCodec,
+    /// Depth pages: r16 (the default; as --depth-bits 16), r8 (as --depth-bits 8) or bc4 (8-bit
+    /// codes block-compressed to 4 bits per texel). Spherical bakes.
+    #[arg(long, value_enum, conflicts_with = "depth_bits")]
+    pub depth_codec: Option<DepthCodec>,
     /// Shading.
     #[command(flatten)]
     pub shading: ShadingArgs,
@@ -150,6 +158,38 @@ pub struct BakeArgs {
 }
 
 /// `--two-plane PLANES.json|auto`: captures the mesh (or demo) into a two-plane asset.
+/// `--color-codec`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ColorCodec {
+    /// RGBA8 texels.
+    Raw,
+    /// BC1 blocks.
+    Bc1,
+    /// BC7 blocks.
+    Bc7,
+}
+
+impl ColorCodec {
+    pub(super) fn block(self) -> Option<BlockCodec> {
+        match self {
+            ColorCodec::Raw => None,
+            ColorCodec::Bc1 => Some(BlockCodec::Bc1),
+            ColorCodec::Bc7 => Some(BlockCodec::Bc7),
+        }
+    }
+}
+
+/// `--depth-codec`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum DepthCodec {
+    /// 16-bit codes.
+    R16,
+    /// 8-bit codes.
+    R8,
+    /// 8-bit codes in BC4 blocks.
+    Bc4,
+}
+
 fn bake_two_plane(args: &BakeArgs, planes_arg: &str) -> Result<()> {
     use lumigraph_core::two_plane::{self, TwoPlanes};
     let shading = args.shading.to_shading()?;
@@ -185,6 +225,9 @@ fn bake_two_plane(args: &BakeArgs, planes_arg: &str) -> Result<()> {
         "two_plane": planes,
         "shading": shading,
     });
+    if let Some(codec) = args.color_codec.block() {
+        provenance.bake_options["color_codec"] = serde_json::json!(codec);
+    }
     env!("CARGO_PKG_VERSION").clone_into(&mut provenance.lumigraph_version);
     provenance.triangles = mesh.triangles.len() as u64;
     provenance.vertices = mesh.positions.len() as u64;
@@ -192,12 +235,16 @@ fn bake_two_plane(args: &BakeArgs, planes_arg: &str) -> Result<()> {
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_secs());
     let bar = progress_bar(u64::from(planes.camera_count()), "capturing cameras");
-    let report = two_plane::bake_to_file(
+    if args.depth_codec.is_some() {
+        anyhow::bail!("--depth-codec applies to spherical bakes; two-plane depth is stored as f32");
+    }
+    let report = two_plane::bake_to_file_with(
         &reference,
         &gpu_mesh,
         &planes,
         &shading,
         provenance,
+        args.color_codec.block(),
         &args.output,
         &mut |done, _| bar.set_position(u64::from(done)),
     )?;
@@ -244,13 +291,21 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
     if args.auto {
         return bake_auto(args);
     }
+    let (depth_bits, depth_codec) = match args.depth_codec {
+        None => (args.depth_bits, None),
+        Some(DepthCodec::R16) => (16, None),
+        Some(DepthCodec::R8) => (8, None),
+        Some(DepthCodec::Bc4) => (8, Some(BlockCodec::Bc4)),
+    };
     let options = BakeOptions {
         cameras: args.cameras,
         resolution: args.resolution,
         shading: args.shading.to_shading()?,
-        depth_bits: args.depth_bits,
+        depth_bits,
         lights: args.lights,
         one_sided: false,
+        color_codec: args.color_codec.block(),
+        depth_codec,
     };
     options.validate()?;
     let (mesh, provenance) = load_source(args.mesh.as_deref(), args.demo)?;

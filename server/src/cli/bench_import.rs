@@ -195,6 +195,8 @@ pub(super) fn bench_import(args: &ImportArgs) -> Result<()> {
                 ..Shading::default()
             },
             one_sided: true,
+            color_codec: None,
+            depth_codec: None,
             ..options
         };
         let start = Instant::now();

@@ -51,6 +51,9 @@ pub struct TwoPlaneArgs {
     /// Seed of the views.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Colour pages block-compressed (kept compressed on a device that samples BC).
+    #[arg(long, value_enum, default_value_t = super::bake::ColorCodec::Raw)]
+    pub color_codec: super::bake::ColorCodec,
     /// Write the report as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -66,6 +69,9 @@ struct Row {
     wrong_surface_px: f64,
     valid_px: f64,
     ms: f64,
+    /// The `.lfa` file's bytes and the device bytes of its textures.
+    asset_bytes: u64,
+    gpu_bytes: u64,
     /// Mean bytes of the frame as the stream sends it: JPEG at the interactive quality (50),
     /// JPEG at the still quality (90), lossless WebP (black background).
     jpeg50_bytes: f64,
@@ -87,6 +93,7 @@ struct ApertureRow {
 #[derive(Debug, Serialize)]
 struct Report {
     source: String,
+    color_codec: String,
     adapter: String,
     views: usize,
     size: u32,
@@ -149,6 +156,7 @@ pub(super) fn bench_two_plane(args: &TwoPlaneArgs) -> Result<()> {
     let (rows, apertures) = result?;
     let report = Report {
         source: provenance.source_name,
+        color_codec: format!("{:?}", args.color_codec).to_lowercase(),
         adapter: gpu.adapter_summary(),
         views: args.views,
         size: args.size,
@@ -187,17 +195,19 @@ fn sweep(
                 grid,
                 res,
             )?;
-            two_plane::bake_to_file(
+            two_plane::bake_to_file_with(
                 reference,
                 gpu_mesh,
                 &planes,
                 shading,
                 provenance.clone(),
+                args.color_codec.block(),
                 path,
                 &mut |_, _| {},
             )?;
             let asset = AssetFile::open(path)?;
             let field = renderer.upload(&asset)?;
+            let asset_bytes = std::fs::metadata(path).map_or(0, |m| m.len());
             let views = evaluation_views(&planes, args.views, args.size, args.seed);
             let mut truths = Vec::with_capacity(views.len());
             for view in &views {
@@ -238,6 +248,8 @@ fn sweep(
                     wrong_surface_px: wrong / n,
                     valid_px: valid / n,
                     ms: median(ms),
+                    asset_bytes,
+                    gpu_bytes: field.bytes,
                     jpeg50_bytes: bytes[0] / n,
                     jpeg90_bytes: bytes[1] / n,
                     webp_bytes: bytes[2] / n,

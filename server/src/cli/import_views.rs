@@ -56,6 +56,8 @@ pub(super) fn import_views(args: &ImportViewsArgs) -> Result<()> {
         lights: None,
         // Each relief faces its view; its back belongs to the views on the other side.
         one_sided: true,
+        color_codec: None,
+        depth_codec: None,
     };
     options.validate()?;
     let images = import_views::read_views(&args.views_dir)?;

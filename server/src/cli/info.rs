@@ -57,10 +57,7 @@ pub(super) fn info(args: &InfoArgs) -> Result<()> {
         describe_bytes(h.decoded_bytes()),
         h.layers.len(),
         h.states.len(),
-        describe_bytes(h.two_plane().map_or_else(
-            || lumigraph_core::render::field_bytes(h),
-            lumigraph_core::two_plane_render::field_bytes
-        ))
+        describe_bytes(lumigraph_core::render::field_bytes(h))
     );
     match lumigraph_core::light::LightStates::of(h) {
         Ok(Some(lights)) => {
