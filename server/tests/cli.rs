@@ -2904,7 +2904,12 @@ fn block_compressed_bakes_render_and_bad_codecs_fail() {
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let size = |p: &std::path::Path| std::fs::metadata(p).expect("asset").len();
-    assert!(size(&asset) < size(&raw), "{} against {}", size(&asset), size(&raw));
+    assert!(
+        size(&asset) < size(&raw),
+        "{} against {}",
+        size(&asset),
+        size(&raw)
+    );
     let compressed = eval_demo_json(&asset, &[]);
     let reference = eval_demo_json(&raw, &[]);
     let psnr = |v: &serde_json::Value| v["mean"]["masked_psnr"].as_f64().expect("psnr");
