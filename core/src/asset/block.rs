@@ -61,6 +61,14 @@ impl BlockCodec {
         }
     }
 
+    /// Bytes of one decoded texel: 4 (RGBA8 colour), 1 (BC4's 8-bit depth code).
+    pub fn texel_bytes(self) -> usize {
+        match self {
+            BlockCodec::Bc1 | BlockCodec::Bc7 => 4,
+            BlockCodec::Bc4 => 1,
+        }
+    }
+
     /// Stored bytes of a `width × height` texel rectangle (both multiples of [`BLOCK`]).
     pub fn stored_bytes(self, width: u32, height: u32) -> u64 {
         u64::from(width / BLOCK) * u64::from(height / BLOCK) * u64::from(self.block_bytes())
@@ -108,13 +116,12 @@ impl BlockCodec {
         } else {
             texels
         };
-        let texel_count = width as usize * height as usize;
+        if texels.len() != width as usize * height as usize * self.texel_bytes() {
+            return None;
+        }
         let mut out = vec![0u8; usize::try_from(self.stored_bytes(width, height)).ok()?];
         match self {
             BlockCodec::Bc1 => {
-                if texels.len() != texel_count * 4 {
-                    return None;
-                }
                 let params = texpresso::Params {
                     algorithm: texpresso::Algorithm::ClusterFit,
                     ..texpresso::Params::default()
@@ -128,9 +135,6 @@ impl BlockCodec {
                 );
             }
             BlockCodec::Bc7 => {
-                if texels.len() != texel_count * 4 {
-                    return None;
-                }
                 let settings = block_compression::BC7Settings::alpha_ultrafast();
                 block_compression::encode::compress_rgba8(
                     block_compression::CompressionVariant::BC7(settings),
@@ -142,9 +146,6 @@ impl BlockCodec {
                 );
             }
             BlockCodec::Bc4 => {
-                if texels.len() != texel_count {
-                    return None;
-                }
                 let rgba: Vec<u8> = texels.iter().flat_map(|&v| [v, 0, 0, 255]).collect();
                 block_compression::encode::compress_rgba8(
                     block_compression::CompressionVariant::BC4,

@@ -324,13 +324,11 @@ pub(crate) struct Layout {
     pub layers: u32,
     pub states: u32,
     pub cameras: u32,
-    pub color_bpp: u32,
-    pub depth_bpp: u32,
-    /// Block compression of each channel's pages.
-    pub color_block: Option<super::BlockCodec>,
-    pub depth_block: Option<super::BlockCodec>,
+    /// Each channel's texel encoding and the block compression of its pages.
     pub color_encoding: super::Encoding,
     pub depth_encoding: super::Encoding,
+    pub color_block: Option<super::BlockCodec>,
+    pub depth_block: Option<super::BlockCodec>,
     /// Whether states other than 0 may store some pages of an image (version 4 and later).
     pub partial_images: bool,
 }
@@ -339,10 +337,9 @@ impl Layout {
     /// Validates `header` and derives the layout.
     pub fn new(header: &AssetHeader) -> Result<Self> {
         header.validate()?;
-        let bpp = |channel| {
+        let encoding = |channel| {
             header
                 .encoding(channel)
-                .map(super::header::Encoding::bytes_per_texel)
                 .ok_or_else(|| AssetError::Header(format!("no {channel} channel")))
         };
         Ok(Self {
@@ -350,25 +347,16 @@ impl Layout {
             layers: header.layers.len() as u32,
             states: header.states.len() as u32,
             cameras: header.camera_count(),
-            color_bpp: bpp(Channel::Color)?,
-            depth_bpp: bpp(Channel::Depth)?,
+            color_encoding: encoding(Channel::Color)?,
+            depth_encoding: encoding(Channel::Depth)?,
             color_block: header.compression(Channel::Color),
-            color_encoding: header
-                .encoding(Channel::Color)
-                .ok_or_else(|| AssetError::Header("no color channel".to_owned()))?,
-            depth_encoding: header
-                .encoding(Channel::Depth)
-                .ok_or_else(|| AssetError::Header("no depth channel".to_owned()))?,
             depth_block: header.compression(Channel::Depth),
             partial_images: header.format_version >= super::PARTIAL_IMAGES_SINCE,
         })
     }
 
     pub fn bytes_per_texel(&self, channel: Channel) -> u32 {
-        match channel {
-            Channel::Color => self.color_bpp,
-            Channel::Depth => self.depth_bpp,
-        }
+        self.encoding(channel).bytes_per_texel()
     }
 
     /// Bytes of a whole image of `channel` (≤ 8192² × 4, so it fits `usize` on 64-bit hosts).

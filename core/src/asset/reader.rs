@@ -286,14 +286,7 @@ impl AssetFile {
             let decoded;
             let page = match block {
                 Some(codec) if decode_blocks => {
-                    let encoding = self.layout.encoding(key.channel);
-                    decoded = codec
-                        .decode(encoding, stored, rect.width, rect.height)
-                        .ok_or_else(|| AssetError::Page {
-                            key: entry.key,
-                            page: entry.page,
-                            reason: format!("{codec} blocks of the wrong size"),
-                        })?;
+                    decoded = self.decode_blocks(codec, entry, stored, rect)?;
                     decoded.as_slice()
                 }
                 _ => stored,
@@ -345,20 +338,31 @@ impl AssetFile {
             .with_range(entry.offset, entry.length as usize, |bytes| {
                 let stored = decoder.decode(entry, bytes)?;
                 match (block, rect) {
-                    (Some(codec), Some(rect)) => codec
-                        .decode(
-                            self.layout.encoding(key.channel),
-                            stored,
-                            rect.width,
-                            rect.height,
-                        )
-                        .ok_or_else(|| AssetError::Page {
-                            key: entry.key,
-                            page: entry.page,
-                            reason: format!("{codec} blocks of the wrong size"),
-                        }),
+                    (Some(codec), Some(rect)) => self.decode_blocks(codec, entry, stored, rect),
                     _ => Ok(stored.to_vec()),
                 }
+            })
+    }
+
+    /// The texels of a block-compressed page (`stored`: its blocks, verified and unzipped).
+    fn decode_blocks(
+        &self,
+        codec: BlockCodec,
+        entry: &IndexEntry,
+        stored: &[u8],
+        rect: super::PageRect,
+    ) -> Result<Vec<u8>> {
+        codec
+            .decode(
+                self.layout.encoding(entry.key.channel),
+                stored,
+                rect.width,
+                rect.height,
+            )
+            .ok_or_else(|| AssetError::Page {
+                key: entry.key,
+                page: entry.page,
+                reason: format!("{codec} blocks of the wrong size"),
             })
     }
 

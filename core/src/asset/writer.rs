@@ -180,7 +180,8 @@ pub fn with_header(asset: &super::AssetFile, header: AssetHeader) -> Result<Vec<
     let old = Layout::new(asset.header())?;
     if (layout.grid, layout.layers, layout.states, layout.cameras)
         != (old.grid, old.layers, old.states, old.cameras)
-        || (layout.color_bpp, layout.depth_bpp) != (old.color_bpp, old.depth_bpp)
+        || Channel::ALL.map(|c| layout.bytes_per_texel(c))
+            != Channel::ALL.map(|c| old.bytes_per_texel(c))
         || (layout.color_block, layout.depth_block) != (old.color_block, old.depth_block)
         || header.format_version < asset.header().format_version
     {

@@ -480,7 +480,7 @@ impl Gpu {
 
     /// Whether textures of `codec` should stay compressed on this device: it samples BC, and the
     /// codec is cheap to sample there. A CPU adapter decodes every fetch in software, which
-    /// for BC7 costs 5-14× the frame time of RGBA8 on lavapipe (BENCHMARKS.md "Block
+    /// for BC7 costs 6-15× the frame time of RGBA8 on lavapipe (BENCHMARKS.md "Block
     /// compression"), so BC7 is decoded on the host there; BC1 samples as fast as RGBA8.
     /// `LUMIGRAPH_BC_ON_DEVICE=all` keeps every codec the device samples compressed (to
     /// measure the cost).

@@ -157,7 +157,6 @@ pub struct BakeArgs {
     pub st_res: [u32; 2],
 }
 
-/// `--two-plane PLANES.json|auto`: captures the mesh (or demo) into a two-plane asset.
 /// `--color-codec`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum ColorCodec {
@@ -190,8 +189,12 @@ pub enum DepthCodec {
     Bc4,
 }
 
+/// `--two-plane PLANES.json|auto`: captures the mesh (or demo) into a two-plane asset.
 fn bake_two_plane(args: &BakeArgs, planes_arg: &str) -> Result<()> {
     use lumigraph_core::two_plane::{self, TwoPlanes};
+    if args.depth_codec.is_some() {
+        anyhow::bail!("--depth-codec applies to spherical bakes; two-plane depth is stored as f32");
+    }
     let shading = args.shading.to_shading()?;
     let (mesh, mut provenance) = load_source(args.mesh.as_deref(), args.demo)?;
     let gpu = gpu()?;
@@ -235,9 +238,6 @@ fn bake_two_plane(args: &BakeArgs, planes_arg: &str) -> Result<()> {
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_secs());
     let bar = progress_bar(u64::from(planes.camera_count()), "capturing cameras");
-    if args.depth_codec.is_some() {
-        anyhow::bail!("--depth-codec applies to spherical bakes; two-plane depth is stored as f32");
-    }
     let report = two_plane::bake_to_file_with(
         &reference,
         &gpu_mesh,
