@@ -57,6 +57,7 @@ pub mod light;
 pub mod lod;
 pub mod mesh;
 pub mod metrics;
+pub mod page_cache;
 pub mod quality;
 pub mod reference;
 pub mod refine;

@@ -11,8 +11,16 @@ pub const BAKE: &str = concat!(
 pub const VOLUME_BAKE: &str = include_str!("../../shaders/volume_bake.wgsl");
 /// The compositing of a multi light field's layers (compute).
 pub const COMPOSITE: &str = include_str!("../../shaders/composite.wgsl");
-/// The two-plane light-field renderer (compute).
-pub const TWO_PLANE: &str = include_str!("../../shaders/two_plane.wgsl");
+/// The two-plane light-field renderer (compute), every camera resident.
+pub const TWO_PLANE: &str = concat!(
+    include_str!("../../shaders/shared/two_plane.wgsl"),
+    include_str!("../../shaders/two_plane.wgsl")
+);
+/// The two-plane light-field renderer (compute) reading pages through a cache.
+pub const TWO_PLANE_PAGED: &str = concat!(
+    include_str!("../../shaders/shared/two_plane.wgsl"),
+    include_str!("../../shaders/two_plane_paged.wgsl")
+);
 /// The reference rasterizer (vertex + fragment).
 pub const REFERENCE: &str = concat!(
     include_str!("../../shaders/shared/mesh.wgsl"),
@@ -43,5 +51,6 @@ pub fn all() -> Vec<(&'static str, String)> {
         ("volume_bake", VOLUME_BAKE.to_owned()),
         ("composite", COMPOSITE.to_owned()),
         ("two_plane", TWO_PLANE.to_owned()),
+        ("two_plane_paged", TWO_PLANE_PAGED.to_owned()),
     ]
 }

@@ -1,4 +1,4 @@
-//! Rendering two-plane light fields on the GPU (DESIGN §9; `shaders/two_plane.wgsl`,
+//! Rendering two-plane light fields on the GPU (DESIGN §9; `shaders/shared/two_plane.wgsl`,
 //! docs/two_plane.md): one compute pass per frame with a uv filter (nearest, bilinear, the
 //! seed's dither, or depth-corrected), refocus at a focal plane and a synthetic aperture.
 //!
@@ -261,6 +261,114 @@ pub struct TwoPlaneRenderer {
     layout: wgpu::BindGroupLayout,
     sampler: wgpu::Sampler,
     outputs: Mutex<Option<Outputs>>,
+    /// The paged variant (`shaders/two_plane_paged.wgsl`), built on first use.
+    paged: std::sync::OnceLock<PagedPipelines>,
+}
+
+/// The pipelines of the paged renderer ([`crate::page_cache`]).
+struct PagedPipelines {
+    module: wgpu::ShaderModule,
+    pipeline_layout: wgpu::PipelineLayout,
+    layout: wgpu::BindGroupLayout,
+    pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 5],
+}
+
+/// What a paged frame binds besides the parameters and outputs: the cache's slot atlases, its
+/// coarse level, the paging uniform, the index table and the feedback buffers (pages touched,
+/// degraded pixels), and where the feedback is copied for reading back
+/// ([`crate::page_cache`]).
+pub(crate) struct PagedBinding<'a> {
+    pub slot_color: &'a wgpu::TextureView,
+    pub slot_depth: &'a wgpu::TextureView,
+    pub coarse_color: &'a wgpu::TextureView,
+    pub coarse_depth: &'a wgpu::TextureView,
+    pub paging: &'a wgpu::Buffer,
+    pub table: &'a wgpu::Buffer,
+    pub touched: &'a wgpu::Buffer,
+    pub degraded: &'a wgpu::Buffer,
+    pub touched_staging: &'a wgpu::Buffer,
+    pub degraded_staging: &'a wgpu::Buffer,
+}
+
+/// The images a frame reads: every camera resident, or pages through a cache.
+pub(crate) enum Source<'a> {
+    Resident(&'a GpuTwoPlane),
+    Paged(PagedBinding<'a>),
+}
+
+fn texture_binding(binding: u32, view: &wgpu::TextureView) -> wgpu::BindGroupEntry<'_> {
+    wgpu::BindGroupEntry {
+        binding,
+        resource: wgpu::BindingResource::TextureView(view),
+    }
+}
+
+fn buffer_binding(binding: u32, buffer: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
+    wgpu::BindGroupEntry {
+        binding,
+        resource: buffer.as_entire_binding(),
+    }
+}
+
+fn texture_entry(binding: u32, filterable: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable },
+            view_dimension: wgpu::TextureViewDimension::D2Array,
+            multisampled: false,
+        },
+        count: None,
+    }
+}
+
+fn buffer_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+/// The pipeline of a mode (the uv filter's, or the aperture's) from `module`, compiled once into
+/// `slots`.
+fn mode_pipeline<'p>(
+    gpu: &Gpu,
+    slots: &'p [std::sync::OnceLock<wgpu::ComputePipeline>; 5],
+    module: &wgpu::ShaderModule,
+    layout: &wgpu::PipelineLayout,
+    options: &TwoPlaneOptions,
+) -> &'p wgpu::ComputePipeline {
+    let aperture = options.aperture > 0.0;
+    let slot = if aperture {
+        4
+    } else {
+        options.uv_filter.code() as usize
+    };
+    slots[slot].get_or_init(|| {
+        let constants = [
+            ("MODE", f64::from(options.uv_filter.code())),
+            ("APERTURE", if aperture { 1.0 } else { 0.0 }),
+        ];
+        gpu.device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("two-plane"),
+                layout: Some(layout),
+                module,
+                entry_point: Some("cs_main"),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &constants,
+                    ..Default::default()
+                },
+                cache: None,
+            })
+    })
 }
 
 #[repr(C)]
@@ -308,26 +416,8 @@ impl TwoPlaneRenderer {
             source: wgpu::ShaderSource::Wgsl(crate::shaders::TWO_PLANE.into()),
         });
         let compute = wgpu::ShaderStages::COMPUTE;
-        let texture = |binding, filterable| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: compute,
-            ty: wgpu::BindingType::Texture {
-                sample_type: wgpu::TextureSampleType::Float { filterable },
-                view_dimension: wgpu::TextureViewDimension::D2Array,
-                multisampled: false,
-            },
-            count: None,
-        };
-        let buffer = |binding, ty| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: compute,
-            ty: wgpu::BindingType::Buffer {
-                ty,
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
+        let texture = texture_entry;
+        let buffer = buffer_entry;
         let storage = wgpu::BufferBindingType::Storage { read_only: false };
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("two-plane"),
@@ -366,35 +456,46 @@ impl TwoPlaneRenderer {
             layout,
             sampler,
             outputs: Mutex::new(None),
+            paged: std::sync::OnceLock::new(),
         }
     }
 
-    /// The pipeline of a mode: the uv filter's, or the aperture's.
-    fn pipeline(&self, options: &TwoPlaneOptions) -> &wgpu::ComputePipeline {
-        let aperture = options.aperture > 0.0;
-        let slot = if aperture {
-            4
-        } else {
-            options.uv_filter.code() as usize
-        };
-        self.pipelines[slot].get_or_init(|| {
-            let constants = [
-                ("MODE", f64::from(options.uv_filter.code())),
-                ("APERTURE", if aperture { 1.0 } else { 0.0 }),
-            ];
-            self.gpu
-                .device
-                .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some("two-plane"),
-                    layout: Some(&self.pipeline_layout),
-                    module: &self.module,
-                    entry_point: Some("cs_main"),
-                    compilation_options: wgpu::PipelineCompilationOptions {
-                        constants: &constants,
-                        ..Default::default()
-                    },
-                    cache: None,
-                })
+    /// The paged renderer's module and layouts.
+    fn paged(&self) -> &PagedPipelines {
+        self.paged.get_or_init(|| {
+            let device = &self.gpu.device;
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some("two_plane_paged.wgsl"),
+                source: wgpu::ShaderSource::Wgsl(crate::shaders::TWO_PLANE_PAGED.into()),
+            });
+            let storage = wgpu::BufferBindingType::Storage { read_only: false };
+            let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("two-plane paged"),
+                entries: &[
+                    buffer_entry(0, wgpu::BufferBindingType::Uniform),
+                    texture_entry(1, false),
+                    texture_entry(2, false),
+                    buffer_entry(3, storage),
+                    buffer_entry(4, storage),
+                    buffer_entry(5, wgpu::BufferBindingType::Uniform),
+                    buffer_entry(6, wgpu::BufferBindingType::Storage { read_only: true }),
+                    texture_entry(7, false),
+                    texture_entry(8, false),
+                    buffer_entry(9, storage),
+                    buffer_entry(10, storage),
+                ],
+            });
+            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some("two-plane paged"),
+                bind_group_layouts: &[Some(&layout)],
+                immediate_size: 0,
+            });
+            PagedPipelines {
+                module,
+                pipeline_layout,
+                layout,
+                pipelines: Default::default(),
+            }
         })
     }
 
@@ -530,19 +631,34 @@ impl TwoPlaneRenderer {
         view: &View,
         options: &TwoPlaneOptions,
     ) -> Result<Frame, RenderError> {
+        self.dispatch(
+            &field.planes,
+            field.depth_range,
+            &Source::Resident(field),
+            view,
+            options,
+        )
+    }
+
+    /// Renders `view` of the light field with `planes` and stored depths in `depth_range`,
+    /// reading the images from `source`.
+    pub(crate) fn dispatch(
+        &self,
+        planes: &TwoPlanes,
+        depth_range: [f32; 2],
+        source: &Source<'_>,
+        view: &View,
+        options: &TwoPlaneOptions,
+    ) -> Result<Frame, RenderError> {
         options.validate()?;
         let max_px = DEFAULT_MAX_VIEW_PX.min(self.gpu.device.limits().max_texture_dimension_2d);
         let basis = view.basis(max_px)?;
         let start = std::time::Instant::now();
-        let p = &field.planes;
+        let p = planes;
         let origin = DVec3::from(p.st.center);
         let (right, up) = p.axes();
         let separation = p.separation();
-        let [d_lo, d_hi] = field.depth_range.map(f64::from);
-        // Heights of the stored surfaces, a sliver wider so the march brackets the extremes.
-        let (h_hi, h_lo) = (separation * (1.0 - d_lo), separation * (1.0 - d_hi));
-        let pad = 1e-4 * separation + 1e-3 * (h_hi - h_lo);
-        let (h_hi, h_lo) = ((h_hi + pad).min(separation), h_lo - pad);
+        let (h_hi, h_lo) = march_heights(separation, depth_range);
         let tolerance = options
             .tolerance
             .unwrap_or(3.0 * (h_hi - h_lo) / f64::from(options.steps));
@@ -620,36 +736,66 @@ impl TwoPlaneRenderer {
         self.gpu
             .queue
             .write_buffer(&outputs.uniform, 0, bytemuck::bytes_of(&params));
-        let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("two-plane"),
-            layout: &self.layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: outputs.uniform.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: wgpu::BindingResource::TextureView(&field.color_view),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: wgpu::BindingResource::TextureView(&field.depth_view),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: outputs.color.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 4,
-                    resource: outputs.depth.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 5,
-                    resource: wgpu::BindingResource::Sampler(&self.sampler),
-                },
-            ],
-        });
+        let texture = texture_binding;
+        let buffer = buffer_binding;
+        let common = [
+            buffer(0, &outputs.uniform),
+            buffer(3, &outputs.color),
+            buffer(4, &outputs.depth),
+        ];
+        let (bind, pipeline) = match source {
+            Source::Resident(field) => {
+                let mut entries = common.to_vec();
+                entries.extend([
+                    texture(1, &field.color_view),
+                    texture(2, &field.depth_view),
+                    wgpu::BindGroupEntry {
+                        binding: 5,
+                        resource: wgpu::BindingResource::Sampler(&self.sampler),
+                    },
+                ]);
+                let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("two-plane"),
+                    layout: &self.layout,
+                    entries: &entries,
+                });
+                let pipeline = mode_pipeline(
+                    &self.gpu,
+                    &self.pipelines,
+                    &self.module,
+                    &self.pipeline_layout,
+                    options,
+                );
+                (bind, pipeline)
+            }
+            Source::Paged(paged) => {
+                let pp = self.paged();
+                let mut entries = common.to_vec();
+                entries.extend([
+                    texture(1, paged.slot_color),
+                    texture(2, paged.slot_depth),
+                    buffer(5, paged.paging),
+                    buffer(6, paged.table),
+                    texture(7, paged.coarse_color),
+                    texture(8, paged.coarse_depth),
+                    buffer(9, paged.touched),
+                    buffer(10, paged.degraded),
+                ]);
+                let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("two-plane paged"),
+                    layout: &pp.layout,
+                    entries: &entries,
+                });
+                let pipeline = mode_pipeline(
+                    &self.gpu,
+                    &pp.pipelines,
+                    &pp.module,
+                    &pp.pipeline_layout,
+                    options,
+                );
+                (bind, pipeline)
+            }
+        };
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("two-plane"),
         });
@@ -658,9 +804,17 @@ impl TwoPlaneRenderer {
                 label: Some("two-plane"),
                 timestamp_writes: None,
             });
-            pass.set_pipeline(self.pipeline(options));
+            pass.set_pipeline(pipeline);
             pass.set_bind_group(0, &bind, &[]);
             pass.dispatch_workgroups(basis.width.div_ceil(8), basis.height.div_ceil(8), 1);
+        }
+        if let Source::Paged(paged) = source {
+            for (from, to) in [
+                (paged.touched, paged.touched_staging),
+                (paged.degraded, paged.degraded_staging),
+            ] {
+                encoder.copy_buffer_to_buffer(from, 0, to, 0, from.size());
+            }
         }
         if let Some(staging) = &outputs.staging {
             encoder.copy_buffer_to_buffer(&outputs.color, 0, staging, 0, pixels * 4);
@@ -762,6 +916,15 @@ impl TwoPlaneRenderer {
         frame.stats.render_ms = ms;
         Ok(frame)
     }
+}
+
+/// The heights (above st) between which the depth-corrected filter marches: those of the
+/// stored depths `depth_range`, a sliver wider so the march brackets the extremes; `(high, low)`.
+pub(crate) fn march_heights(separation: f64, depth_range: [f32; 2]) -> (f64, f64) {
+    let [d_lo, d_hi] = depth_range.map(f64::from);
+    let (h_hi, h_lo) = (separation * (1.0 - d_lo), separation * (1.0 - d_hi));
+    let pad = 1e-4 * separation + 1e-3 * (h_hi - h_lo);
+    ((h_hi + pad).min(separation), h_lo - pad)
 }
 
 /// Most aperture draws [`TwoPlaneRenderer::render_accumulated`] averages (the still refinement

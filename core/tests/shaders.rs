@@ -428,23 +428,27 @@ fn uniform_branches_of(specialised: &str, label: &str) -> Vec<String> {
 /// aperture as uniforms, an empty frame cost 28 ms at 512²; as overrides, 7 ms).
 #[test]
 fn two_plane_pipelines_have_no_branch_on_uniform_values_alone() {
-    let source = lumigraph_core::shaders::TWO_PLANE;
     let mut found = Vec::new();
-    for mode in 0..4 {
-        for aperture in [false, true] {
-            let specialised = source
-                .replace(
-                    "override MODE: u32 = 1u;",
-                    &format!("const MODE: u32 = {mode}u;"),
-                )
-                .replace(
-                    "override APERTURE: bool = false;",
-                    &format!("const APERTURE: bool = {aperture};"),
-                );
-            found.extend(uniform_branches_of(
-                &specialised,
-                &format!("MODE {mode}, APERTURE {aperture}"),
-            ));
+    for (source, paged) in [
+        (lumigraph_core::shaders::TWO_PLANE, false),
+        (lumigraph_core::shaders::TWO_PLANE_PAGED, true),
+    ] {
+        for mode in 0..4 {
+            for aperture in [false, true] {
+                let specialised = source
+                    .replace(
+                        "override MODE: u32 = 1u;",
+                        &format!("const MODE: u32 = {mode}u;"),
+                    )
+                    .replace(
+                        "override APERTURE: bool = false;",
+                        &format!("const APERTURE: bool = {aperture};"),
+                    );
+                found.extend(uniform_branches_of(
+                    &specialised,
+                    &format!("MODE {mode}, APERTURE {aperture}, paged {paged}"),
+                ));
+            }
         }
     }
     assert!(

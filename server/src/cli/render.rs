@@ -41,6 +41,167 @@ pub struct RenderArgs {
     /// Two-plane light fields.
     #[command(flatten)]
     pub two_plane: TwoPlaneArgs,
+    /// Paged rendering of two-plane light fields larger than memory.
+    #[command(flatten)]
+    pub cache: CacheArgs,
+}
+
+/// The flags of paged rendering (docs/two_plane.md "Paged rendering"): a cache budget, its
+/// policy, and a camera trace replayed through it.
+#[derive(Debug, Args)]
+pub struct CacheArgs {
+    /// Replay a camera trace: a JSON list of frames, each a view (DESIGN §3) plus optional
+    /// `focus` and `aperture`; OUT becomes a folder of 000.png, 001.png, … Without
+    /// --cache-mib every page is resident (the reference frames).
+    #[arg(long, value_name = "TRACE.json", conflicts_with_all = ["view", "views"])]
+    pub trace: Option<PathBuf>,
+    /// Render through a paged cache of M MiB of device memory (slots and the coarse level).
+    #[arg(long, value_name = "M", allow_hyphen_values = true)]
+    pub cache_mib: Option<f64>,
+    /// The cache's policy: none (on demand, FIFO eviction), lru, or predict (seed 003's
+    /// probability-based prefetch by dead reckoning).
+    #[arg(long, default_value = "lru", requires = "cache_mib")]
+    pub prefetch: lumigraph_core::page_cache::Prefetch,
+    /// Most pages loaded per frame.
+    #[arg(long, value_name = "B", default_value_t = lumigraph_core::page_cache::DEFAULT_PAGES_PER_FRAME)]
+    pub pages_per_frame: u32,
+    /// Write per-frame faults, degraded pixels, pages loaded and times (JSON).
+    #[arg(long, value_name = "REPORT.json")]
+    pub report: Option<PathBuf>,
+}
+
+impl CacheArgs {
+    fn given(&self) -> bool {
+        self.trace.is_some() || self.cache_mib.is_some() || self.report.is_some()
+    }
+}
+
+/// The `--report` of a paged run.
+#[derive(serde::Serialize)]
+struct CacheReport<'a> {
+    frames: &'a [lumigraph_core::page_cache::PageFrameStats],
+    summary: lumigraph_core::page_cache::PageSummary,
+    cache: CacheDescription,
+}
+
+#[derive(serde::Serialize)]
+struct CacheDescription {
+    prefetch: Option<String>,
+    pages_per_frame: u32,
+    budget_mib: Option<f64>,
+    device_mib: f64,
+    resident_asset_mib: f64,
+    slots: u32,
+    pages: u32,
+    page_size: u32,
+    coarse_factor: u32,
+}
+
+/// `render` of a two-plane asset through the paged cache (`--cache-mib`, `--trace`).
+fn render_paged(args: &RenderArgs, asset: AssetFile) -> Result<()> {
+    use lumigraph_core::page_cache::{
+        CacheConfig, PageSummary, PagedTwoPlane, TraceFrame, parse_trace,
+    };
+    let cache = &args.cache;
+    if args.two_plane.given() {
+        bail!("--accumulate and --stereo do not combine with --trace or --cache-mib");
+    }
+    let plan = args.quality.plan(asset.header())?;
+    let base = plan
+        .two_plane()
+        .copied()
+        .context("paged rendering is for two-plane light fields")?;
+    let (frames, many): (Vec<TraceFrame>, bool) = if let Some(path) = &cache.trace {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read trace {}", path.display()))?;
+        (
+            parse_trace(&text, &base).with_context(|| format!("bad trace {}", path.display()))?,
+            true,
+        )
+    } else {
+        let (views, many) = read_views(&args.views)?;
+        let frames = views
+            .into_iter()
+            .map(|v| TraceFrame {
+                eye: v.eye,
+                target: v.target,
+                up: v.up,
+                yfov_deg: v.yfov_deg,
+                width: v.width,
+                height: v.height,
+                focus: None,
+                aperture: None,
+            })
+            .collect();
+        (frames, many)
+    };
+    check_depth_path(&args.depth, many)?;
+    let config = match cache.cache_mib {
+        None => CacheConfig::whole(),
+        Some(mib) => {
+            if !(mib.is_finite() && mib > 0.0) {
+                bail!("--cache-mib {mib}: give a positive number of MiB");
+            }
+            if cache.pages_per_frame == 0 {
+                bail!("--pages-per-frame 0: give at least 1");
+            }
+            CacheConfig::with_mib(mib, cache.prefetch, cache.pages_per_frame)
+        }
+    };
+    let renderer = lumigraph_core::two_plane_render::TwoPlaneRenderer::new(gpu()?);
+    let asset = std::sync::Arc::new(asset);
+    let mut field = PagedTwoPlane::open(&renderer, asset, config)
+        .with_context(|| format!("cannot open asset {} through a cache", args.asset.display()))?;
+    let mib = |b: u64| b as f64 / 1_048_576.0;
+    println!(
+        "cache: {} slots of {}x{} ({:.1} MiB on the device with a {}x coarse level) for {}          pages ({:.1} MiB resident)",
+        field.slots,
+        field.grid.page_size,
+        field.grid.page_size,
+        mib(field.bytes),
+        field.coarse_factor,
+        field.grid.total(),
+        mib(field.full_bytes)
+    );
+    let mut stats = Vec::with_capacity(frames.len());
+    for (i, f) in frames.iter().enumerate() {
+        let (frame, s) = field.render(&renderer, &f.view(), &f.options(&base))?;
+        if let Some(e) = s.read_errors.first() {
+            bail!("frame {i}: {e}");
+        }
+        write_outputs(&frame, i, many, &args.output, &args.depth)?;
+        println!(
+            "frame {i:03}: {:.2} ms, {} faults, {} pages loaded, {} px degraded",
+            s.ms, s.faults, s.pages_loaded, s.degraded_px
+        );
+        stats.push(s);
+    }
+    let summary = PageSummary::of(&stats);
+    println!(
+        "{} frames: {} faults, {} pages loaded, {} px degraded, {:.2} ms mean",
+        summary.frames, summary.faults, summary.pages_loaded, summary.degraded_px, summary.mean_ms
+    );
+    if let Some(path) = &cache.report {
+        let report = CacheReport {
+            frames: &stats,
+            summary,
+            cache: CacheDescription {
+                prefetch: config.budget_bytes.map(|_| config.prefetch.to_string()),
+                pages_per_frame: config.pages_per_frame,
+                budget_mib: cache.cache_mib,
+                device_mib: mib(field.bytes),
+                resident_asset_mib: mib(field.full_bytes),
+                slots: field.slots,
+                pages: field.grid.total(),
+                page_size: field.grid.page_size,
+                coarse_factor: field.coarse_factor,
+            },
+        };
+        let text = serde_json::to_string_pretty(&report)?;
+        lumigraph_core::atomic_write(path, |w| std::io::Write::write_all(w, text.as_bytes()))
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(())
 }
 
 /// The flags of a two-plane light field besides its quality options (`--uv-filter`, `--focus`,
@@ -285,6 +446,18 @@ fn check_depth_path(depth: &DepthArgs, many: bool) -> Result<()> {
 }
 
 pub(super) fn render(args: &RenderArgs) -> Result<()> {
+    if args.cache.given() {
+        let asset = AssetFile::open(&args.asset)
+            .with_context(|| format!("cannot open asset {}", args.asset.display()))?;
+        if asset.header().two_plane().is_none() {
+            bail!(
+                "--trace, --cache-mib and --report apply to two-plane light fields; {} is {}",
+                args.asset.display(),
+                asset.header().kind.name()
+            );
+        }
+        return render_paged(args, asset);
+    }
     let (views, many) = read_views(&args.views)?;
     check_depth_path(&args.depth, many)?;
     if args

@@ -1,0 +1,1483 @@
+//! Two-plane light fields larger than device memory (seed 003): a paged GPU cache with an index
+//! table, pages read from the `.lfa` on demand, a coarse level that no frame goes without, and
+//! three policies (on demand, LRU, and the seed's probability-based prefetch by dead reckoning).
+//! docs/two_plane.md "Paged rendering" is the user's account.
+//!
+//! - **Pages** are the asset's own pages (DESIGN §5: P × P texels, random access in the file):
+//!   page `id = camera · pages_per_image + row · pages_x + column`.
+//! - **Slots**: the cache is a fixed number of P × P tiles in texture-array layers (RGBA8 colour
+//!   and R32F depth); the index table (`page → slot`, or not resident) is a storage buffer the
+//!   shader reads (`shaders/two_plane_paged.wgsl`).
+//! - **Coarse level**: every camera downsampled F× (mean colour, nearest depth), built by one
+//!   pass over the file when the cache opens and always resident; a texel of a page that is not
+//!   resident reads it, and the pixel counts as degraded.
+//! - **Which pages a frame needs**: [`needed_pages`] projects the view's rays through the focal
+//!   plane (or the depth range the depth-corrected filter marches) into every camera the filter
+//!   or aperture reads, before the frame; the shader's feedback (every page it touched) counts
+//!   the faults after it, exactly.
+//! - **Per frame** ([`PagedTwoPlane::render`]): the pages needed and not resident are loaded
+//!   first, then (policy `predict`) the most probable pages of the next frames, at most
+//!   `pages_per_frame` pages in all; the frame renders; a fault is a page the frame touched that
+//!   was not resident when it started.
+
+use std::collections::{BTreeSet, HashMap, VecDeque};
+use std::sync::Arc;
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::asset::{AssetError, AssetFile, Channel, ImageKey};
+use crate::frame::Frame;
+use crate::gpu::Gpu;
+use crate::render::RenderError;
+use crate::two_plane::TwoPlanes;
+use crate::two_plane_render::{
+    MAX_APERTURE, PagedBinding, Source, TwoPlaneOptions, TwoPlaneRenderer, UvFilter, march_heights,
+};
+use crate::view::{DEFAULT_MAX_VIEW_PX, View};
+
+/// Index-table value of a page that is not resident.
+const NOT_RESIDENT: u32 = u32::MAX;
+/// Bytes per texel of a slot: RGBA8 colour and R32F depth.
+const SLOT_TEXEL_BYTES: u64 = 8;
+/// Default pages loaded per frame (`--pages-per-frame`).
+pub const DEFAULT_PAGES_PER_FRAME: u32 = 64;
+/// Pixel stride of the rays [`needed_pages`] projects (the pages between them are covered by
+/// the hull of each 2×2 group of rays).
+pub const NEEDS_STRIDE: u32 = 8;
+/// Frames ahead the predictive policy looks (the estimate one frame ahead, and further along
+/// the motion with falling probability).
+pub const PREDICT_FRAMES: u32 = 3;
+
+/// Which pages the cache loads and evicts (`--prefetch`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase", try_from = "String")]
+pub enum Prefetch {
+    /// On demand: the pages a frame needs, evicting the page loaded longest ago (FIFO).
+    None,
+    /// On demand, evicting the least recently used page.
+    #[default]
+    Lru,
+    /// Seed 003: on demand, then the pages of the dead-reckoned next frames by probability,
+    /// evicting the least probable (least recently used among equals).
+    Predict,
+}
+
+impl Prefetch {
+    /// Every policy, in the order of the tables.
+    pub const ALL: [Prefetch; 3] = [Prefetch::None, Prefetch::Lru, Prefetch::Predict];
+
+    /// The name used by the CLI.
+    pub fn name(self) -> &'static str {
+        match self {
+            Prefetch::None => "none",
+            Prefetch::Lru => "lru",
+            Prefetch::Predict => "predict",
+        }
+    }
+}
+
+impl std::fmt::Display for Prefetch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Prefetch {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Prefetch::ALL
+            .into_iter()
+            .find(|p| p.name() == s)
+            .ok_or_else(|| format!("prefetch {s:?}: choose none, lru or predict"))
+    }
+}
+
+impl TryFrom<String> for Prefetch {
+    type Error = String;
+
+    fn try_from(s: String) -> Result<Self, Self::Error> {
+        s.parse()
+    }
+}
+
+/// How big the cache is and how it is filled.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CacheConfig {
+    /// Device bytes for the slots and the coarse level; `None`: every page resident (the
+    /// reference the cached frames are compared with).
+    pub budget_bytes: Option<u64>,
+    /// Policy.
+    pub prefetch: Prefetch,
+    /// Most pages loaded per frame.
+    pub pages_per_frame: u32,
+}
+
+impl CacheConfig {
+    /// A cache of `mib` MiB.
+    pub fn with_mib(mib: f64, prefetch: Prefetch, pages_per_frame: u32) -> CacheConfig {
+        CacheConfig {
+            budget_bytes: Some((mib.max(0.0) * 1024.0 * 1024.0) as u64),
+            prefetch,
+            pages_per_frame,
+        }
+    }
+
+    /// Every page resident.
+    pub fn whole() -> CacheConfig {
+        CacheConfig {
+            budget_bytes: None,
+            prefetch: Prefetch::None,
+            pages_per_frame: u32::MAX,
+        }
+    }
+}
+
+/// How the camera images are cut into pages.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PageGrid {
+    /// Page side P.
+    pub page_size: u32,
+    /// Pages per image row and column.
+    pub pages: [u32; 2],
+    /// Cameras.
+    pub cameras: u32,
+    /// Image size (the st resolution).
+    pub res: [u32; 2],
+}
+
+impl PageGrid {
+    /// The grid of `planes` cut into pages of `page_size`.
+    pub fn new(planes: &TwoPlanes, page_size: u32) -> PageGrid {
+        let res = planes.st.resolution;
+        PageGrid {
+            page_size,
+            pages: res.map(|n| n.div_ceil(page_size)),
+            cameras: planes.camera_count(),
+            res,
+        }
+    }
+
+    /// Pages per camera image.
+    pub fn per_image(&self) -> u32 {
+        self.pages[0] * self.pages[1]
+    }
+
+    /// Pages in all.
+    pub fn total(&self) -> u32 {
+        self.per_image() * self.cameras
+    }
+
+    /// The camera and the page number within its image (DESIGN §5) of page `id`.
+    pub fn split(&self, id: u32) -> (u32, u32) {
+        (id / self.per_image(), id % self.per_image())
+    }
+
+    /// Texel rectangle `(x, y, width, height)` of page `page` of an image.
+    pub fn rect(&self, page: u32) -> (u32, u32, u32, u32) {
+        let p = self.page_size;
+        let (x, y) = ((page % self.pages[0]) * p, (page / self.pages[0]) * p);
+        (x, y, p.min(self.res[0] - x), p.min(self.res[1] - y))
+    }
+}
+
+/// What a frame through the cache did (one entry of `--report`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PageFrameStats {
+    /// Pages the frame touched that were not resident when it started.
+    pub faults: u32,
+    /// Pixels that read at least one texel from the coarse level.
+    pub degraded_px: u64,
+    /// Pages loaded for this frame (needed ones first, then prefetched ones).
+    pub pages_loaded: u32,
+    /// Wall time of the frame: planning, page reads and uploads, render and feedback.
+    pub ms: f64,
+    /// Pages the frame touched (the shader's feedback).
+    pub pages_touched: u32,
+    /// Pages [`needed_pages`] projected for the frame.
+    pub pages_projected: u32,
+    /// Touched pages the projection missed.
+    pub projection_missed: u32,
+    /// Resident pages after the frame's loads.
+    pub resident: u32,
+    /// Time spent reading and decoding pages, ms.
+    pub load_ms: f64,
+    /// Pages that could not be read (the frame is degraded there), with the reason.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub read_errors: Vec<String>,
+    /// Per pixel (row-major): whether it is degraded.
+    #[serde(skip)]
+    pub degraded_mask: Vec<bool>,
+}
+
+/// Totals of a run of frames.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PageSummary {
+    /// Frames.
+    pub frames: u32,
+    /// Sum of faults.
+    pub faults: u64,
+    /// Sum of degraded pixels.
+    pub degraded_px: u64,
+    /// Sum of pages loaded.
+    pub pages_loaded: u64,
+    /// Mean and largest frame time, ms.
+    pub mean_ms: f64,
+    /// Largest frame time, ms.
+    pub max_ms: f64,
+    /// Touched pages the projection missed, in all.
+    pub projection_missed: u64,
+}
+
+impl PageSummary {
+    /// The totals of `frames`.
+    pub fn of(frames: &[PageFrameStats]) -> PageSummary {
+        let n = frames.len().max(1) as f64;
+        PageSummary {
+            frames: frames.len() as u32,
+            faults: frames.iter().map(|f| u64::from(f.faults)).sum(),
+            degraded_px: frames.iter().map(|f| f.degraded_px).sum(),
+            pages_loaded: frames.iter().map(|f| u64::from(f.pages_loaded)).sum(),
+            mean_ms: frames.iter().map(|f| f.ms).sum::<f64>() / n,
+            max_ms: frames.iter().map(|f| f.ms).fold(0.0, f64::max),
+            projection_missed: frames.iter().map(|f| u64::from(f.projection_missed)).sum(),
+        }
+    }
+}
+
+/// The pages of `grid` that rendering `view` of `planes` with `options` reads (stored depths in
+/// `depth_range`), sorted: every `stride`-th pixel's ray (and the last row and column) is
+/// projected, through the focal plane (or the heights the depth-corrected filter marches), into
+/// every camera the uv filter or aperture reads; each 2×2 group of rays covers the hull of its
+/// projections (a texel wider for the bilinear footprint).
+///
+/// # Errors
+/// [`RenderError::View`] for an invalid view.
+pub fn needed_pages(
+    planes: &TwoPlanes,
+    grid: &PageGrid,
+    depth_range: [f32; 2],
+    view: &View,
+    options: &TwoPlaneOptions,
+    stride: u32,
+) -> Result<Vec<u32>, RenderError> {
+    /// A projected ray: its uv cell and its points at each height.
+    struct Ray {
+        cell: [f64; 2],
+        points: Vec<DVec3>,
+        inside: bool,
+    }
+    let basis = view.basis(DEFAULT_MAX_VIEW_PX)?;
+    let stride = stride.max(1);
+    let origin = DVec3::from(planes.st.center);
+    let (right, up) = planes.axes();
+    let normal = planes.normal();
+    let sep = planes.separation();
+    let uv_center = DVec3::from(planes.uv.center) - origin;
+    let [uw, uh] = planes.uv.size;
+    let [sw, sh] = planes.st.size;
+    let g = planes.uv.grid.map(f64::from);
+    let res = grid.res.map(f64::from);
+    let o = basis.eye - origin;
+    let (h_hi, h_lo) = march_heights(sep, depth_range);
+    let aperture = options.aperture > 0.0;
+    let heights: Vec<f64> = if !aperture && options.uv_filter == UvFilter::Depth {
+        vec![h_hi, h_lo, options.focus]
+    } else {
+        vec![options.focus]
+    };
+    // Camera position relative to st's centre.
+    let camera = |a: u32, b: u32| {
+        let x = (f64::from(a) + 0.5) / g[0] - 0.5;
+        let y = 0.5 - (f64::from(b) + 0.5) / g[1];
+        uv_center + x * uw * right + y * uh * up
+    };
+    // Continuous texel coordinates where camera `c` reads point `q`.
+    let lookup = |c: DVec3, q: DVec3| -> Option<[f64; 2]> {
+        let towards = q - c;
+        let along = towards.dot(normal);
+        if !(along < 0.0) {
+            return None;
+        }
+        let s = c - sep / along * towards;
+        Some([
+            (s.dot(right) / sw + 0.5) * res[0] - 0.5,
+            (0.5 - s.dot(up) / sh) * res[1] - 0.5,
+        ])
+    };
+    // The rays on the stride grid: their uv cell and their points at each height.
+    let xs: Vec<u32> = (0..basis.width)
+        .step_by(stride as usize)
+        .chain(std::iter::once(basis.width - 1))
+        .collect();
+    let ys: Vec<u32> = (0..basis.height)
+        .step_by(stride as usize)
+        .chain(std::iter::once(basis.height - 1))
+        .collect();
+    let mut rays: Vec<Option<Ray>> = Vec::with_capacity(xs.len() * ys.len());
+    for &i in &ys {
+        for &j in &xs {
+            let d = basis.pixel_dir(i, j);
+            let along = d.dot(normal);
+            let eh = o.dot(normal);
+            if !(along < 0.0) {
+                rays.push(None);
+                continue;
+            }
+            let t_uv = (sep - eh) / along;
+            let t_st = -eh / along;
+            let pu = o + t_uv * d - uv_center;
+            let uv = [pu.dot(right) / uw + 0.5, 0.5 - pu.dot(up) / uh];
+            let ps = o + t_st * d;
+            let st = [ps.dot(right) / sw + 0.5, 0.5 - ps.dot(up) / sh];
+            let inside =
+                t_uv >= 0.0 && t_st > t_uv && uv.iter().chain(&st).all(|x| (0.0..=1.0).contains(x));
+            let cell = [
+                (uv[0] * g[0] - 0.5).clamp(0.0, g[0] - 1.0),
+                (uv[1] * g[1] - 0.5).clamp(0.0, g[1] - 1.0),
+            ];
+            let points = heights.iter().map(|&h| o + (h - eh) / along * d).collect();
+            rays.push(Some(Ray {
+                cell,
+                points,
+                inside,
+            }));
+        }
+    }
+    // The cameras a pixel with uv cell in [lo, hi] reads (per axis).
+    let reach = if aperture {
+        options.aperture + 0.5
+    } else {
+        match options.uv_filter {
+            UvFilter::Dither => 0.5 * f64::from(options.dither_amplitude) + 1.0,
+            _ => 1.0,
+        }
+    };
+    let mut pages = BTreeSet::new();
+    let nx = xs.len();
+    let p = f64::from(grid.page_size);
+    for qy in 0..ys.len().saturating_sub(1) {
+        for qx in 0..nx.saturating_sub(1) {
+            let corners: Vec<&Ray> = [(qx, qy), (qx + 1, qy), (qx, qy + 1), (qx + 1, qy + 1)]
+                .iter()
+                .filter_map(|&(x, y)| rays[y * nx + x].as_ref())
+                .collect();
+            if !corners.iter().any(|r| r.inside) {
+                continue;
+            }
+            let mut lo = [f64::INFINITY; 2];
+            let mut hi = [f64::NEG_INFINITY; 2];
+            for r in &corners {
+                for k in 0..2 {
+                    lo[k] = lo[k].min(r.cell[k]);
+                    hi[k] = hi[k].max(r.cell[k]);
+                }
+            }
+            let a0 = (lo[0] - reach).ceil().max(0.0) as u32;
+            let a1 = (hi[0] + reach).floor().min(g[0] - 1.0) as u32;
+            let b0 = (lo[1] - reach).ceil().max(0.0) as u32;
+            let b1 = (hi[1] + reach).floor().min(g[1] - 1.0) as u32;
+            for b in b0..=b1 {
+                for a in a0..=a1 {
+                    let c = camera(a, b);
+                    let mut jlo = [f64::INFINITY; 2];
+                    let mut jhi = [f64::NEG_INFINITY; 2];
+                    for r in &corners {
+                        for &q in &r.points {
+                            if let Some(ji) = lookup(c, q) {
+                                for k in 0..2 {
+                                    jlo[k] = jlo[k].min(ji[k]);
+                                    jhi[k] = jhi[k].max(ji[k]);
+                                }
+                            }
+                        }
+                    }
+                    if !(jlo[0] <= jhi[0] && jlo[1] <= jhi[1]) {
+                        continue;
+                    }
+                    // Texels read: the bilinear and 2×2 depth footprints reach one texel past
+                    // the lookup; f32 on the device may round a hair either way.
+                    let range = |k: usize| {
+                        let t0 = (jlo[k] - 0.01).floor().clamp(0.0, res[k] - 1.0);
+                        let t1 = ((jhi[k] + 0.01).floor() + 1.0).clamp(0.0, res[k] - 1.0);
+                        ((t0 / p) as u32, (t1 / p) as u32)
+                    };
+                    let (px0, px1) = range(0);
+                    let (py0, py1) = range(1);
+                    let cam = b * planes.uv.grid[0] + a;
+                    for py in py0..=py1 {
+                        for px in px0..=px1 {
+                            pages.insert(cam * grid.per_image() + py * grid.pages[0] + px);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    Ok(pages.into_iter().collect())
+}
+
+/// The camera parameters dead reckoning extrapolates (seed 003: position, aperture, focus,
+/// field of view; the viewing direction too).
+#[derive(Clone, Debug, PartialEq)]
+struct CameraState {
+    eye: DVec3,
+    forward: DVec3,
+    distance: f64,
+    up: [f64; 3],
+    yfov: f64,
+    focus: f64,
+    aperture: f64,
+    size: [u32; 2],
+}
+
+impl CameraState {
+    fn of(view: &View, options: &TwoPlaneOptions) -> CameraState {
+        let eye = DVec3::from(view.eye);
+        let towards = DVec3::from(view.target) - eye;
+        CameraState {
+            eye,
+            forward: towards.normalize_or_zero(),
+            distance: towards.length(),
+            up: view.up,
+            yfov: view.yfov_deg,
+            focus: options.focus,
+            aperture: options.aperture,
+            size: [view.width, view.height],
+        }
+    }
+
+    fn view(&self) -> View {
+        View {
+            eye: self.eye.to_array(),
+            target: (self.eye + self.forward * self.distance).to_array(),
+            up: self.up,
+            yfov_deg: self.yfov,
+            width: self.size[0],
+            height: self.size[1],
+        }
+    }
+}
+
+/// The parameters the predictive policy extrapolates one at a time (and all together).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Param {
+    Position,
+    Direction,
+    FieldOfView,
+    Focus,
+    Aperture,
+    All,
+}
+
+impl Param {
+    const ALL: [Param; 6] = [
+        Param::Position,
+        Param::Direction,
+        Param::FieldOfView,
+        Param::Focus,
+        Param::Aperture,
+        Param::All,
+    ];
+
+    /// `now` with this parameter moved `k` frames further at the velocity `now − before`;
+    /// `None` where it does not move.
+    fn extrapolate(self, now: &CameraState, before: &CameraState, k: f64) -> Option<CameraState> {
+        let mut s = now.clone();
+        let moves = |a: f64, b: f64| (a - b).abs() > 1e-12 * (1.0 + a.abs());
+        let position = |s: &mut CameraState| s.eye = now.eye + k * (now.eye - before.eye);
+        let direction = |s: &mut CameraState| {
+            s.forward =
+                (now.forward + k * (now.forward - before.forward)).normalize_or(now.forward);
+        };
+        let fov = |s: &mut CameraState| {
+            s.yfov = (now.yfov + k * (now.yfov - before.yfov)).clamp(0.5, 170.0);
+        };
+        let focus = |s: &mut CameraState| s.focus = now.focus + k * (now.focus - before.focus);
+        let aperture = |s: &mut CameraState| {
+            s.aperture =
+                (now.aperture + k * (now.aperture - before.aperture)).clamp(0.0, MAX_APERTURE);
+        };
+        let moved = match self {
+            Param::Position => {
+                position(&mut s);
+                now.eye.distance(before.eye) > 1e-12 * (1.0 + now.eye.length())
+            }
+            Param::Direction => {
+                direction(&mut s);
+                now.forward.distance(before.forward) > 1e-12
+            }
+            Param::FieldOfView => {
+                fov(&mut s);
+                moves(now.yfov, before.yfov)
+            }
+            Param::Focus => {
+                focus(&mut s);
+                moves(now.focus, before.focus)
+            }
+            Param::Aperture => {
+                aperture(&mut s);
+                moves(now.aperture, before.aperture)
+            }
+            Param::All => {
+                position(&mut s);
+                direction(&mut s);
+                fov(&mut s);
+                focus(&mut s);
+                aperture(&mut s);
+                s != *now
+            }
+        };
+        moved.then_some(s)
+    }
+}
+
+/// Where pages live and which to load or evict: the CPU half of the cache, testable without a
+/// device.
+#[derive(Clone, Debug)]
+pub struct Residency {
+    /// Page → slot, or [`NOT_RESIDENT`].
+    table: Vec<u32>,
+    /// Slot → page, or [`NOT_RESIDENT`].
+    slot_page: Vec<u32>,
+    /// Per page: the last frame that touched it (0: never).
+    last_used: Vec<u32>,
+    /// Per slot: the frame its page was loaded.
+    loaded_at: Vec<u32>,
+    policy: Prefetch,
+}
+
+impl Residency {
+    /// An empty cache of `slots` slots for `pages` pages.
+    pub fn new(pages: u32, slots: u32, policy: Prefetch) -> Residency {
+        Residency {
+            table: vec![NOT_RESIDENT; pages as usize],
+            slot_page: vec![NOT_RESIDENT; slots as usize],
+            last_used: vec![0; pages as usize],
+            loaded_at: vec![0; slots as usize],
+            policy,
+        }
+    }
+
+    /// Whether page `id` is resident.
+    pub fn resident(&self, id: u32) -> bool {
+        self.table
+            .get(id as usize)
+            .is_some_and(|&s| s != NOT_RESIDENT)
+    }
+
+    /// Resident pages.
+    pub fn resident_count(&self) -> u32 {
+        self.slot_page
+            .iter()
+            .filter(|&&p| p != NOT_RESIDENT)
+            .count() as u32
+    }
+
+    /// The index table (page → slot, `u32::MAX` where not resident).
+    pub fn table(&self) -> &[u32] {
+        &self.table
+    }
+
+    /// Plans frame `frame`'s loads: the `needed` pages that are not resident (in order), then
+    /// the `prefetch` pages (most probable first; `probability` of every page that has one),
+    /// at most `budget` in all. Each load takes a free slot or evicts the policy's victim: never
+    /// a page `needed` by this frame or loaded for it, and for prefetches only a page less
+    /// probable than the one coming in. Returns `(page, slot)` per load; the table is updated.
+    pub fn plan(
+        &mut self,
+        frame: u32,
+        needed: &[u32],
+        prefetch: &[u32],
+        probability: &HashMap<u32, f32>,
+        budget: u32,
+    ) -> Vec<(u32, u32)> {
+        let protected: std::collections::HashSet<u32> = needed.iter().copied().collect();
+        let mut loads = Vec::new();
+        let wanted = needed
+            .iter()
+            .map(|&p| (p, true))
+            .chain(prefetch.iter().map(|&p| (p, false)));
+        for (page, is_needed) in wanted {
+            if loads.len() as u32 >= budget {
+                break;
+            }
+            if (page as usize) >= self.table.len() || self.resident(page) {
+                continue;
+            }
+            let incoming = probability.get(&page).copied().unwrap_or(0.0);
+            let Some(slot) = self.victim(frame, &protected, probability, is_needed, incoming)
+            else {
+                // Every slot holds a page this frame needs (or a likelier one): no room.
+                if is_needed {
+                    continue;
+                }
+                break;
+            };
+            let old = self.slot_page[slot as usize];
+            if old != NOT_RESIDENT {
+                self.table[old as usize] = NOT_RESIDENT;
+            }
+            self.slot_page[slot as usize] = page;
+            self.table[page as usize] = slot;
+            self.loaded_at[slot as usize] = frame;
+            loads.push((page, slot));
+        }
+        loads
+    }
+
+    /// A free slot, or the slot whose page the policy evicts.
+    fn victim(
+        &self,
+        frame: u32,
+        protected: &std::collections::HashSet<u32>,
+        probability: &HashMap<u32, f32>,
+        for_needed: bool,
+        incoming: f32,
+    ) -> Option<u32> {
+        if let Some(free) = self.slot_page.iter().position(|&p| p == NOT_RESIDENT) {
+            return Some(free as u32);
+        }
+        let candidates =
+            self.slot_page.iter().enumerate().filter(|&(slot, &page)| {
+                !protected.contains(&page) && self.loaded_at[slot] != frame
+            });
+        let chosen = match self.policy {
+            Prefetch::None => candidates.min_by_key(|&(slot, _)| self.loaded_at[slot]),
+            Prefetch::Lru => candidates.min_by_key(|&(_, &page)| self.last_used[page as usize]),
+            Prefetch::Predict => candidates.min_by(|&(_, &a), &(_, &b)| {
+                let pa = probability.get(&a).copied().unwrap_or(0.0);
+                let pb = probability.get(&b).copied().unwrap_or(0.0);
+                pa.total_cmp(&pb)
+                    .then(self.last_used[a as usize].cmp(&self.last_used[b as usize]))
+            }),
+        }?;
+        let page = *chosen.1;
+        let p = probability.get(&page).copied().unwrap_or(0.0);
+        (for_needed || p < incoming).then_some(chosen.0 as u32)
+    }
+
+    /// Drops page `id` from `slot` (a load that failed), leaving the slot free.
+    fn forget(&mut self, id: u32, slot: u32) {
+        if self.table.get(id as usize) == Some(&slot) {
+            self.table[id as usize] = NOT_RESIDENT;
+            self.slot_page[slot as usize] = NOT_RESIDENT;
+        }
+    }
+
+    /// Records the pages frame `frame` touched; returns how many of them were not resident at
+    /// its start (`resident_at_start`: the table before [`Residency::plan`]).
+    pub fn touched(&mut self, frame: u32, touched: &[u32], resident_at_start: &[u32]) -> u32 {
+        let mut faults = 0;
+        for &page in touched {
+            if let Some(used) = self.last_used.get_mut(page as usize) {
+                *used = frame;
+                if resident_at_start[page as usize] == NOT_RESIDENT {
+                    faults += 1;
+                }
+            }
+        }
+        faults
+    }
+}
+
+/// Shape of the slot atlas: tiles per layer row, rows per layer, layers. At least two layers,
+/// and never a multiple of six, so that [`Gpu::padded_layers`] adds none.
+fn atlas_shape(slots: u32, page_size: u32, max_side: u32) -> (u32, u32, u32) {
+    let max_tiles = (max_side / page_size).max(1);
+    let per_layer_max = max_tiles * max_tiles;
+    let mut layers = slots.div_ceil(per_layer_max).max(2);
+    if layers.is_multiple_of(6) {
+        layers += 1;
+    }
+    let per_layer = slots.div_ceil(layers);
+    let tiles_x = per_layer.min(max_tiles);
+    let tiles_y = per_layer.div_ceil(tiles_x);
+    (tiles_x, tiles_y, layers)
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct PagingUniform {
+    page_size: u32,
+    pages_x: u32,
+    pages_per_image: u32,
+    tiles_x: u32,
+    per_layer: u32,
+    coarse_factor: u32,
+    stamp: u32,
+    pad: u32,
+    coarse_res: [u32; 2],
+}
+
+/// A page read from the file: its id and colour and depth texels.
+struct LoadedPage {
+    id: u32,
+    color: Vec<u8>,
+    depth: Vec<u8>,
+}
+
+/// Reads and decodes `ids` from `asset`, on up to the machine's cores: each page's result.
+fn read_pages(
+    asset: &AssetFile,
+    grid: &PageGrid,
+    ids: &[u32],
+) -> Vec<Result<LoadedPage, RenderError>> {
+    let read = |id: u32| -> Result<LoadedPage, RenderError> {
+        let (camera, page) = grid.split(id);
+        let (_, _, w, h) = grid.rect(page);
+        let texels = w as usize * h as usize;
+        let color = asset.read_page(ImageKey::new(0, 0, camera, Channel::Color), page)?;
+        let depth = asset.read_page(ImageKey::new(0, 0, camera, Channel::Depth), page)?;
+        if color.len() != texels * 4 || depth.len() != texels * 4 {
+            return Err(RenderError::Asset(AssetError::Header(format!(
+                "camera {camera} page {page}: {} colour and {} depth bytes for {w}x{h} texels \
+                 (RGBA8 and f32 expected)",
+                color.len(),
+                depth.len()
+            ))));
+        }
+        Ok(LoadedPage { id, color, depth })
+    };
+    let workers = std::thread::available_parallelism()
+        .map_or(1, std::num::NonZeroUsize::get)
+        .min(ids.len().max(1));
+    if workers <= 1 {
+        return ids.iter().map(|&id| read(id)).collect();
+    }
+    let chunk = ids.len().div_ceil(workers);
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = ids
+            .chunks(chunk)
+            .map(|part| {
+                (
+                    part.len(),
+                    scope.spawn(move || part.iter().map(|&id| read(id)).collect::<Vec<_>>()),
+                )
+            })
+            .collect();
+        let mut out = Vec::with_capacity(ids.len());
+        for (n, h) in handles {
+            match h.join() {
+                Ok(part) => out.extend(part),
+                Err(_) => out.extend(
+                    (0..n).map(|_| Err(RenderError::Option("a page reader panicked".to_owned()))),
+                ),
+            }
+        }
+        out
+    })
+}
+
+/// A two-plane light field rendered through a paged cache ([module docs](self)).
+pub struct PagedTwoPlane {
+    /// Its planes.
+    pub planes: TwoPlanes,
+    /// Smallest and largest finite stored depth (`[1, 1]` when nothing is hit).
+    pub depth_range: [f32; 2],
+    /// The pages.
+    pub grid: PageGrid,
+    /// Slots of the cache.
+    pub slots: u32,
+    /// The coarse level's downsampling factor F.
+    pub coarse_factor: u32,
+    /// Device bytes: slots and coarse level.
+    pub bytes: u64,
+    /// Device bytes every page would take resident (slots for all pages).
+    pub full_bytes: u64,
+    config: CacheConfig,
+    asset: Arc<AssetFile>,
+    gpu: Arc<Gpu>,
+    tiles_x: u32,
+    per_layer: u32,
+    slot_color: wgpu::Texture,
+    slot_depth: wgpu::Texture,
+    coarse_color: wgpu::Texture,
+    coarse_depth: wgpu::Texture,
+    views: [wgpu::TextureView; 4],
+    paging: wgpu::Buffer,
+    table: wgpu::Buffer,
+    touched: wgpu::Buffer,
+    touched_staging: wgpu::Buffer,
+    /// The degraded-pixel count and mask of frames of a pixel count, and its readback copy.
+    degraded: Option<(u64, wgpu::Buffer, wgpu::Buffer)>,
+    residency: Residency,
+    frame: u32,
+    history: VecDeque<CameraState>,
+}
+
+impl Drop for PagedTwoPlane {
+    fn drop(&mut self) {
+        self.slot_color.destroy();
+        self.slot_depth.destroy();
+        self.coarse_color.destroy();
+        self.coarse_depth.destroy();
+    }
+}
+
+impl PagedTwoPlane {
+    /// Opens `asset` (a two-plane light field with depth) through a cache: one pass over every
+    /// page builds the coarse level and the depth range (and, with [`CacheConfig::whole`],
+    /// uploads every page); no other page is loaded until a frame needs it.
+    ///
+    /// # Errors
+    /// [`RenderError::Asset`] for another kind or a bad page; [`RenderError::Option`] for a
+    /// budget that holds no page; [`RenderError::Gpu`] for device limits.
+    pub fn open(
+        renderer: &TwoPlaneRenderer,
+        asset: Arc<AssetFile>,
+        config: CacheConfig,
+    ) -> Result<PagedTwoPlane, RenderError> {
+        let gpu = Arc::clone(renderer.gpu());
+        let header = asset.header();
+        let planes = *header.two_plane().ok_or(AssetError::Kind {
+            what: "the paged two-plane renderer",
+            kind: header.kind,
+        })?;
+        let grid = PageGrid::new(&planes, header.page_size);
+        let p = u64::from(grid.page_size);
+        let slot_bytes = p * p * SLOT_TEXEL_BYTES;
+        let total = grid.total();
+        let full_bytes = u64::from(total) * slot_bytes;
+        let coarse_bytes = |f: u32| {
+            u64::from(grid.cameras)
+                * u64::from(grid.res[0].div_ceil(f))
+                * u64::from(grid.res[1].div_ceil(f))
+                * SLOT_TEXEL_BYTES
+        };
+        // The coarse level: the finest power-of-two factor (at least 2) within an eighth of
+        // the budget.
+        let (coarse_factor, slots) = match config.budget_bytes {
+            None => (grid.page_size.min(16), total),
+            Some(budget) => {
+                let mut f = 2;
+                while coarse_bytes(f) > budget / 8 && f < grid.res[0].max(grid.res[1]) {
+                    f *= 2;
+                }
+                let left = budget.saturating_sub(coarse_bytes(f));
+                let slots = (left / slot_bytes).min(u64::from(total)) as u32;
+                if slots == 0 {
+                    return Err(RenderError::Option(format!(
+                        "a cache of {:.2} MiB holds no {}x{} page besides the coarse level \
+                         ({:.2} MiB): give at least {:.2} MiB",
+                        budget as f64 / 1_048_576.0,
+                        grid.page_size,
+                        grid.page_size,
+                        coarse_bytes(f) as f64 / 1_048_576.0,
+                        (coarse_bytes(f) + slot_bytes) as f64 / 1_048_576.0
+                    )));
+                }
+                (f, slots)
+            }
+        };
+        let limits = gpu.device.limits();
+        if grid.page_size > limits.max_texture_dimension_2d {
+            return Err(RenderError::Option(format!(
+                "page size {} exceeds the device's {} texels per side",
+                grid.page_size, limits.max_texture_dimension_2d
+            )));
+        }
+        let (tiles_x, tiles_y, layers) = atlas_shape(
+            slots,
+            grid.page_size,
+            limits.max_texture_dimension_2d.min(4096),
+        );
+        let layers = Gpu::padded_layers(layers);
+        gpu.check_layers(layers)?;
+        gpu.check_layers(Gpu::padded_layers(grid.cameras))?;
+        let coarse_res = grid.res.map(|n| n.div_ceil(coarse_factor));
+        let make = |label, size: [u32; 3], format| {
+            gpu.device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d {
+                    width: size[0],
+                    height: size[1],
+                    depth_or_array_layers: size[2],
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+                view_formats: &[],
+            })
+        };
+        let atlas = [tiles_x * grid.page_size, tiles_y * grid.page_size, layers];
+        let coarse = [
+            coarse_res[0],
+            coarse_res[1],
+            Gpu::padded_layers(grid.cameras),
+        ];
+        let slot_color = make("page cache colour", atlas, wgpu::TextureFormat::Rgba8Unorm);
+        let slot_depth = make("page cache depth", atlas, wgpu::TextureFormat::R32Float);
+        let coarse_color = make("coarse colour", coarse, wgpu::TextureFormat::Rgba8Unorm);
+        let coarse_depth = make("coarse depth", coarse, wgpu::TextureFormat::R32Float);
+        let bytes = u64::from(atlas[0]) * u64::from(atlas[1]) * u64::from(atlas[2]) * 8
+            + u64::from(coarse[0]) * u64::from(coarse[1]) * u64::from(coarse[2]) * 8;
+        let buffer = |label, size: u64, usage| {
+            gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        let copy = wgpu::BufferUsages::COPY_DST;
+        let paging = buffer(
+            "paging",
+            std::mem::size_of::<PagingUniform>() as u64,
+            wgpu::BufferUsages::UNIFORM | copy,
+        );
+        let table = buffer(
+            "page table",
+            u64::from(total) * 4,
+            wgpu::BufferUsages::STORAGE | copy,
+        );
+        let touched = buffer(
+            "pages touched",
+            u64::from(total) * 4,
+            wgpu::BufferUsages::STORAGE | copy | wgpu::BufferUsages::COPY_SRC,
+        );
+        let touched_staging = buffer(
+            "pages touched readback",
+            u64::from(total) * 4,
+            wgpu::BufferUsages::MAP_READ | copy,
+        );
+        gpu.queue
+            .write_buffer(&touched, 0, &vec![0u8; total as usize * 4]);
+        let views =
+            [&slot_color, &slot_depth, &coarse_color, &coarse_depth].map(crate::gpu::array_view);
+        let mut paged = PagedTwoPlane {
+            planes,
+            depth_range: [1.0, 1.0],
+            grid,
+            slots,
+            coarse_factor,
+            bytes,
+            full_bytes,
+            config,
+            asset,
+            gpu,
+            tiles_x,
+            per_layer: tiles_x * tiles_y,
+            slot_color,
+            slot_depth,
+            coarse_color,
+            coarse_depth,
+            views,
+            paging,
+            table,
+            touched,
+            touched_staging,
+            degraded: None,
+            residency: Residency::new(total, slots, config.prefetch),
+            frame: 0,
+            history: VecDeque::new(),
+        };
+        paged.build_coarse(config.budget_bytes.is_none())?;
+        Ok(paged)
+    }
+
+    /// One pass over every page: the coarse level, the depth range, and with `load_all` every
+    /// page uploaded to its slot.
+    fn build_coarse(&mut self, load_all: bool) -> Result<(), RenderError> {
+        let grid = self.grid;
+        let f = self.coarse_factor as usize;
+        let [cw, ch] = grid.res.map(|n| n.div_ceil(self.coarse_factor) as usize);
+        let mut range = [f32::INFINITY, f32::NEG_INFINITY];
+        let per_image = grid.per_image();
+        for camera in 0..grid.cameras {
+            let ids: Vec<u32> = (0..per_image).map(|p| camera * per_image + p).collect();
+            let pages = read_pages(&self.asset, &grid, &ids)
+                .into_iter()
+                .collect::<Result<Vec<_>, _>>()?;
+            let mut sum = vec![[0u32; 5]; cw * ch];
+            let mut near = vec![f32::INFINITY; cw * ch];
+            for page in &pages {
+                let (_, number) = grid.split(page.id);
+                let (x0, y0, w, h) = grid.rect(number);
+                for y in 0..h as usize {
+                    for x in 0..w as usize {
+                        let k = y * w as usize + x;
+                        let c = (y0 as usize + y) / f * cw + (x0 as usize + x) / f;
+                        let px = &page.color[4 * k..4 * k + 4];
+                        for i in 0..4 {
+                            sum[c][i] += u32::from(px[i]);
+                        }
+                        sum[c][4] += 1;
+                        let d = f32::from_le_bytes([
+                            page.depth[4 * k],
+                            page.depth[4 * k + 1],
+                            page.depth[4 * k + 2],
+                            page.depth[4 * k + 3],
+                        ]);
+                        if d.is_finite() {
+                            range = [range[0].min(d), range[1].max(d)];
+                            near[c] = near[c].min(d);
+                        } else if !(d.is_infinite() && d > 0.0) {
+                            return Err(RenderError::Asset(AssetError::Header(format!(
+                                "camera {camera} stores depth {d}: two-plane depth is finite or \
+                                 +inf"
+                            ))));
+                        }
+                    }
+                }
+            }
+            let color: Vec<u8> = sum
+                .iter()
+                .flat_map(|s| {
+                    let n = s[4].max(1);
+                    [0, 1, 2, 3].map(|i| ((s[i] + n / 2) / n) as u8)
+                })
+                .collect();
+            let depth: Vec<u8> = near.iter().flat_map(|d| d.to_le_bytes()).collect();
+            for (texture, data) in [(&self.coarse_color, &color), (&self.coarse_depth, &depth)] {
+                self.write(texture, [0, 0, camera], [cw as u32, ch as u32], data);
+            }
+            if load_all {
+                let loads: Vec<(u32, u32)> =
+                    self.residency.plan(0, &ids, &[], &HashMap::new(), u32::MAX);
+                self.upload(&loads, &pages);
+            }
+        }
+        if range[0] <= range[1] {
+            self.depth_range = range;
+        }
+        self.write_table();
+        self.gpu.wait()?;
+        Ok(())
+    }
+
+    fn write(&self, texture: &wgpu::Texture, origin: [u32; 3], size: [u32; 2], data: &[u8]) {
+        self.gpu.queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d {
+                    x: origin[0],
+                    y: origin[1],
+                    z: origin[2],
+                },
+                aspect: wgpu::TextureAspect::All,
+            },
+            data,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(size[0] * 4),
+                rows_per_image: Some(size[1]),
+            },
+            wgpu::Extent3d {
+                width: size[0],
+                height: size[1],
+                depth_or_array_layers: 1,
+            },
+        );
+    }
+
+    /// Copies loaded pages into their slots (`loads`: page → slot; `pages` holds them).
+    fn upload(&self, loads: &[(u32, u32)], pages: &[LoadedPage]) {
+        let by_id: HashMap<u32, &LoadedPage> = pages.iter().map(|p| (p.id, p)).collect();
+        for &(id, slot) in loads {
+            let Some(page) = by_id.get(&id) else {
+                continue;
+            };
+            let (_, number) = self.grid.split(id);
+            let (_, _, w, h) = self.grid.rect(number);
+            let tile = slot % self.per_layer;
+            let origin = [
+                (tile % self.tiles_x) * self.grid.page_size,
+                (tile / self.tiles_x) * self.grid.page_size,
+                slot / self.per_layer,
+            ];
+            self.write(&self.slot_color, origin, [w, h], &page.color);
+            self.write(&self.slot_depth, origin, [w, h], &page.depth);
+        }
+    }
+
+    fn write_table(&self) {
+        self.gpu
+            .queue
+            .write_buffer(&self.table, 0, bytemuck::cast_slice(self.residency.table()));
+    }
+
+    /// Pages resident now.
+    pub fn resident_pages(&self) -> u32 {
+        self.residency.resident_count()
+    }
+
+    /// The cache's configuration.
+    pub fn config(&self) -> &CacheConfig {
+        &self.config
+    }
+
+    /// Each page the predictive policy would prefetch after the frames so far, with its
+    /// probability: for each camera parameter that moved over the last two frames (and for all
+    /// of them together), the pages of that parameter dead-reckoned 1, 2, …,
+    /// [`PREDICT_FRAMES`] frames ahead with probability 1/k; a page's probability is the mean
+    /// over the parameters (equal weights).
+    fn predict(&self, options: &TwoPlaneOptions) -> (Vec<u32>, HashMap<u32, f32>) {
+        let mut probability: HashMap<u32, f32> = HashMap::new();
+        let (Some(now), Some(before)) = (self.history.back(), self.history.iter().rev().nth(1))
+        else {
+            return (Vec::new(), probability);
+        };
+        let weight = 1.0 / Param::ALL.len() as f32;
+        for param in Param::ALL {
+            let mut best: HashMap<u32, f32> = HashMap::new();
+            for k in 1..=PREDICT_FRAMES {
+                let Some(state) = param.extrapolate(now, before, f64::from(k)) else {
+                    break;
+                };
+                let mut o = *options;
+                o.focus = state.focus;
+                o.aperture = state.aperture;
+                let Ok(pages) = needed_pages(
+                    &self.planes,
+                    &self.grid,
+                    self.depth_range,
+                    &state.view(),
+                    &o,
+                    2 * NEEDS_STRIDE,
+                ) else {
+                    // An extrapolated view may be invalid (a field of view past its range):
+                    // nothing to prefetch for it.
+                    continue;
+                };
+                let p = 1.0 / k as f32;
+                for page in pages {
+                    let e = best.entry(page).or_insert(0.0);
+                    *e = e.max(p);
+                }
+            }
+            for (page, p) in best {
+                *probability.entry(page).or_insert(0.0) += weight * p;
+            }
+        }
+        let mut order: Vec<u32> = probability.keys().copied().collect();
+        order.sort_by(|a, b| probability[b].total_cmp(&probability[a]).then(a.cmp(b)));
+        (order, probability)
+    }
+
+    /// Renders `view` through the cache: plans and uploads the frame's pages (the needed ones,
+    /// then prefetches), renders, and reads back the shader's feedback.
+    ///
+    /// # Errors
+    /// As [`TwoPlaneRenderer::render`]; [`RenderError::Asset`] when a page cannot be read (the
+    /// cache is left consistent: the pages that failed are not resident).
+    pub fn render(
+        &mut self,
+        renderer: &TwoPlaneRenderer,
+        view: &View,
+        options: &TwoPlaneOptions,
+    ) -> Result<(Frame, PageFrameStats), RenderError> {
+        options.validate()?;
+        let start = std::time::Instant::now();
+        let needed = needed_pages(
+            &self.planes,
+            &self.grid,
+            self.depth_range,
+            view,
+            options,
+            NEEDS_STRIDE,
+        )?;
+        self.frame = self.frame.wrapping_add(1).max(1);
+        let frame = self.frame;
+        let at_start = self.residency.table().to_vec();
+        let (prefetch, probability) = match self.config.prefetch {
+            Prefetch::Predict => {
+                self.history.push_back(CameraState::of(view, options));
+                while self.history.len() > 2 {
+                    self.history.pop_front();
+                }
+                self.predict(options)
+            }
+            _ => (Vec::new(), HashMap::new()),
+        };
+        let loads = self.residency.plan(
+            frame,
+            &needed,
+            &prefetch,
+            &probability,
+            self.config.pages_per_frame,
+        );
+        let load_start = std::time::Instant::now();
+        let ids: Vec<u32> = loads.iter().map(|&(id, _)| id).collect();
+        let mut pages = Vec::with_capacity(ids.len());
+        let mut read_errors = Vec::new();
+        for ((id, slot), result) in loads.iter().zip(read_pages(&self.asset, &self.grid, &ids)) {
+            match result {
+                Ok(page) => pages.push(page),
+                Err(e) => {
+                    // The page stays missing (the frame reads the coarse level there) and its
+                    // slot is free; the page it evicted is gone.
+                    tracing::warn!(page = id, "page read failed: {e}");
+                    self.residency.forget(*id, *slot);
+                    read_errors.push(format!("page {id}: {e}"));
+                }
+            }
+        }
+        self.upload(&loads, &pages);
+        let load_ms = load_start.elapsed().as_secs_f64() * 1e3;
+        self.write_table();
+        let uniform = PagingUniform {
+            page_size: self.grid.page_size,
+            pages_x: self.grid.pages[0],
+            pages_per_image: self.grid.per_image(),
+            tiles_x: self.tiles_x,
+            per_layer: self.per_layer,
+            coarse_factor: self.coarse_factor,
+            stamp: frame,
+            pad: 0,
+            coarse_res: self.grid.res.map(|n| n.div_ceil(self.coarse_factor)),
+        };
+        self.gpu
+            .queue
+            .write_buffer(&self.paging, 0, bytemuck::bytes_of(&uniform));
+        let pixels = u64::from(view.width) * u64::from(view.height);
+        let mask_bytes = (1 + pixels.div_ceil(32)) * 4;
+        if self.degraded.as_ref().is_none_or(|d| d.0 != pixels) {
+            let make = |label, usage| {
+                self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some(label),
+                    size: mask_bytes,
+                    usage,
+                    mapped_at_creation: false,
+                })
+            };
+            let copy = wgpu::BufferUsages::COPY_DST;
+            self.degraded = Some((
+                pixels,
+                make(
+                    "degraded pixels",
+                    wgpu::BufferUsages::STORAGE | copy | wgpu::BufferUsages::COPY_SRC,
+                ),
+                make(
+                    "degraded pixels readback",
+                    wgpu::BufferUsages::MAP_READ | copy,
+                ),
+            ));
+        }
+        let Some((_, degraded, degraded_staging)) = &self.degraded else {
+            return Err(RenderError::Option("no degraded-pixel buffer".to_owned()));
+        };
+        self.gpu
+            .queue
+            .write_buffer(degraded, 0, &vec![0u8; mask_bytes as usize]);
+        let frame_out = renderer.dispatch(
+            &self.planes,
+            self.depth_range,
+            &Source::Paged(PagedBinding {
+                slot_color: &self.views[0],
+                slot_depth: &self.views[1],
+                coarse_color: &self.views[2],
+                coarse_depth: &self.views[3],
+                paging: &self.paging,
+                table: &self.table,
+                touched: &self.touched,
+                degraded,
+                touched_staging: &self.touched_staging,
+                degraded_staging,
+            }),
+            view,
+            options,
+        )?;
+        let word = |w: &[u8]| u32::from_le_bytes([w[0], w[1], w[2], w[3]]);
+        let (touched, (degraded, degraded_mask)) =
+            self.gpu
+                .map_read_many(&[&self.touched_staging, degraded_staging], |bytes| {
+                    let touched: Vec<u32> = bytes[0]
+                        .chunks_exact(4)
+                        .enumerate()
+                        .filter(|&(_, w)| word(w) == frame)
+                        .map(|(page, _)| page as u32)
+                        .collect();
+                    let words: Vec<u32> = bytes[1].chunks_exact(4).map(word).collect();
+                    let mask: Vec<bool> = (0..pixels as usize)
+                        .map(|i| words[1 + i / 32] >> (i % 32) & 1 == 1)
+                        .collect();
+                    (touched, (words[0], mask))
+                })?;
+        let faults = self.residency.touched(frame, &touched, &at_start);
+        let projected: std::collections::HashSet<u32> = needed.iter().copied().collect();
+        let stats = PageFrameStats {
+            faults,
+            degraded_px: u64::from(degraded),
+            pages_loaded: loads.len() as u32,
+            ms: start.elapsed().as_secs_f64() * 1e3,
+            pages_touched: touched.len() as u32,
+            pages_projected: needed.len() as u32,
+            projection_missed: touched.iter().filter(|p| !projected.contains(p)).count() as u32,
+            resident: self.residency.resident_count(),
+            load_ms,
+            read_errors,
+            degraded_mask,
+        };
+        Ok((frame_out, stats))
+    }
+}
+
+/// One frame of a camera trace (`render --trace`): a DESIGN §3 view plus optional `focus` and
+/// `aperture` (the options' when absent).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TraceFrame {
+    /// Eye position.
+    pub eye: [f64; 3],
+    /// Point looked at.
+    pub target: [f64; 3],
+    /// Up direction.
+    #[serde(default = "default_up")]
+    pub up: [f64; 3],
+    /// Vertical field of view, degrees.
+    pub yfov_deg: f64,
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Focal plane (world units above st).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub focus: Option<f64>,
+    /// Aperture radius, uv cells.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub aperture: Option<f64>,
+}
+
+fn default_up() -> [f64; 3] {
+    [0.0, 1.0, 0.0]
+}
+
+impl TraceFrame {
+    /// Its view.
+    pub fn view(&self) -> View {
+        View {
+            eye: self.eye,
+            target: self.target,
+            up: self.up,
+            yfov_deg: self.yfov_deg,
+            width: self.width,
+            height: self.height,
+        }
+    }
+
+    /// `base` with this frame's focus and aperture.
+    pub fn options(&self, base: &TwoPlaneOptions) -> TwoPlaneOptions {
+        let mut o = *base;
+        if let Some(f) = self.focus {
+            o.focus = f;
+        }
+        if let Some(a) = self.aperture {
+            o.aperture = a;
+        }
+        o
+    }
+}
+
+/// Parses a camera trace: a JSON list of [`TraceFrame`]s, every view and option checked.
+///
+/// # Errors
+/// [`RenderError::Option`] naming the frame and what is wrong (bad JSON, an empty list, a
+/// non-finite number, an invalid view or option).
+pub fn parse_trace(text: &str, base: &TwoPlaneOptions) -> Result<Vec<TraceFrame>, RenderError> {
+    let frames: Vec<TraceFrame> = serde_json::from_str(text)
+        .map_err(|e| RenderError::Option(format!("camera trace: {e}")))?;
+    if frames.is_empty() {
+        return Err(RenderError::Option("camera trace: no frames".to_owned()));
+    }
+    for (i, f) in frames.iter().enumerate() {
+        let bad = |m: String| RenderError::Option(format!("camera trace frame {i}: {m}"));
+        f.view()
+            .basis(DEFAULT_MAX_VIEW_PX)
+            .map_err(|e| bad(e.to_string()))?;
+        f.options(base).validate().map_err(|e| bad(e.to_string()))?;
+    }
+    Ok(frames)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn residency_evicts_by_policy_and_never_what_the_frame_needs() {
+        // Two slots, four pages.
+        let none = HashMap::new();
+        let mut lru = Residency::new(4, 2, Prefetch::Lru);
+        assert_eq!(lru.plan(1, &[0, 1], &[], &none, 8), vec![(0, 0), (1, 1)]);
+        lru.touched(1, &[0, 1], &[NOT_RESIDENT; 4]);
+        lru.touched(2, &[0], lru.table().to_vec().as_slice());
+        // Page 1 is the least recently used: page 2 takes its slot.
+        assert_eq!(lru.plan(3, &[2], &[], &none, 8), vec![(2, 1)]);
+        assert!(lru.resident(0) && lru.resident(2) && !lru.resident(1));
+        // FIFO evicts the page loaded first whatever was used since.
+        let mut fifo = Residency::new(4, 2, Prefetch::None);
+        fifo.plan(1, &[0], &[], &none, 8);
+        fifo.plan(2, &[1], &[], &none, 8);
+        fifo.touched(3, &[0], fifo.table().to_vec().as_slice());
+        assert_eq!(fifo.plan(4, &[2], &[], &none, 8), vec![(2, 0)]);
+        // A frame needing more pages than slots loads what fits, evicting none of its own.
+        let mut small = Residency::new(4, 2, Prefetch::Lru);
+        let loads = small.plan(1, &[0, 1, 2], &[], &none, 8);
+        assert_eq!(loads.len(), 2);
+        // The per-frame budget caps loads.
+        let mut capped = Residency::new(4, 4, Prefetch::Lru);
+        assert_eq!(capped.plan(1, &[0, 1, 2, 3], &[], &none, 3).len(), 3);
+    }
+
+    #[test]
+    fn predictive_policy_prefetches_only_over_less_probable_pages() {
+        let mut r = Residency::new(6, 2, Prefetch::Predict);
+        let p: HashMap<u32, f32> = [(2, 0.9), (3, 0.5), (4, 0.1)].into_iter().collect();
+        // Frame 1 needs page 0; prefetch fills the free slot with the likeliest page.
+        assert_eq!(r.plan(1, &[0], &[2, 3, 4], &p, 8), vec![(0, 0), (2, 1)]);
+        // Frame 2 needs nothing new: page 0 (probability 0) makes way for page 3, but page 2
+        // (0.9) is not evicted for page 4 (0.1).
+        let loads = r.plan(2, &[], &[3, 4], &p, 8);
+        assert_eq!(loads, vec![(3, 0)]);
+        assert!(r.resident(2) && r.resident(3) && !r.resident(4));
+    }
+
+    #[test]
+    fn faults_count_touched_pages_absent_at_the_frame_start() {
+        let mut r = Residency::new(4, 4, Prefetch::Lru);
+        let start = r.table().to_vec();
+        r.plan(1, &[0, 1], &[], &HashMap::new(), 8);
+        assert_eq!(r.touched(1, &[0, 1, 2], &start), 3);
+        let start = r.table().to_vec();
+        assert_eq!(r.touched(2, &[0, 1, 2], &start), 1);
+    }
+
+    #[test]
+    fn atlas_holds_every_slot_within_the_side_limit() {
+        for slots in [1, 2, 15, 16, 17, 255, 256, 257, 1000, 5000] {
+            let (tx, ty, layers) = atlas_shape(slots, 128, 2048);
+            assert!(tx * 128 <= 2048 && ty * 128 <= 2048, "{slots}");
+            assert!(tx * ty * layers >= slots, "{slots}");
+            assert_eq!(Gpu::padded_layers(layers), layers, "{slots}");
+            // Less than a row of tiles per layer is wasted.
+            assert!(tx * ty * layers - slots < tx * layers, "{slots}");
+        }
+    }
+
+    #[test]
+    fn traces_reject_nan_and_bad_views() {
+        let base = TwoPlaneOptions::default();
+        let good = r#"[{"eye":[0,0,3],"target":[0,0,0],"yfov_deg":40,"width":64,"height":64,"focus":0.5}]"#;
+        let frames = parse_trace(good, &base).expect("a good trace parses");
+        assert_eq!(frames[0].options(&base).focus, 0.5);
+        for bad in [
+            "[]",
+            "{}",
+            r#"[{"eye":[0,0,3],"target":[0,0,0],"yfov_deg":40,"width":64,"height":64,"zoom":1}]"#,
+            r#"[{"eye":[0,0,3],"target":[0,0,3],"yfov_deg":40,"width":64,"height":64}]"#,
+            r#"[{"eye":[0,0,3],"target":[0,0,0],"yfov_deg":400,"width":64,"height":64}]"#,
+            r#"[{"eye":[0,0,3],"target":[0,0,0],"yfov_deg":40,"width":64,"height":64,"aperture":-1}]"#,
+            r#"[{"eye":[0,0,1e400],"target":[0,0,0],"yfov_deg":40,"width":64,"height":64}]"#,
+        ] {
+            assert!(
+                matches!(parse_trace(bad, &base), Err(RenderError::Option(_))),
+                "{bad}"
+            );
+        }
+    }
+}

@@ -1,0 +1,128 @@
+
+// Cameras paged through a cache (appended to shaders/shared/two_plane.wgsl; docs/two_plane.md
+// "Paged rendering"). Each camera image is cut into pages of P × P texels (the asset's pages); a
+// resident page sits in a slot of the cache atlas (tiles of P × P in texture-array layers, row by
+// row), and
+// the index table maps page → slot. A texel of a page that is not resident reads the always
+// resident coarse level instead (each camera downsampled F×: mean colour, nearest depth of each
+// F × F block), and the pixel counts as degraded. Every page a pixel reads (resident or not)
+// gets this frame's stamp in `touched`: the pages the frame needed.
+//
+// Each texel is looked up in its own page, so the bilinear 2×2 footprint and the 2×2 depth
+// footprint read across page borders correctly without gutters; the common case (all four
+// texels in one page) looks the page up once. A texel's value is the same whichever slot holds
+// its page, so a frame equals the fully resident one bit for bit wherever nothing is missing.
+
+struct Paging {
+    // Page side P.
+    page_size: u32,
+    // Pages per image row, and per image.
+    pages_x: u32,
+    pages_per_image: u32,
+    // Atlas: tiles per layer row, and per layer.
+    tiles_x: u32,
+    per_layer: u32,
+    // Coarse level: factor F and its size.
+    coarse_factor: u32,
+    stamp: u32,
+    pad: u32,
+    coarse_res: vec2<u32>,
+}
+
+
+const NOT_RESIDENT: u32 = 0xffffffffu;
+
+@group(0) @binding(1) var slot_colors: texture_2d_array<f32>;
+@group(0) @binding(2) var slot_depths: texture_2d_array<f32>;
+@group(0) @binding(5) var<uniform> paging: Paging;
+@group(0) @binding(6) var<storage, read> page_table: array<u32>;
+@group(0) @binding(7) var coarse_colors: texture_2d_array<f32>;
+@group(0) @binding(8) var coarse_depths: texture_2d_array<f32>;
+// Per page: the stamp of the last frame that read it.
+@group(0) @binding(9) var<storage, read_write> touched: array<u32>;
+// [0]: degraded pixels; then one bit per pixel (row-major), set where the pixel is degraded.
+@group(0) @binding(10) var<storage, read_write> degraded_px: array<atomic<u32>>;
+
+var<private> degraded: bool = false;
+
+// Where a page lives: its slot's atlas layer and the texel of its corner; `ok` false when the
+// page is not resident.
+struct Slot {
+    ok: bool,
+    layer: i32,
+    origin: vec2<i32>,
+}
+
+// The slot of camera `layer`'s page holding texel `t` (recorded as touched).
+fn resolve(layer: u32, t: vec2<u32>) -> Slot {
+    let pc = t / paging.page_size;
+    let page = layer * paging.pages_per_image + pc.y * paging.pages_x + pc.x;
+    touched[page] = paging.stamp;
+    let slot = page_table[page];
+    var s: Slot;
+    s.ok = slot != NOT_RESIDENT;
+    let k = select(0u, slot, s.ok);
+    s.layer = i32(k / paging.per_layer);
+    let tile = k % paging.per_layer;
+    s.origin = vec2<i32>(vec2<u32>(tile % paging.tiles_x, tile / paging.tiles_x) * paging.page_size);
+    return s;
+}
+
+fn color_in(s: Slot, layer: u32, t: vec2<u32>) -> vec4<f32> {
+    if s.ok {
+        return textureLoad(slot_colors, s.origin + vec2<i32>(t % paging.page_size), s.layer, 0);
+    }
+    degraded = true;
+    let c = min(t / paging.coarse_factor, paging.coarse_res - vec2<u32>(1u));
+    return textureLoad(coarse_colors, vec2<i32>(c), layer, 0);
+}
+
+// Bilinear colour of camera `layer` at continuous texel `ji` (clamped to the image, as the
+// resident sampler's clamp to edge does): premultiplied (a miss is (0, 0, 0, 0)).
+fn color_at(layer: u32, ji: vec2<f32>) -> vec4<f32> {
+    let hi = vec2<f32>(params.res) - vec2<f32>(1.0);
+    let x = clamp(ji, vec2<f32>(0.0), hi);
+    let t0 = vec2<u32>(floor(x));
+    let t1 = min(t0 + vec2<u32>(1u), params.res - vec2<u32>(1u));
+    let f = x - floor(x);
+    let s00 = resolve(layer, t0);
+    var s10 = s00;
+    var s01 = s00;
+    var s11 = s00;
+    if any(t0 / paging.page_size != t1 / paging.page_size) {
+        s10 = resolve(layer, vec2<u32>(t1.x, t0.y));
+        s01 = resolve(layer, vec2<u32>(t0.x, t1.y));
+        s11 = resolve(layer, t1);
+    }
+    let c00 = color_in(s00, layer, t0);
+    let c10 = color_in(s10, layer, vec2<u32>(t1.x, t0.y));
+    let c01 = color_in(s01, layer, vec2<u32>(t0.x, t1.y));
+    let c11 = color_in(s11, layer, t1);
+    return mix(mix(c00, c10, f.x), mix(c01, c11, f.x), f.y);
+}
+
+// Stored depth of texel `p` (inside the image).
+fn depth_texel(layer: u32, p: vec2<i32>) -> f32 {
+    let t = vec2<u32>(p);
+    let s = resolve(layer, t);
+    if s.ok {
+        return textureLoad(slot_depths, s.origin + vec2<i32>(t % paging.page_size), s.layer, 0).r;
+    }
+    degraded = true;
+    let c = min(t / paging.coarse_factor, paging.coarse_res - vec2<u32>(1u));
+    return textureLoad(coarse_depths, vec2<i32>(c), layer, 0).r;
+}
+
+// Stored depth of the texel nearest `ji` (clamped to the image).
+fn depth_at(layer: u32, ji: vec2<f32>) -> f32 {
+    let hi = vec2<f32>(params.res) - vec2<f32>(1.0);
+    return depth_texel(layer, vec2<i32>(round(clamp(ji, vec2<f32>(0.0), hi))));
+}
+
+fn pixel_done(gid: vec3<u32>) {
+    if degraded {
+        let idx = gid.y * params.size.x + gid.x;
+        atomicAdd(&degraded_px[0], 1u);
+        atomicOr(&degraded_px[1u + idx / 32u], 1u << (idx % 32u));
+    }
+}
