@@ -14,21 +14,17 @@
 // its page, so a frame equals the fully resident one bit for bit wherever nothing is missing.
 
 struct Paging {
-    // Page side P.
-    page_size: u32,
+    // Page side P = 1 << page_shift (a power of two, DESIGN §5).
+    page_shift: u32,
     // Pages per image row, and per image.
     pages_x: u32,
     pages_per_image: u32,
-    // Atlas: tiles per layer row, and per layer.
-    tiles_x: u32,
-    per_layer: u32,
-    // Coarse level: factor F and its size.
-    coarse_factor: u32,
+    // Coarse level: factor F = 1 << coarse_shift and its size.
+    coarse_shift: u32,
+    coarse_res: vec2<u32>,
     stamp: u32,
     pad: u32,
-    coarse_res: vec2<u32>,
 }
-
 
 const NOT_RESIDENT: u32 = 0xffffffffu;
 
@@ -46,7 +42,9 @@ const NOT_RESIDENT: u32 = 0xffffffffu;
 var<private> degraded: bool = false;
 
 // Where a page lives: its slot's atlas layer and the texel of its corner; `ok` false when the
-// page is not resident.
+// page is not resident. The index table holds the slot's place packed (tile column in bits 0–7,
+// row in 8–15, layer in 16–31): shifts and masks only, no integer division per fetch (the CPU
+// driver runs divisions lane by lane).
 struct Slot {
     ok: bool,
     layer: i32,
@@ -55,26 +53,33 @@ struct Slot {
 
 // The slot of camera `layer`'s page holding texel `t` (recorded as touched).
 fn resolve(layer: u32, t: vec2<u32>) -> Slot {
-    let pc = t / paging.page_size;
+    let pc = t >> vec2<u32>(paging.page_shift);
     let page = layer * paging.pages_per_image + pc.y * paging.pages_x + pc.x;
     touched[page] = paging.stamp;
     let slot = page_table[page];
     var s: Slot;
     s.ok = slot != NOT_RESIDENT;
-    let k = select(0u, slot, s.ok);
-    s.layer = i32(k / paging.per_layer);
-    let tile = k % paging.per_layer;
-    s.origin = vec2<i32>(vec2<u32>(tile % paging.tiles_x, tile / paging.tiles_x) * paging.page_size);
+    s.layer = i32(slot >> 16u);
+    s.origin = vec2<i32>(vec2<u32>(slot & 0xffu, (slot >> 8u) & 0xffu) << vec2<u32>(paging.page_shift));
     return s;
+}
+
+// Texel `t`'s offset inside its page.
+fn in_page(t: vec2<u32>) -> vec2<i32> {
+    return vec2<i32>(t & vec2<u32>((1u << paging.page_shift) - 1u));
+}
+
+// The coarse texel holding texel `t`.
+fn coarse_texel(t: vec2<u32>) -> vec2<i32> {
+    return vec2<i32>(min(t >> vec2<u32>(paging.coarse_shift), paging.coarse_res - vec2<u32>(1u)));
 }
 
 fn color_in(s: Slot, layer: u32, t: vec2<u32>) -> vec4<f32> {
     if s.ok {
-        return textureLoad(slot_colors, s.origin + vec2<i32>(t % paging.page_size), s.layer, 0);
+        return textureLoad(slot_colors, s.origin + in_page(t), s.layer, 0);
     }
     degraded = true;
-    let c = min(t / paging.coarse_factor, paging.coarse_res - vec2<u32>(1u));
-    return textureLoad(coarse_colors, vec2<i32>(c), layer, 0);
+    return textureLoad(coarse_colors, coarse_texel(t), layer, 0);
 }
 
 // Bilinear colour of camera `layer` at continuous texel `ji` (clamped to the image, as the
@@ -89,7 +94,7 @@ fn color_at(layer: u32, ji: vec2<f32>) -> vec4<f32> {
     var s10 = s00;
     var s01 = s00;
     var s11 = s00;
-    if any(t0 / paging.page_size != t1 / paging.page_size) {
+    if any((t0 >> vec2<u32>(paging.page_shift)) != (t1 >> vec2<u32>(paging.page_shift))) {
         s10 = resolve(layer, vec2<u32>(t1.x, t0.y));
         s01 = resolve(layer, vec2<u32>(t0.x, t1.y));
         s11 = resolve(layer, t1);
@@ -106,11 +111,10 @@ fn depth_texel(layer: u32, p: vec2<i32>) -> f32 {
     let t = vec2<u32>(p);
     let s = resolve(layer, t);
     if s.ok {
-        return textureLoad(slot_depths, s.origin + vec2<i32>(t % paging.page_size), s.layer, 0).r;
+        return textureLoad(slot_depths, s.origin + in_page(t), s.layer, 0).r;
     }
     degraded = true;
-    let c = min(t / paging.coarse_factor, paging.coarse_res - vec2<u32>(1u));
-    return textureLoad(coarse_depths, vec2<i32>(c), layer, 0).r;
+    return textureLoad(coarse_depths, coarse_texel(t), layer, 0).r;
 }
 
 // Stored depth of the texel nearest `ji` (clamped to the image).

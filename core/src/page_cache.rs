@@ -685,7 +685,8 @@ impl Residency {
 /// Shape of the slot atlas: tiles per layer row, rows per layer, layers. At least two layers,
 /// and never a multiple of six, so that [`Gpu::padded_layers`] adds none.
 fn atlas_shape(slots: u32, page_size: u32, max_side: u32) -> (u32, u32, u32) {
-    let max_tiles = (max_side / page_size).max(1);
+    // The index table packs a tile's column and row in 8 bits each.
+    let max_tiles = (max_side / page_size).clamp(1, 256);
     let per_layer_max = max_tiles * max_tiles;
     let mut layers = slots.div_ceil(per_layer_max).max(2);
     if layers.is_multiple_of(6) {
@@ -700,15 +701,13 @@ fn atlas_shape(slots: u32, page_size: u32, max_side: u32) -> (u32, u32, u32) {
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct PagingUniform {
-    page_size: u32,
+    page_shift: u32,
     pages_x: u32,
     pages_per_image: u32,
-    tiles_x: u32,
-    per_layer: u32,
-    coarse_factor: u32,
+    coarse_shift: u32,
+    coarse_res: [u32; 2],
     stamp: u32,
     pad: u32,
-    coarse_res: [u32; 2],
 }
 
 /// A page read from the file: its id and colour and depth texels.
@@ -1084,21 +1083,41 @@ impl PagedTwoPlane {
             };
             let (_, number) = self.grid.split(id);
             let (_, _, w, h) = self.grid.rect(number);
-            let tile = slot % self.per_layer;
-            let origin = [
-                (tile % self.tiles_x) * self.grid.page_size,
-                (tile / self.tiles_x) * self.grid.page_size,
-                slot / self.per_layer,
-            ];
+            let (x, y, layer) = self.place(slot);
+            let origin = [x * self.grid.page_size, y * self.grid.page_size, layer];
             self.write(&self.slot_color, origin, [w, h], &page.color);
             self.write(&self.slot_depth, origin, [w, h], &page.depth);
         }
     }
 
+    /// The tile and layer of `slot` in the atlas.
+    fn place(&self, slot: u32) -> (u32, u32, u32) {
+        let tile = slot % self.per_layer;
+        (
+            tile % self.tiles_x,
+            tile / self.tiles_x,
+            slot / self.per_layer,
+        )
+    }
+
+    /// Uploads the index table: per page its slot's place packed as the shader reads it (tile
+    /// column in bits 0–7, row in 8–15, layer in 16–31), or `u32::MAX`.
     fn write_table(&self) {
+        let packed: Vec<u32> = self
+            .residency
+            .table()
+            .iter()
+            .map(|&slot| {
+                if slot == NOT_RESIDENT {
+                    return NOT_RESIDENT;
+                }
+                let (x, y, layer) = self.place(slot);
+                x | (y << 8) | (layer << 16)
+            })
+            .collect();
         self.gpu
             .queue
-            .write_buffer(&self.table, 0, bytemuck::cast_slice(self.residency.table()));
+            .write_buffer(&self.table, 0, bytemuck::cast_slice(&packed));
     }
 
     /// Pages resident now.
@@ -1221,15 +1240,13 @@ impl PagedTwoPlane {
         let load_ms = load_start.elapsed().as_secs_f64() * 1e3;
         self.write_table();
         let uniform = PagingUniform {
-            page_size: self.grid.page_size,
+            page_shift: self.grid.page_size.trailing_zeros(),
             pages_x: self.grid.pages[0],
             pages_per_image: self.grid.per_image(),
-            tiles_x: self.tiles_x,
-            per_layer: self.per_layer,
-            coarse_factor: self.coarse_factor,
+            coarse_shift: self.coarse_factor.trailing_zeros(),
+            coarse_res: self.grid.res.map(|n| n.div_ceil(self.coarse_factor)),
             stamp: frame,
             pad: 0,
-            coarse_res: self.grid.res.map(|n| n.div_ceil(self.coarse_factor)),
         };
         self.gpu
             .queue

@@ -3011,3 +3011,105 @@ fn block_compressed_bakes_render_and_bad_codecs_fail() {
         "whole 4x4 blocks",
     );
 }
+
+/// Paged rendering end to end: a camera trace replayed through a small cache with every
+/// policy writes numbered frames and a report whose faults and loads add up; without
+/// --cache-mib every page is resident; bad traces, budgets and combinations fail cleanly.
+#[test]
+fn paged_trace_replay_reports_and_errors() {
+    let asset = path("paged.lfa");
+    let o = lumigraph(&[
+        "bake",
+        "--demo",
+        "-o",
+        s(&asset),
+        "--two-plane",
+        "auto",
+        "--axis",
+        "0,0,1",
+        "--grid",
+        "4x4",
+        "--st-res",
+        "64x64",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let frames: Vec<String> = (0..5)
+        .map(|k| {
+            format!(
+                r#"{{"eye": [{}, 0.3, 14], "target": [0, 0, 0], "yfov_deg": 30, "width": 40, "height": 40, "focus": 0.5}}"#,
+                -2.0 + f64::from(k)
+            )
+        })
+        .collect();
+    let trace = write(
+        "paged-trace.json",
+        format!("[{}]", frames.join(",")).as_bytes(),
+    );
+    for policy in ["none", "lru", "predict", ""] {
+        let dir = path(&format!("paged-frames-{policy}"));
+        let report = path(&format!("paged-report-{policy}.json"));
+        let mut args = vec![
+            "render",
+            s(&asset),
+            "--trace",
+            s(&trace),
+            "-o",
+            s(&dir),
+            "--report",
+            s(&report),
+        ];
+        if !policy.is_empty() {
+            args.extend(["--cache-mib", "1", "--prefetch", policy]);
+        }
+        let o = lumigraph(&args);
+        assert!(
+            o.status.success(),
+            "{policy}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        assert!(dir.join("004.png").is_file(), "{policy}");
+        let r: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&report).expect("report")).expect("json");
+        let frames = r["frames"].as_array().expect("frames");
+        assert_eq!(frames.len(), 5);
+        let faults: u64 = frames
+            .iter()
+            .map(|f| f["faults"].as_u64().expect("faults"))
+            .sum();
+        assert_eq!(r["summary"]["faults"].as_u64(), Some(faults), "{policy}");
+        if policy.is_empty() {
+            assert_eq!(faults, 0, "every page resident");
+            assert_eq!(r["summary"]["pages_loaded"].as_u64(), Some(0));
+        } else {
+            assert!(faults > 0, "{policy}: a cold cache faults");
+            assert_eq!(r["cache"]["prefetch"].as_str(), Some(policy));
+        }
+    }
+    let nan = write(
+        "paged-nan.json",
+        br#"[{"eye": [0, 0, 14], "target": [0, 0, 0], "yfov_deg": 30, "width": 40, "height": 40, "focus": NaN}]"#,
+    );
+    let out = path("paged-bad");
+    for (args, expect) in [
+        (vec!["--trace", s(&nan)], "bad trace"),
+        (
+            vec!["--trace", s(&trace), "--cache-mib", "0.0001"],
+            "holds no",
+        ),
+        (
+            vec!["--trace", s(&trace), "--cache-mib", "-1"],
+            "--cache-mib",
+        ),
+        (vec!["--trace", s(&trace), "--stereo", "0.1"], "--stereo"),
+    ] {
+        let mut all = vec!["render", s(&asset), "-o", s(&out)];
+        all.extend(args);
+        let o = lumigraph(&all);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains(expect),
+            "{all:?}: {err}"
+        );
+        assert!(!err.contains("panicked"), "{err}");
+    }
+}

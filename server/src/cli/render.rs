@@ -53,7 +53,7 @@ pub struct CacheArgs {
     /// Replay a camera trace: a JSON list of frames, each a view (DESIGN §3) plus optional
     /// `focus` and `aperture`; OUT becomes a folder of 000.png, 001.png, … Without
     /// --cache-mib every page is resident (the reference frames).
-    #[arg(long, value_name = "TRACE.json", conflicts_with_all = ["view", "views"])]
+    #[arg(long, value_name = "TRACE.json", group = "ViewArgs")]
     pub trace: Option<PathBuf>,
     /// Render through a paged cache of M MiB of device memory (slots and the coarse level).
     #[arg(long, value_name = "M", allow_hyphen_values = true)]
