@@ -28,7 +28,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::asset::{AssetError, AssetFile, Channel, ImageKey};
 use crate::frame::Frame;
-use crate::gpu::Gpu;
+use crate::gpu::{Gpu, empty_texture_array};
 use crate::render::RenderError;
 use crate::two_plane::TwoPlanes;
 use crate::two_plane_render::{
@@ -886,32 +886,32 @@ impl PagedTwoPlane {
         gpu.check_layers(layers)?;
         gpu.check_layers(Gpu::padded_layers(grid.cameras))?;
         let coarse_res = grid.res.map(|n| n.div_ceil(coarse_factor));
-        let make = |label, size: [u32; 3], format| {
-            gpu.device.create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size: wgpu::Extent3d {
-                    width: size[0],
-                    height: size[1],
-                    depth_or_array_layers: size[2],
-                },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-                view_formats: &[],
-            })
-        };
         let atlas = [tiles_x * grid.page_size, tiles_y * grid.page_size, layers];
         let coarse = [
             coarse_res[0],
             coarse_res[1],
             Gpu::padded_layers(grid.cameras),
         ];
-        let slot_color = make("page cache colour", atlas, wgpu::TextureFormat::Rgba8Unorm);
-        let slot_depth = make("page cache depth", atlas, wgpu::TextureFormat::R32Float);
-        let coarse_color = make("coarse colour", coarse, wgpu::TextureFormat::Rgba8Unorm);
-        let coarse_depth = make("coarse depth", coarse, wgpu::TextureFormat::R32Float);
+        let slot_color = empty_texture_array(
+            &gpu,
+            "page cache colour",
+            wgpu::TextureFormat::Rgba8Unorm,
+            atlas,
+        );
+        let slot_depth = empty_texture_array(
+            &gpu,
+            "page cache depth",
+            wgpu::TextureFormat::R32Float,
+            atlas,
+        );
+        let coarse_color = empty_texture_array(
+            &gpu,
+            "coarse colour",
+            wgpu::TextureFormat::Rgba8Unorm,
+            coarse,
+        );
+        let coarse_depth =
+            empty_texture_array(&gpu, "coarse depth", wgpu::TextureFormat::R32Float, coarse);
         let bytes = u64::from(atlas[0]) * u64::from(atlas[1]) * u64::from(atlas[2]) * 8
             + u64::from(coarse[0]) * u64::from(coarse[1]) * u64::from(coarse[2]) * 8;
         let buffer = |label, size: u64, usage| {
@@ -1238,7 +1238,10 @@ impl PagedTwoPlane {
         }
         self.upload(&loads, &pages);
         let load_ms = load_start.elapsed().as_secs_f64() * 1e3;
-        self.write_table();
+        // The table changes only with loads (and the failed ones among them).
+        if !loads.is_empty() {
+            self.write_table();
+        }
         let uniform = PagingUniform {
             page_shift: self.grid.page_size.trailing_zeros(),
             pages_x: self.grid.pages[0],
@@ -1316,7 +1319,6 @@ impl PagedTwoPlane {
                     (touched, (words[0], mask))
                 })?;
         let faults = self.residency.touched(frame, &touched, &at_start);
-        let projected: std::collections::HashSet<u32> = needed.iter().copied().collect();
         let stats = PageFrameStats {
             faults,
             degraded_px: u64::from(degraded),
@@ -1324,7 +1326,11 @@ impl PagedTwoPlane {
             ms: start.elapsed().as_secs_f64() * 1e3,
             pages_touched: touched.len() as u32,
             pages_projected: needed.len() as u32,
-            projection_missed: touched.iter().filter(|p| !projected.contains(p)).count() as u32,
+            // `needed` is sorted.
+            projection_missed: touched
+                .iter()
+                .filter(|p| needed.binary_search(p).is_err())
+                .count() as u32,
             resident: self.residency.resident_count(),
             load_ms,
             read_errors,
@@ -1334,49 +1340,19 @@ impl PagedTwoPlane {
     }
 }
 
-/// One frame of a camera trace (`render --trace`): a DESIGN §3 view plus optional `focus` and
-/// `aperture` (the options' when absent).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// One frame of a camera trace (`render --trace`): a DESIGN §3 view (its keys at the top level
+/// of the frame) plus optional `focus` and `aperture` (the options' when absent).
+#[derive(Clone, Debug, PartialEq)]
 pub struct TraceFrame {
-    /// Eye position.
-    pub eye: [f64; 3],
-    /// Point looked at.
-    pub target: [f64; 3],
-    /// Up direction.
-    #[serde(default = "default_up")]
-    pub up: [f64; 3],
-    /// Vertical field of view, degrees.
-    pub yfov_deg: f64,
-    /// Width in pixels.
-    pub width: u32,
-    /// Height in pixels.
-    pub height: u32,
+    /// The view.
+    pub view: View,
     /// Focal plane (world units above st).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub focus: Option<f64>,
     /// Aperture radius, uv cells.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub aperture: Option<f64>,
 }
 
-fn default_up() -> [f64; 3] {
-    [0.0, 1.0, 0.0]
-}
-
 impl TraceFrame {
-    /// Its view.
-    pub fn view(&self) -> View {
-        View {
-            eye: self.eye,
-            target: self.target,
-            up: self.up,
-            yfov_deg: self.yfov_deg,
-            width: self.width,
-            height: self.height,
-        }
-    }
-
     /// `base` with this frame's focus and aperture.
     pub fn options(&self, base: &TwoPlaneOptions) -> TwoPlaneOptions {
         let mut o = *base;
@@ -1390,25 +1366,57 @@ impl TraceFrame {
     }
 }
 
-/// Parses a camera trace: a JSON list of [`TraceFrame`]s, every view and option checked.
+/// Removes `key` from a trace frame's object: its number, `None` when absent or null.
+fn take_number(
+    frame: &mut serde_json::Map<String, serde_json::Value>,
+    key: &str,
+) -> Result<Option<f64>, String> {
+    match frame.remove(key) {
+        None | Some(serde_json::Value::Null) => Ok(None),
+        Some(v) => v
+            .as_f64()
+            .map(Some)
+            .ok_or_else(|| format!("{key} {v} is not a number")),
+    }
+}
+
+/// Parses a camera trace: a JSON list of [`TraceFrame`]s, each frame's view read as
+/// [`View`] reads it (no unknown keys), every view and option checked.
 ///
 /// # Errors
 /// [`RenderError::Option`] naming the frame and what is wrong (bad JSON, an empty list, a
 /// non-finite number, an invalid view or option).
 pub fn parse_trace(text: &str, base: &TwoPlaneOptions) -> Result<Vec<TraceFrame>, RenderError> {
-    let frames: Vec<TraceFrame> = serde_json::from_str(text)
+    let frames: Vec<serde_json::Map<String, serde_json::Value>> = serde_json::from_str(text)
         .map_err(|e| RenderError::Option(format!("camera trace: {e}")))?;
     if frames.is_empty() {
         return Err(RenderError::Option("camera trace: no frames".to_owned()));
     }
-    for (i, f) in frames.iter().enumerate() {
-        let bad = |m: String| RenderError::Option(format!("camera trace frame {i}: {m}"));
-        f.view()
-            .basis(DEFAULT_MAX_VIEW_PX)
-            .map_err(|e| bad(e.to_string()))?;
-        f.options(base).validate().map_err(|e| bad(e.to_string()))?;
-    }
-    Ok(frames)
+    frames
+        .into_iter()
+        .enumerate()
+        .map(|(i, mut object)| {
+            let bad = |m: String| RenderError::Option(format!("camera trace frame {i}: {m}"));
+            let focus = take_number(&mut object, "focus").map_err(bad)?;
+            let aperture = take_number(&mut object, "aperture").map_err(bad)?;
+            let view: View = serde_json::from_value(serde_json::Value::Object(object))
+                .map_err(|e| bad(e.to_string()))?;
+            let frame = TraceFrame {
+                view,
+                focus,
+                aperture,
+            };
+            frame
+                .view
+                .basis(DEFAULT_MAX_VIEW_PX)
+                .map_err(|e| bad(e.to_string()))?;
+            frame
+                .options(base)
+                .validate()
+                .map_err(|e| bad(e.to_string()))?;
+            Ok(frame)
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -1490,6 +1498,7 @@ mod tests {
             r#"[{"eye":[0,0,3],"target":[0,0,0],"yfov_deg":400,"width":64,"height":64}]"#,
             r#"[{"eye":[0,0,3],"target":[0,0,0],"yfov_deg":40,"width":64,"height":64,"aperture":-1}]"#,
             r#"[{"eye":[0,0,1e400],"target":[0,0,0],"yfov_deg":40,"width":64,"height":64}]"#,
+            r#"[{"eye":[0,0,3],"target":[0,0,0],"yfov_deg":40,"width":64,"height":64,"focus":"near"}]"#,
         ] {
             assert!(
                 matches!(parse_trace(bad, &base), Err(RenderError::Option(_))),

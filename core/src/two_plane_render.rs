@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::asset::{AssetError, AssetFile, Channel, ImageKey};
 use crate::frame::{Frame, FrameStats};
-use crate::gpu::Gpu;
+use crate::gpu::{Gpu, buffer_entry, empty_texture_array, texture_entry};
 use crate::render::RenderError;
 use crate::two_plane::TwoPlanes;
 use crate::view::{DEFAULT_MAX_VIEW_PX, View};
@@ -310,32 +310,6 @@ fn buffer_binding(binding: u32, buffer: &wgpu::Buffer) -> wgpu::BindGroupEntry<'
     }
 }
 
-fn texture_entry(binding: u32, filterable: bool) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Texture {
-            sample_type: wgpu::TextureSampleType::Float { filterable },
-            view_dimension: wgpu::TextureViewDimension::D2Array,
-            multisampled: false,
-        },
-        count: None,
-    }
-}
-
-fn buffer_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty,
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    }
-}
-
 /// The pipeline of a mode (the uv filter's, or the aperture's) from `module`, compiled once into
 /// `slots`.
 fn mode_pipeline<'p>(
@@ -415,21 +389,18 @@ impl TwoPlaneRenderer {
             label: Some("two_plane.wgsl"),
             source: wgpu::ShaderSource::Wgsl(crate::shaders::TWO_PLANE.into()),
         });
-        let compute = wgpu::ShaderStages::COMPUTE;
-        let texture = texture_entry;
-        let buffer = buffer_entry;
         let storage = wgpu::BufferBindingType::Storage { read_only: false };
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("two-plane"),
             entries: &[
-                buffer(0, wgpu::BufferBindingType::Uniform),
-                texture(1, true),
-                texture(2, false),
-                buffer(3, storage),
-                buffer(4, storage),
+                buffer_entry(0, wgpu::BufferBindingType::Uniform),
+                texture_entry(1, true),
+                texture_entry(2, false),
+                buffer_entry(3, storage),
+                buffer_entry(4, storage),
                 wgpu::BindGroupLayoutEntry {
                     binding: 5,
-                    visibility: compute,
+                    visibility: wgpu::ShaderStages::COMPUTE,
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
                     count: None,
                 },
@@ -526,22 +497,7 @@ impl TwoPlaneRenderer {
                 "st resolution {ns}x{nt} exceeds the device's {limit} texels per side"
             )));
         }
-        let make = |label, format: wgpu::TextureFormat| {
-            self.gpu.device.create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size: wgpu::Extent3d {
-                    width: ns,
-                    height: nt,
-                    depth_or_array_layers: layers,
-                },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-                view_formats: &[],
-            })
-        };
+        let make = |label, format| empty_texture_array(&self.gpu, label, format, [ns, nt, layers]);
         // Block-compressed colour stays compressed where the device samples it cheaply
         // ([`Gpu::keeps_compressed`]).
         let blocks = asset

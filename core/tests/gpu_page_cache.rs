@@ -6,29 +6,20 @@
 use std::sync::Arc;
 
 use lumigraph_core::asset::{AssetFile, AssetHeader, Channel, ImageKey, Provenance, encode_asset};
-use lumigraph_core::gpu::Gpu;
 use lumigraph_core::page_cache::{CacheConfig, PageSummary, PagedTwoPlane, Prefetch, needed_pages};
 use lumigraph_core::render::RenderError;
 use lumigraph_core::two_plane::TwoPlanes;
 use lumigraph_core::two_plane_render::{TwoPlaneOptions, TwoPlaneRenderer, UvFilter};
 use lumigraph_core::view::View;
 
-fn gpu() -> Arc<Gpu> {
-    Gpu::shared().expect("a GPU adapter (install mesa-vulkan-drivers)")
-}
+mod common;
 
-/// 5×4 cameras of 64×48 texels in pages of 16: 12 pages per camera, 240 in all.
-fn planes() -> TwoPlanes {
-    TwoPlanes::from_json(
-        r#"{"right": [1, 0, 0], "up": [0, 1, 0],
-            "uv": {"center": [0, 0, 2], "size": [1, 0.8], "grid": [5, 4]},
-            "st": {"center": [0, 0, 0], "size": [2, 1.5], "resolution": [64, 48]}}"#,
-    )
-    .expect("valid planes")
-}
+use common::{gpu, small_planes as planes, square_view as view};
 
-/// Smooth colours that differ per camera, a few empty texels, and a checkerboard of two
-/// depths (surfaces at two heights: the depth-corrected filter marches between them).
+/// A light field on [`common::small_planes`] (5×4 cameras of 64×48 texels) in pages of 16: 12
+/// pages per camera, 240 in all. Smooth colours that differ per camera, a few empty texels, and
+/// a checkerboard of two depths (surfaces at two heights: the depth-corrected filter marches
+/// between them).
 fn asset_bytes(planes: &TwoPlanes) -> Vec<u8> {
     let header =
         AssetHeader::new_two_plane(*planes, 16, Provenance::default()).expect("a valid header");
@@ -70,17 +61,6 @@ fn asset_bytes(planes: &TwoPlanes) -> Vec<u8> {
 
 fn asset(planes: &TwoPlanes) -> Arc<AssetFile> {
     Arc::new(AssetFile::from_bytes(asset_bytes(planes)).expect("read back"))
-}
-
-fn view(eye: [f64; 3], target: [f64; 3], yfov_deg: f64, size: u32) -> View {
-    View {
-        eye,
-        target,
-        up: [0.0, 1.0, 0.0],
-        yfov_deg,
-        width: size,
-        height: size,
-    }
 }
 
 /// Every mode: the four uv filters and a refocused aperture.

@@ -3,13 +3,10 @@
 //! region, refocus sharpness on planes at known depths, and the depth-corrected filter against
 //! the reference rasterizer on a captured mesh.
 
-use std::sync::Arc;
-
 use glam::DVec3;
 use lumigraph_core::asset::{
     AssetFile, AssetHeader, BlockCodec, Channel, ImageKey, Provenance, encode_asset,
 };
-use lumigraph_core::gpu::Gpu;
 use lumigraph_core::metrics;
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::shading::Shading;
@@ -17,22 +14,10 @@ use lumigraph_core::two_plane::{self, TwoPlanes};
 use lumigraph_core::two_plane_render::{
     TwoPlaneOptions, TwoPlaneRenderer, UvFilter, evaluation_views, restrict, valid_region,
 };
-use lumigraph_core::view::View;
 
-fn gpu() -> Arc<Gpu> {
-    Gpu::shared().expect("a GPU adapter (install mesa-vulkan-drivers)")
-}
+mod common;
 
-/// Planes facing +z: uv at z = 2 (5 × 4 cameras over 1 × 0.8), st at z = 0 (64 × 48 texels
-/// over 2 × 1.5).
-fn planes() -> TwoPlanes {
-    TwoPlanes::from_json(
-        r#"{"right": [1, 0, 0], "up": [0, 1, 0],
-            "uv": {"center": [0, 0, 2], "size": [1, 0.8], "grid": [5, 4]},
-            "st": {"center": [0, 0, 0], "size": [2, 1.5], "resolution": [64, 48]}}"#,
-    )
-    .expect("valid planes")
-}
+use common::{gpu, small_planes as planes, square_view as view};
 
 /// A two-plane asset whose camera (a, b) texel (i, j) has colour `color(a, b, i, j)` and stored
 /// depth `depth(a, b, i, j)`.
@@ -135,17 +120,6 @@ fn expected(
         }
     }
     Some((color.map(|c| c / total), best.1))
-}
-
-fn view(eye: [f64; 3], target: [f64; 3], yfov_deg: f64, size: u32) -> View {
-    View {
-        eye,
-        target,
-        up: [0.0, 1.0, 0.0],
-        yfov_deg,
-        width: size,
-        height: size,
-    }
 }
 
 /// Nearest and bilinear uv filters, refocus and the aperture, pixel by pixel against the CPU

@@ -703,19 +703,45 @@ pub(crate) fn storage_buffer(
         })
 }
 
-/// Uploads `layers` equally sized images into a new 2D texture array (padded per
-/// [`Gpu::padded_layers`]).
-pub(crate) fn texture_array(
+/// A compute bind-group layout entry for a buffer of type `ty`.
+pub(crate) fn buffer_entry(
+    binding: u32,
+    ty: wgpu::BufferBindingType,
+) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+/// A compute bind-group layout entry for a float 2D texture array.
+pub(crate) fn texture_entry(binding: u32, filterable: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable },
+            view_dimension: wgpu::TextureViewDimension::D2Array,
+            multisampled: false,
+        },
+        count: None,
+    }
+}
+
+/// A new, empty 2D texture (array) of `layers` layers that shaders sample and copies fill.
+pub(crate) fn empty_texture_array(
     gpu: &Gpu,
     label: &str,
     format: wgpu::TextureFormat,
-    width: u32,
-    height: u32,
-    images: &[&[u8]],
+    [width, height, layers]: [u32; 3],
 ) -> wgpu::Texture {
-    let bytes_per_texel = format.block_copy_size(None).unwrap_or(4);
-    let layers = Gpu::padded_layers(u32::try_from(images.len()).unwrap_or(u32::MAX));
-    let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
+    gpu.device.create_texture(&wgpu::TextureDescriptor {
         label: Some(label),
         size: wgpu::Extent3d {
             width,
@@ -728,7 +754,22 @@ pub(crate) fn texture_array(
         format,
         usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
         view_formats: &[],
-    });
+    })
+}
+
+/// Uploads `layers` equally sized images into a new 2D texture array (padded per
+/// [`Gpu::padded_layers`]).
+pub(crate) fn texture_array(
+    gpu: &Gpu,
+    label: &str,
+    format: wgpu::TextureFormat,
+    width: u32,
+    height: u32,
+    images: &[&[u8]],
+) -> wgpu::Texture {
+    let bytes_per_texel = format.block_copy_size(None).unwrap_or(4);
+    let layers = Gpu::padded_layers(u32::try_from(images.len()).unwrap_or(u32::MAX));
+    let texture = empty_texture_array(gpu, label, format, [width, height, layers]);
     for (layer, image) in images.iter().enumerate() {
         gpu.queue.write_texture(
             wgpu::TexelCopyTextureInfo {

@@ -9,9 +9,9 @@
 
 use crate::asset::LayerOrder;
 
-use super::buffer_entry;
 use super::passes::compute_pipeline;
 use super::targets::Targets;
+use crate::gpu::buffer_entry;
 
 /// The most visible layers one GPU composite takes (the shader's `MAX_LAYERS`, its loops'
 /// bound: a pixel's fragments are taken in depth order by one scan of the stack per fragment,

@@ -35,7 +35,7 @@ use glam::DVec3;
 
 use crate::frame::{Frame, FrameStats};
 use crate::geometry;
-use crate::gpu::{Gpu, GpuError};
+use crate::gpu::{Gpu, GpuError, buffer_entry, texture_entry};
 use crate::view::{DEFAULT_MAX_VIEW_PX, View, ViewError};
 
 use composite::{CompositeParams, CompositePipeline, MAX_GPU_LAYERS};
@@ -257,32 +257,6 @@ pub struct Renderer {
     max_px: u32,
     /// Light fields uploaded by this renderer and still alive.
     resident: Arc<ResidentCounter>,
-}
-
-fn buffer_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty,
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    }
-}
-
-fn texture_entry(binding: u32, filterable: bool) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Texture {
-            sample_type: wgpu::TextureSampleType::Float { filterable },
-            view_dimension: wgpu::TextureViewDimension::D2Array,
-            multisampled: false,
-        },
-        count: None,
-    }
 }
 
 impl Renderer {

@@ -138,3 +138,36 @@ pub fn shadow_scene() -> (Mesh, (DVec3, DVec3)) {
     let corner = |c: [f32; 3]| DVec3::from(c.map(f64::from));
     (mesh, (corner(lo), corner(hi)))
 }
+
+/// The shared headless device (lavapipe where there is no GPU).
+pub fn gpu() -> std::sync::Arc<lumigraph_core::gpu::Gpu> {
+    lumigraph_core::gpu::Gpu::shared().expect("a GPU adapter (install mesa-vulkan-drivers)")
+}
+
+/// Two-plane light-field planes facing +z: uv at z = 2 (5 × 4 cameras over 1 × 0.8), st at
+/// z = 0 (64 × 48 texels over 2 × 1.5).
+pub fn small_planes() -> lumigraph_core::two_plane::TwoPlanes {
+    lumigraph_core::two_plane::TwoPlanes::from_json(
+        r#"{"right": [1, 0, 0], "up": [0, 1, 0],
+            "uv": {"center": [0, 0, 2], "size": [1, 0.8], "grid": [5, 4]},
+            "st": {"center": [0, 0, 0], "size": [2, 1.5], "resolution": [64, 48]}}"#,
+    )
+    .expect("valid planes")
+}
+
+/// A square view of `size` pixels, up +y.
+pub fn square_view(
+    eye: [f64; 3],
+    target: [f64; 3],
+    yfov_deg: f64,
+    size: u32,
+) -> lumigraph_core::view::View {
+    lumigraph_core::view::View {
+        eye,
+        target,
+        up: [0.0, 1.0, 0.0],
+        yfov_deg,
+        width: size,
+        height: size,
+    }
+}

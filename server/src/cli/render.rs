@@ -122,13 +122,8 @@ fn render_paged(args: &RenderArgs, asset: AssetFile) -> Result<()> {
         let (views, many) = read_views(&args.views)?;
         let frames = views
             .into_iter()
-            .map(|v| TraceFrame {
-                eye: v.eye,
-                target: v.target,
-                up: v.up,
-                yfov_deg: v.yfov_deg,
-                width: v.width,
-                height: v.height,
+            .map(|view| TraceFrame {
+                view,
                 focus: None,
                 aperture: None,
             })
@@ -165,7 +160,7 @@ fn render_paged(args: &RenderArgs, asset: AssetFile) -> Result<()> {
     );
     let mut stats = Vec::with_capacity(frames.len());
     for (i, f) in frames.iter().enumerate() {
-        let (frame, s) = field.render(&renderer, &f.view(), &f.options(&base))?;
+        let (frame, s) = field.render(&renderer, &f.view, &f.options(&base))?;
         if let Some(e) = s.read_errors.first() {
             bail!("frame {i}: {e}");
         }
