@@ -139,6 +139,68 @@ def test_bad_two_plane_options_and_planes_raise(two_plane_lf: lg.LightField, dem
         lg.bake_two_plane(lg.Mesh.demo(), planes=3, progress=False)  # type: ignore[arg-type]
 
 
+def test_paged_cache_renders_what_a_resident_one_does_and_reports_its_pages(
+    two_plane_lf: lg.LightField, tmp_path: Path
+) -> None:
+    """`LightField.open(cache_mib=...)` renders through a paged cache: with 2 pages per frame the
+    first frames read the coarse level where pages are missing (degraded), later ones load the
+    rest, and the last frame equals the frame of a cache that holds every page, bit for bit."""
+    path = tmp_path / "tp.lfa"
+    two_plane_lf.save(path)
+    # A narrow view touches 20 of the 36 pages (one per camera); the cache holds 22.
+    view = {**_view(two_plane_lf), "yfov_deg": 15}
+    small = lg.LightField.open(path, cache_mib=3.0, prefetch="predict", pages_per_frame=2)
+    stats = small.page_stats
+    assert stats is not None and stats["last"] is None and stats["summary"]["frames"] == 0
+    frames = []
+    for _ in range(16):
+        frames.append(small.render(view, background=(0, 0, 0)))
+        stats = small.page_stats
+        assert stats is not None
+        if stats["last"]["degraded_px"] == 0:
+            break
+    assert stats is not None
+    first_degraded = len(frames) > 1
+    assert first_degraded, "two pages per frame leave the first frame degraded"
+    last = stats["last"]
+    cache = stats["cache"]
+    assert last["degraded_px"] == 0 and last["pages_loaded"] <= 2
+    assert last["pages_touched"] <= cache["slots"] < cache["pages"] == 36
+    assert cache["device_bytes"] < cache["resident_bytes"]
+    summary = stats["summary"]
+    assert summary["frames"] == len(frames)
+    assert summary["faults"] >= summary["pages_loaded"] > 0
+    # Pages are the 96x96 images (one per camera): RGBA8 colour and f32 depth.
+    assert summary["bytes_uploaded"] == summary["pages_loaded"] * 96 * 96 * 8
+    big = lg.LightField.open(path, cache_mib=64)
+    reference = big.render(view, background=(0, 0, 0))
+    assert big.page_stats is not None and big.page_stats["last"]["degraded_px"] == 0
+    assert np.array_equal(frames[-1].color, reference.color)
+    assert np.array_equal(frames[-1].depth, reference.depth)
+    assert not np.array_equal(frames[0].color, reference.color), "the coarse level shows"
+    # The resident renderer samples with 8-bit bilinear weights (lavapipe), the paged one in f32.
+    resident = two_plane_lf.render(view, background=(0, 0, 0)).color.astype(int)
+    close = np.abs(resident - reference.color.astype(int)).max(axis=2) <= 2
+    assert close.mean() > 0.99
+    assert two_plane_lf.page_stats is None
+
+
+def test_paged_cache_arguments_are_checked(tmp_path: Path, demo_lf: lg.LightField) -> None:
+    spherical = tmp_path / "demo.lfa"
+    demo_lf.save(spherical)
+    with pytest.raises(ValueError, match="two-plane"):
+        lg.LightField.open(spherical, cache_mib=4)
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="cache_mib"):
+            lg.LightField.open(spherical, cache_mib=bad)
+    with pytest.raises(ValueError, match="choose none, lru or predict"):
+        lg.LightField.open(spherical, cache_mib=4, prefetch="psychic")
+    with pytest.raises(ValueError, match="pages_per_frame"):
+        lg.LightField.open(spherical, cache_mib=4, pages_per_frame=0)
+    with pytest.raises(ValueError, match="give cache_mib"):
+        lg.LightField.open(spherical, prefetch="lru")
+
+
 def _write_grid(folder: Path, grid: tuple[int, int], size: tuple[int, int]) -> np.ndarray:
     """Camera images ROW_COL.png with known pixels; returns them as [row, col, y, x, rgba]."""
     from PIL import Image

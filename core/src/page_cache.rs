@@ -137,7 +137,7 @@ impl CacheConfig {
 /// How the camera images are cut into pages.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PageGrid {
-    /// Page side P.
+    /// Page side P: the asset's, or the image's own power-of-two size when one page holds it.
     pub page_size: u32,
     /// Pages per image row and column.
     pub pages: [u32; 2],
@@ -151,6 +151,9 @@ impl PageGrid {
     /// The grid of `planes` cut into pages of `page_size`.
     pub fn new(planes: &TwoPlanes, page_size: u32) -> PageGrid {
         let res = planes.st.resolution;
+        // An image within one page is one page of its own (power-of-two) size: a slot that size
+        // holds it, and the shader's page arithmetic finds page 0 either way.
+        let page_size = page_size.min(res[0].max(res[1]).next_power_of_two());
         PageGrid {
             page_size,
             pages: res.map(|n| n.div_ceil(page_size)),
@@ -191,6 +194,9 @@ pub struct PageFrameStats {
     pub degraded_px: u64,
     /// Pages loaded for this frame (needed ones first, then prefetched ones).
     pub pages_loaded: u32,
+    /// Bytes those pages uploaded to the device (colour and depth).
+    #[serde(default)]
+    pub bytes_uploaded: u64,
     /// Wall time of the frame: planning, page reads and uploads, render and feedback.
     pub ms: f64,
     /// Pages the frame touched (the shader's feedback).
@@ -211,6 +217,31 @@ pub struct PageFrameStats {
     pub degraded_mask: Vec<bool>,
 }
 
+impl PageFrameStats {
+    /// Adds the stats of another draw of the same frame (an accumulated aperture): counts and
+    /// times add up, a pixel is degraded where any draw degraded it.
+    pub fn merge(&mut self, other: PageFrameStats) {
+        self.faults += other.faults;
+        self.pages_loaded += other.pages_loaded;
+        self.bytes_uploaded += other.bytes_uploaded;
+        self.ms += other.ms;
+        self.load_ms += other.load_ms;
+        self.pages_touched = self.pages_touched.max(other.pages_touched);
+        self.pages_projected = self.pages_projected.max(other.pages_projected);
+        self.projection_missed += other.projection_missed;
+        self.resident = other.resident;
+        self.read_errors.extend(other.read_errors);
+        if self.degraded_mask.len() == other.degraded_mask.len() {
+            for (a, b) in self.degraded_mask.iter_mut().zip(other.degraded_mask) {
+                *a |= b;
+            }
+            self.degraded_px = self.degraded_mask.iter().filter(|&&d| d).count() as u64;
+        } else {
+            self.degraded_px = self.degraded_px.max(other.degraded_px);
+        }
+    }
+}
+
 /// Totals of a run of frames.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PageSummary {
@@ -222,6 +253,9 @@ pub struct PageSummary {
     pub degraded_px: u64,
     /// Sum of pages loaded.
     pub pages_loaded: u64,
+    /// Sum of bytes uploaded.
+    #[serde(default)]
+    pub bytes_uploaded: u64,
     /// Mean and largest frame time, ms.
     pub mean_ms: f64,
     /// Largest frame time, ms.
@@ -231,6 +265,19 @@ pub struct PageSummary {
 }
 
 impl PageSummary {
+    /// Adds one frame to the totals.
+    pub fn add(&mut self, frame: &PageFrameStats) {
+        let n = f64::from(self.frames);
+        self.mean_ms = (self.mean_ms * n + frame.ms) / (n + 1.0);
+        self.frames += 1;
+        self.faults += u64::from(frame.faults);
+        self.degraded_px += frame.degraded_px;
+        self.pages_loaded += u64::from(frame.pages_loaded);
+        self.bytes_uploaded += frame.bytes_uploaded;
+        self.max_ms = self.max_ms.max(frame.ms);
+        self.projection_missed += u64::from(frame.projection_missed);
+    }
+
     /// The totals of `frames`.
     pub fn of(frames: &[PageFrameStats]) -> PageSummary {
         let n = frames.len().max(1) as f64;
@@ -239,6 +286,7 @@ impl PageSummary {
             faults: frames.iter().map(|f| u64::from(f.faults)).sum(),
             degraded_px: frames.iter().map(|f| f.degraded_px).sum(),
             pages_loaded: frames.iter().map(|f| u64::from(f.pages_loaded)).sum(),
+            bytes_uploaded: frames.iter().map(|f| f.bytes_uploaded).sum(),
             mean_ms: frames.iter().map(|f| f.ms).sum::<f64>() / n,
             max_ms: frames.iter().map(|f| f.ms).fold(0.0, f64::max),
             projection_missed: frames.iter().map(|f| u64::from(f.projection_missed)).sum(),
@@ -682,6 +730,114 @@ impl Residency {
     }
 }
 
+/// The shape of a cache: what [`PagedTwoPlane::open`] allocates for an asset and a budget.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CacheLayout {
+    /// The asset's pages.
+    pub grid: PageGrid,
+    /// The coarse level's downsampling factor F.
+    pub coarse_factor: u32,
+    /// Page slots.
+    pub slots: u32,
+    /// Tiles per atlas row and column.
+    pub tiles_x: u32,
+    /// Tile rows per atlas layer.
+    pub tiles_y: u32,
+    /// Atlas texels per side and layers.
+    pub atlas: [u32; 3],
+    /// Coarse level texels per side and layers.
+    pub coarse: [u32; 3],
+    /// Device bytes of the atlases and the coarse level.
+    pub bytes: u64,
+    /// Device bytes every page would take resident.
+    pub full_bytes: u64,
+}
+
+impl CacheLayout {
+    /// The layout of a cache of `config` for a light field of `planes` cut into `page_size`
+    /// pages, on `gpu` (its texture limits): the coarse level takes the finest power-of-two
+    /// factor (at least 2) within an eighth of the budget, the slots the rest.
+    ///
+    /// # Errors
+    /// [`RenderError::Option`] for a budget that holds no page or a page larger than the
+    /// device's textures; [`RenderError::Gpu`] for too many layers.
+    pub fn of(
+        planes: &TwoPlanes,
+        page_size: u32,
+        config: &CacheConfig,
+        gpu: &Gpu,
+    ) -> Result<CacheLayout, RenderError> {
+        let grid = PageGrid::new(planes, page_size);
+        let p = u64::from(grid.page_size);
+        let slot_bytes = p * p * SLOT_TEXEL_BYTES;
+        let total = grid.total();
+        let full_bytes = u64::from(total) * slot_bytes;
+        let coarse_bytes = |f: u32| {
+            u64::from(grid.cameras)
+                * u64::from(grid.res[0].div_ceil(f))
+                * u64::from(grid.res[1].div_ceil(f))
+                * SLOT_TEXEL_BYTES
+        };
+        let (coarse_factor, slots) = match config.budget_bytes {
+            None => (grid.page_size.min(16), total),
+            Some(budget) => {
+                let mut f = 2;
+                while coarse_bytes(f) > budget / 8 && f < grid.res[0].max(grid.res[1]) {
+                    f *= 2;
+                }
+                let left = budget.saturating_sub(coarse_bytes(f));
+                let slots = (left / slot_bytes).min(u64::from(total)) as u32;
+                if slots == 0 {
+                    return Err(RenderError::Option(format!(
+                        "a cache of {:.2} MiB holds no {}x{} page besides the coarse level \
+                         ({:.2} MiB): give at least {:.2} MiB",
+                        budget as f64 / 1_048_576.0,
+                        grid.page_size,
+                        grid.page_size,
+                        coarse_bytes(f) as f64 / 1_048_576.0,
+                        (coarse_bytes(f) + slot_bytes) as f64 / 1_048_576.0
+                    )));
+                }
+                (f, slots)
+            }
+        };
+        let limits = gpu.device.limits();
+        if grid.page_size > limits.max_texture_dimension_2d {
+            return Err(RenderError::Option(format!(
+                "page size {} exceeds the device's {} texels per side",
+                grid.page_size, limits.max_texture_dimension_2d
+            )));
+        }
+        let (tiles_x, tiles_y, layers) = atlas_shape(
+            slots,
+            grid.page_size,
+            limits.max_texture_dimension_2d.min(4096),
+        );
+        let layers = Gpu::padded_layers(layers);
+        gpu.check_layers(layers)?;
+        gpu.check_layers(Gpu::padded_layers(grid.cameras))?;
+        let coarse_res = grid.res.map(|n| n.div_ceil(coarse_factor));
+        let atlas = [tiles_x * grid.page_size, tiles_y * grid.page_size, layers];
+        let coarse = [
+            coarse_res[0],
+            coarse_res[1],
+            Gpu::padded_layers(grid.cameras),
+        ];
+        let texels = |d: [u32; 3]| d.iter().map(|&n| u64::from(n)).product::<u64>();
+        Ok(CacheLayout {
+            grid,
+            coarse_factor,
+            slots,
+            tiles_x,
+            tiles_y,
+            atlas,
+            coarse,
+            bytes: (texels(atlas) + texels(coarse)) * SLOT_TEXEL_BYTES,
+            full_bytes,
+        })
+    }
+}
+
 /// Shape of the slot atlas: tiles per layer row, rows per layer, layers. At least two layers,
 /// and never a multiple of six, so that [`Gpu::padded_layers`] adds none.
 fn atlas_shape(slots: u32, page_size: u32, max_side: u32) -> (u32, u32, u32) {
@@ -834,64 +990,19 @@ impl PagedTwoPlane {
             what: "the paged two-plane renderer",
             kind: header.kind,
         })?;
-        let grid = PageGrid::new(&planes, header.page_size);
-        let p = u64::from(grid.page_size);
-        let slot_bytes = p * p * SLOT_TEXEL_BYTES;
-        let total = grid.total();
-        let full_bytes = u64::from(total) * slot_bytes;
-        let coarse_bytes = |f: u32| {
-            u64::from(grid.cameras)
-                * u64::from(grid.res[0].div_ceil(f))
-                * u64::from(grid.res[1].div_ceil(f))
-                * SLOT_TEXEL_BYTES
-        };
-        // The coarse level: the finest power-of-two factor (at least 2) within an eighth of
-        // the budget.
-        let (coarse_factor, slots) = match config.budget_bytes {
-            None => (grid.page_size.min(16), total),
-            Some(budget) => {
-                let mut f = 2;
-                while coarse_bytes(f) > budget / 8 && f < grid.res[0].max(grid.res[1]) {
-                    f *= 2;
-                }
-                let left = budget.saturating_sub(coarse_bytes(f));
-                let slots = (left / slot_bytes).min(u64::from(total)) as u32;
-                if slots == 0 {
-                    return Err(RenderError::Option(format!(
-                        "a cache of {:.2} MiB holds no {}x{} page besides the coarse level \
-                         ({:.2} MiB): give at least {:.2} MiB",
-                        budget as f64 / 1_048_576.0,
-                        grid.page_size,
-                        grid.page_size,
-                        coarse_bytes(f) as f64 / 1_048_576.0,
-                        (coarse_bytes(f) + slot_bytes) as f64 / 1_048_576.0
-                    )));
-                }
-                (f, slots)
-            }
-        };
-        let limits = gpu.device.limits();
-        if grid.page_size > limits.max_texture_dimension_2d {
-            return Err(RenderError::Option(format!(
-                "page size {} exceeds the device's {} texels per side",
-                grid.page_size, limits.max_texture_dimension_2d
-            )));
-        }
-        let (tiles_x, tiles_y, layers) = atlas_shape(
+        let layout = CacheLayout::of(&planes, header.page_size, &config, &gpu)?;
+        let CacheLayout {
+            grid,
+            coarse_factor,
             slots,
-            grid.page_size,
-            limits.max_texture_dimension_2d.min(4096),
-        );
-        let layers = Gpu::padded_layers(layers);
-        gpu.check_layers(layers)?;
-        gpu.check_layers(Gpu::padded_layers(grid.cameras))?;
-        let coarse_res = grid.res.map(|n| n.div_ceil(coarse_factor));
-        let atlas = [tiles_x * grid.page_size, tiles_y * grid.page_size, layers];
-        let coarse = [
-            coarse_res[0],
-            coarse_res[1],
-            Gpu::padded_layers(grid.cameras),
-        ];
+            tiles_x,
+            atlas,
+            coarse,
+            bytes,
+            full_bytes,
+            ..
+        } = layout;
+        let total = grid.total();
         let slot_color = empty_texture_array(
             &gpu,
             "page cache colour",
@@ -912,8 +1023,6 @@ impl PagedTwoPlane {
         );
         let coarse_depth =
             empty_texture_array(&gpu, "coarse depth", wgpu::TextureFormat::R32Float, coarse);
-        let bytes = u64::from(atlas[0]) * u64::from(atlas[1]) * u64::from(atlas[2]) * 8
-            + u64::from(coarse[0]) * u64::from(coarse[1]) * u64::from(coarse[2]) * 8;
         let buffer = |label, size: u64, usage| {
             gpu.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
@@ -959,7 +1068,7 @@ impl PagedTwoPlane {
             asset,
             gpu,
             tiles_x,
-            per_layer: tiles_x * tiles_y,
+            per_layer: tiles_x * layout.tiles_y,
             slot_color,
             slot_depth,
             coarse_color,
@@ -1237,6 +1346,10 @@ impl PagedTwoPlane {
             }
         }
         self.upload(&loads, &pages);
+        let bytes_uploaded: u64 = pages
+            .iter()
+            .map(|p| (p.color.len() + p.depth.len()) as u64)
+            .sum();
         let load_ms = load_start.elapsed().as_secs_f64() * 1e3;
         // The table changes only with loads (and the failed ones among them).
         if !loads.is_empty() {
@@ -1323,6 +1436,7 @@ impl PagedTwoPlane {
             faults,
             degraded_px: u64::from(degraded),
             pages_loaded: loads.len() as u32,
+            bytes_uploaded,
             ms: start.elapsed().as_secs_f64() * 1e3,
             pages_touched: touched.len() as u32,
             pages_projected: needed.len() as u32,
@@ -1337,6 +1451,31 @@ impl PagedTwoPlane {
             degraded_mask,
         };
         Ok((frame_out, stats))
+    }
+
+    /// [`Self::render`] averaged over `draws` stratified aperture draws, as
+    /// [`crate::two_plane_render::accumulate_draws`] averages them; the stats of every draw
+    /// merged ([`PageFrameStats::merge`]).
+    ///
+    /// # Errors
+    /// As [`Self::render`]; [`RenderError::Option`] for `draws` outside 1..=`MAX_DRAWS`.
+    pub fn render_accumulated(
+        &mut self,
+        renderer: &TwoPlaneRenderer,
+        view: &View,
+        options: &TwoPlaneOptions,
+        draws: u32,
+    ) -> Result<(Frame, PageFrameStats), RenderError> {
+        let mut stats: Option<PageFrameStats> = None;
+        let frame = crate::two_plane_render::accumulate_draws(options, draws, |o| {
+            let (frame, s) = self.render(renderer, view, o)?;
+            match &mut stats {
+                Some(total) => total.merge(s),
+                None => stats = Some(s),
+            }
+            Ok(frame)
+        })?;
+        Ok((frame, stats.unwrap_or_default()))
     }
 }
 

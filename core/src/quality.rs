@@ -873,17 +873,50 @@ impl Plan {
         field: &GpuTwoPlane,
         view: &View,
     ) -> Result<Rendered, QualityError> {
+        let (options, draws) = self.two_plane_job()?;
+        let frame = renderer.render_accumulated(field, view, options, draws)?;
+        Ok(Rendered {
+            frame,
+            decision: Self::two_plane_decision(field.planes.camera_count(), options, draws),
+        })
+    }
+
+    /// [`Self::render_two_plane`] through a paged cache: the frame and its paging stats (the
+    /// draws' merged).
+    ///
+    /// # Errors
+    /// As [`Self::render_two_plane`].
+    pub fn render_two_plane_paged(
+        &self,
+        renderer: &TwoPlaneRenderer,
+        field: &mut crate::page_cache::PagedTwoPlane,
+        view: &View,
+    ) -> Result<(Rendered, crate::page_cache::PageFrameStats), QualityError> {
+        let (options, draws) = self.two_plane_job()?;
+        let (frame, stats) = field.render_accumulated(renderer, view, options, draws)?;
+        let rendered = Rendered {
+            frame,
+            decision: Self::two_plane_decision(field.planes.camera_count(), options, draws),
+        };
+        Ok((rendered, stats))
+    }
+
+    /// A two-plane plan's options and aperture draws.
+    fn two_plane_job(&self) -> Result<(&TwoPlaneOptions, u32), QualityError> {
         let options = self.two_plane().ok_or_else(|| {
             QualityError::Kind(
                 "this plan is for a spherical light field, not a two-plane one".to_owned(),
             )
         })?;
-        let draws = self.quality.refine.unwrap_or(1);
-        let frame = renderer.render_accumulated(field, view, options, draws)?;
-        let decision = Decision {
+        Ok((options, self.quality.refine.unwrap_or(1)))
+    }
+
+    /// What a two-plane render of `cameras` cameras decided.
+    fn two_plane_decision(cameras: u32, options: &TwoPlaneOptions, draws: u32) -> Decision {
+        Decision {
             settings: ResolvedOptions {
                 level: 0,
-                cameras: field.planes.camera_count(),
+                cameras,
                 step: 0.0,
                 tolerance: 0.0,
                 method: Method::Default,
@@ -897,8 +930,7 @@ impl Plan {
                 aperture: options.aperture,
                 draws,
             }),
-        };
-        Ok(Rendered { frame, decision })
+        }
     }
 
     /// The opacity of every layer of the asset the plan was made for, in its order.

@@ -824,54 +824,69 @@ impl TwoPlaneRenderer {
         options: &TwoPlaneOptions,
         draws: u32,
     ) -> Result<Frame, RenderError> {
-        if !(1..=MAX_DRAWS).contains(&draws) {
-            return Err(RenderError::Option(format!(
-                "{draws} aperture draws: give 1..={MAX_DRAWS}"
-            )));
-        }
-        let mut options = *options;
-        let mut frame = self.render(field, view, &options)?;
-        if draws == 1 {
-            return Ok(frame);
-        }
-        let pixels = frame.pixel_count();
-        let mut rgb = vec![0u32; 3 * pixels];
-        let mut hits = vec![0u32; pixels];
-        let mut depth = vec![f32::INFINITY; pixels];
-        let mut ms = 0.0;
-        let mut add = |next: &Frame| {
-            for p in 0..pixels {
-                if next.depth[p].is_finite() {
-                    hits[p] += 1;
-                    depth[p] = depth[p].min(next.depth[p]);
-                    for k in 0..3 {
-                        rgb[3 * p + k] += u32::from(next.color[4 * p + k]);
-                    }
-                }
-            }
-            ms += next.stats.render_ms;
-        };
-        add(&frame);
-        let first = options.frame_index;
-        for index in 1..draws {
-            options.frame_index = first.wrapping_add(index);
-            add(&self.render(field, view, &options)?);
-        }
-        for p in 0..pixels {
-            if 2 * hits[p] >= draws {
-                for k in 0..3 {
-                    frame.color[4 * p + k] = ((rgb[3 * p + k] + hits[p] / 2) / hits[p]) as u8;
-                }
-                frame.color[4 * p + 3] = 255;
-                frame.depth[p] = depth[p];
-            } else {
-                frame.color[4 * p..4 * p + 4].copy_from_slice(&options.background);
-                frame.depth[p] = f32::INFINITY;
-            }
-        }
-        frame.stats.render_ms = ms;
-        Ok(frame)
+        accumulate_draws(options, draws, |o| self.render(field, view, o))
     }
+}
+
+/// `render` (one frame of the options it is given) averaged over `draws` stratified aperture
+/// draws, frame indices `options.frame_index` onwards: a pixel is covered where at least half
+/// the draws cover it, with the mean colour of the draws that do and the nearest depth they
+/// saw; `render_ms` is the sum. The one accumulation of the resident and the paged renderers.
+///
+/// # Errors
+/// `render`'s; [`RenderError::Option`] for `draws` outside 1..=[`MAX_DRAWS`].
+pub fn accumulate_draws(
+    options: &TwoPlaneOptions,
+    draws: u32,
+    mut render: impl FnMut(&TwoPlaneOptions) -> Result<Frame, RenderError>,
+) -> Result<Frame, RenderError> {
+    if !(1..=MAX_DRAWS).contains(&draws) {
+        return Err(RenderError::Option(format!(
+            "{draws} aperture draws: give 1..={MAX_DRAWS}"
+        )));
+    }
+    let mut options = *options;
+    let mut frame = render(&options)?;
+    if draws == 1 {
+        return Ok(frame);
+    }
+    let pixels = frame.pixel_count();
+    let mut rgb = vec![0u32; 3 * pixels];
+    let mut hits = vec![0u32; pixels];
+    let mut depth = vec![f32::INFINITY; pixels];
+    let mut ms = 0.0;
+    let mut add = |next: &Frame| {
+        for p in 0..pixels {
+            if next.depth[p].is_finite() {
+                hits[p] += 1;
+                depth[p] = depth[p].min(next.depth[p]);
+                for k in 0..3 {
+                    rgb[3 * p + k] += u32::from(next.color[4 * p + k]);
+                }
+            }
+        }
+        ms += next.stats.render_ms;
+    };
+    add(&frame);
+    let first = options.frame_index;
+    for index in 1..draws {
+        options.frame_index = first.wrapping_add(index);
+        add(&render(&options)?);
+    }
+    for p in 0..pixels {
+        if 2 * hits[p] >= draws {
+            for k in 0..3 {
+                frame.color[4 * p + k] = ((rgb[3 * p + k] + hits[p] / 2) / hits[p]) as u8;
+            }
+            frame.color[4 * p + 3] = 255;
+            frame.depth[p] = depth[p];
+        } else {
+            frame.color[4 * p..4 * p + 4].copy_from_slice(&options.background);
+            frame.depth[p] = f32::INFINITY;
+        }
+    }
+    frame.stats.render_ms = ms;
+    Ok(frame)
 }
 
 /// The heights (above st) between which the depth-corrected filter marches: those of the

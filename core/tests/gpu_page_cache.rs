@@ -200,6 +200,72 @@ fn frames_through_a_small_cache_equal_resident_frames_wherever_no_page_is_missin
     }
 }
 
+/// A wide aperture accumulated over several stratified draws (what a view at rest shows, and
+/// what `serve` renders for `refine`) through a small cache: equal to the fully resident
+/// accumulation bit for bit wherever no draw was degraded, and the merged stats count every
+/// draw's loads.
+#[test]
+fn accumulated_apertures_through_a_cache_equal_resident_ones_where_not_degraded() {
+    let planes = planes();
+    let asset = asset(&planes);
+    let renderer = TwoPlaneRenderer::new(gpu());
+    let mut whole =
+        PagedTwoPlane::open(&renderer, Arc::clone(&asset), CacheConfig::whole()).expect("open");
+    let config = CacheConfig {
+        budget_bytes: Some(320 * 1024),
+        prefetch: Prefetch::Predict,
+        pages_per_frame: 16,
+    };
+    let mut cached = PagedTwoPlane::open(&renderer, Arc::clone(&asset), config).expect("open");
+    let options = TwoPlaneOptions {
+        focus: 0.3,
+        aperture: 3.0,
+        sample_budget: 9,
+        ..TwoPlaneOptions::default()
+    };
+    let (mut exact, mut degraded) = (0, 0);
+    for v in pan(4, 0.1, 40) {
+        let (reference, _) = whole
+            .render_accumulated(&renderer, &v, &options, 4)
+            .expect("whole");
+        let (frame, stats) = cached
+            .render_accumulated(&renderer, &v, &options, 4)
+            .expect("cached");
+        assert!(stats.pages_loaded <= 4 * 16, "{}", stats.pages_loaded);
+        assert_eq!(
+            stats.bytes_uploaded,
+            u64::from(stats.pages_loaded) * 16 * 16 * 8,
+            "RGBA8 and f32 texels of 16x16 pages"
+        );
+        for p in 0..frame.pixel_count() {
+            if stats.degraded_mask[p] {
+                degraded += 1;
+                continue;
+            }
+            exact += 1;
+            assert_eq!(
+                (&frame.color[4 * p..4 * p + 4], frame.depth[p].to_bits()),
+                (
+                    &reference.color[4 * p..4 * p + 4],
+                    reference.depth[p].to_bits()
+                ),
+                "pixel {p}"
+            );
+        }
+    }
+    assert!(
+        exact > 1000 && degraded > 100,
+        "{exact} exact, {degraded} degraded"
+    );
+    assert!(
+        matches!(
+            cached.render_accumulated(&renderer, &pan(1, 0.0, 40)[0], &options, 0),
+            Err(RenderError::Option(_))
+        ),
+        "0 draws"
+    );
+}
+
 /// The projection of a view (`needed_pages`) holds every page the shader touches, for every
 /// mode, on views inside, across and beyond the planes' region.
 #[test]

@@ -11,6 +11,9 @@ use lumigraph_core::calibration;
 use lumigraph_core::deform::StateMesh;
 use lumigraph_core::frame::Frame;
 use lumigraph_core::lod::LodError;
+use lumigraph_core::page_cache::{
+    CacheConfig, PageFrameStats, PageSummary, PagedTwoPlane, Prefetch,
+};
 use lumigraph_core::quality::{Plan, Quality, QualityError};
 use lumigraph_core::render::GpuLightField;
 use lumigraph_core::shading::Shading;
@@ -61,6 +64,17 @@ pub struct PyLightField {
     origin: Origin,
     gpu: Mutex<Option<Arc<GpuLightField>>>,
     two_plane: Mutex<Option<Arc<GpuTwoPlane>>>,
+    /// The page cache a two-plane light field renders through (`open(cache_mib=...)`).
+    paging: Option<CacheConfig>,
+    paged: Mutex<Paged>,
+}
+
+/// A light field's page cache (opened on the first render) and what its frames did.
+#[derive(Default)]
+struct Paged {
+    cache: Option<PagedTwoPlane>,
+    last: Option<PageFrameStats>,
+    summary: PageSummary,
 }
 
 impl PyLightField {
@@ -70,6 +84,8 @@ impl PyLightField {
             origin,
             gpu: Mutex::new(None),
             two_plane: Mutex::new(None),
+            paging: None,
+            paged: Mutex::default(),
         }
     }
 
@@ -98,6 +114,13 @@ impl PyLightField {
         (options, draws): &(TwoPlaneOptions, u32),
         background: Option<[u8; 4]>,
     ) -> PyResult<Vec<PyFrame>> {
+        if let Some(config) = self.paging {
+            let frames = py.detach(|| self.render_paged(config, views, options, *draws))?;
+            return Ok(frames
+                .into_iter()
+                .map(|f| PyFrame::new(f, background))
+                .collect());
+        }
         let frames: Vec<Frame> = py.detach(|| {
             let field = self.uploaded_two_plane()?;
             let renderer = engines::two_plane_renderer().map_err(|e| errors::gpu_for_render(&e))?;
@@ -114,6 +137,41 @@ impl PyLightField {
             .into_iter()
             .map(|f| PyFrame::new(f, background))
             .collect())
+    }
+
+    /// Renders `views` through the page cache of `config` (opened on first use), recording each
+    /// frame's paging; call with the GIL released.
+    fn render_paged(
+        &self,
+        config: CacheConfig,
+        views: &[View],
+        options: &TwoPlaneOptions,
+        draws: u32,
+    ) -> PyResult<Vec<Frame>> {
+        let renderer = engines::two_plane_renderer().map_err(|e| errors::gpu_for_render(&e))?;
+        let mut paged = self
+            .paged
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let paged = &mut *paged;
+        let cache = match &mut paged.cache {
+            Some(cache) => cache,
+            slot @ None => slot.insert(
+                PagedTwoPlane::open(renderer, Arc::clone(&self.asset), config)
+                    .map_err(|e| errors::render(&e))?,
+            ),
+        };
+        let mut frames = Vec::with_capacity(views.len());
+        for view in views {
+            let (frame, mut stats) = cache
+                .render_accumulated(renderer, view, options, draws)
+                .map_err(|e| errors::render(&e))?;
+            stats.degraded_mask = Vec::new();
+            paged.summary.add(&stats);
+            paged.last = Some(stats);
+            frames.push(frame);
+        }
+        Ok(frames)
     }
 
     /// Uploads once; call with the GIL released.
@@ -303,21 +361,115 @@ fn shading_of(header: &AssetHeader) -> Shading {
 
 #[pymethods]
 impl PyLightField {
-    /// LightField.open(path) -> LightField
+    /// LightField.open(path, *, cache_mib=None, prefetch="lru", pages_per_frame=64) -> LightField
     ///
     /// Opens an ``.lfa`` file, validating its preamble, header and index (pages are verified
     /// when first read). The file stays open and is read on the first render.
     ///
+    /// ``cache_mib`` renders a two-plane light field through a paged cache of that many MiB of
+    /// device memory instead of uploading it whole (light fields larger than memory;
+    /// docs/two_plane.md "Paged rendering"): pages are read from the file as views need them,
+    /// ``prefetch`` (``"none"``, ``"lru"`` or ``"predict"``) says which are loaded ahead and
+    /// evicted, at most ``pages_per_frame`` are loaded per frame, and a page not resident yet
+    /// reads a coarse copy (the frame is degraded there: see :attr:`page_stats`).
+    ///
     /// Raises:
     ///     FileNotFoundError: no such file.
     ///     AssetError: not an asset, unsupported version, truncated or corrupt.
+    ///     ValueError: a cache for a spherical light field, a cache_mib that is not a positive
+    ///         number, an unknown prefetch policy, pages_per_frame 0, or prefetch /
+    ///         pages_per_frame without cache_mib.
     #[staticmethod]
-    fn open(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+    #[pyo3(signature = (path, *, cache_mib = None, prefetch = None, pages_per_frame = None))]
+    fn open(
+        py: Python<'_>,
+        path: PathBuf,
+        cache_mib: Option<f64>,
+        prefetch: Option<&str>,
+        pages_per_frame: Option<u32>,
+    ) -> PyResult<Self> {
         let shown = path.display().to_string();
+        let paging = match cache_mib {
+            None => {
+                if prefetch.is_some() || pages_per_frame.is_some() {
+                    return Err(PyValueError::new_err(
+                        "prefetch and pages_per_frame apply to a page cache: give cache_mib",
+                    ));
+                }
+                None
+            }
+            Some(mib) => {
+                if !(mib.is_finite() && mib > 0.0) {
+                    return Err(PyValueError::new_err(format!(
+                        "cache_mib {mib}: give a positive number of MiB"
+                    )));
+                }
+                let prefetch: Prefetch = prefetch
+                    .unwrap_or("lru")
+                    .parse()
+                    .map_err(|e: String| PyValueError::new_err(e))?;
+                let pages =
+                    pages_per_frame.unwrap_or(lumigraph_core::page_cache::DEFAULT_PAGES_PER_FRAME);
+                if pages == 0 {
+                    return Err(PyValueError::new_err("pages_per_frame 0: give at least 1"));
+                }
+                Some(CacheConfig::with_mib(mib, prefetch, pages))
+            }
+        };
         let asset = py
             .detach(|| AssetFile::open(&path))
             .map_err(|e| errors::asset(&e, Some(&shown)))?;
-        Ok(Self::new(asset, Origin::File(path)))
+        if paging.is_some() && asset.header().two_plane().is_none() {
+            return Err(PyValueError::new_err(format!(
+                "{shown}: a page cache (cache_mib) is for two-plane light fields; this one is {}",
+                asset.header().kind.name()
+            )));
+        }
+        let mut field = Self::new(asset, Origin::File(path));
+        field.paging = paging;
+        Ok(field)
+    }
+
+    /// The paging of a light field opened with ``cache_mib``, else None: ``{"cache": {...},
+    /// "last": {...}, "summary": {...}}``. ``cache``: ``prefetch``, ``pages_per_frame``,
+    /// ``budget_bytes``, and once the first frame opened it ``slots``, ``pages``, ``page_size``,
+    /// ``coarse_factor``, ``device_bytes``, ``resident_bytes``. ``last`` (the last frame; None
+    /// before any): ``faults`` (pages it touched that were not resident when it started),
+    /// ``degraded_px``, ``pages_loaded``, ``bytes_uploaded``, ``ms``, ``pages_touched``,
+    /// ``pages_projected``, ``projection_missed``, ``resident``, ``load_ms`` and
+    /// ``read_errors`` when pages failed to read. ``summary``: ``frames``, ``faults``,
+    /// ``degraded_px``, ``pages_loaded``, ``bytes_uploaded``, ``mean_ms``, ``max_ms``,
+    /// ``projection_missed`` over every frame so far.
+    #[getter]
+    fn page_stats<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        let Some(config) = self.paging else {
+            return Ok(None);
+        };
+        let paged = self
+            .paged
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let mut cache = serde_json::json!({
+            "prefetch": config.prefetch.to_string(),
+            "pages_per_frame": config.pages_per_frame,
+            "budget_bytes": config.budget_bytes,
+        });
+        if let Some(c) = &paged.cache {
+            cache["slots"] = c.slots.into();
+            cache["pages"] = c.grid.total().into();
+            cache["page_size"] = c.grid.page_size.into();
+            cache["coarse_factor"] = c.coarse_factor.into();
+            cache["device_bytes"] = c.bytes.into();
+            cache["resident_bytes"] = c.full_bytes.into();
+        }
+        let value = serde_json::json!({
+            "cache": cache,
+            "last": paged.last,
+            "summary": paged.summary,
+        });
+        let text =
+            serde_json::to_string(&value).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        Ok(Some(py.import("json")?.call_method1("loads", (text,))?))
     }
 
     /// LightField.from_bytes(data) -> LightField

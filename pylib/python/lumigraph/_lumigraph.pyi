@@ -1,7 +1,7 @@
 # Type stubs of the native module (pylib/src); checked against it by mypy.stubtest.
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from os import PathLike
-from typing import Any, TypedDict, Unpack, final
+from typing import Any, Literal, TypedDict, Unpack, final
 
 import numpy as np
 import numpy.typing as npt
@@ -141,7 +141,15 @@ class Frame:
 @final
 class LightField:
     @staticmethod
-    def open(path: str | PathLike[str]) -> LightField: ...
+    def open(
+        path: str | PathLike[str],
+        *,
+        cache_mib: float | None = None,
+        prefetch: Literal["none", "lru", "predict"] | None = None,
+        pages_per_frame: int | None = None,
+    ) -> LightField: ...
+    @property
+    def page_stats(self) -> dict[str, Any] | None: ...
     @staticmethod
     def from_bytes(data: bytes) -> LightField: ...
     def to_bytes(self) -> bytes: ...

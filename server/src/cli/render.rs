@@ -149,7 +149,7 @@ fn render_paged(args: &RenderArgs, asset: AssetFile) -> Result<()> {
         .with_context(|| format!("cannot open asset {} through a cache", args.asset.display()))?;
     let mib = |b: u64| b as f64 / 1_048_576.0;
     println!(
-        "cache: {} slots of {}x{} ({:.1} MiB on the device with a {}x coarse level) for {}          pages ({:.1} MiB resident)",
+        "cache: {} slots of {}x{} ({:.1} MiB on the device with a {}x coarse level) for {} pages ({:.1} MiB resident)",
         field.slots,
         field.grid.page_size,
         field.grid.page_size,

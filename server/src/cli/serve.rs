@@ -64,6 +64,18 @@ pub struct ServeArgs {
     /// the least recently used files no loaded asset holds are evicted first.
     #[arg(long, default_value = "8G", value_parser = parse_bytes)]
     pub store_cache_bytes: u64,
+    /// Render each two-plane light field whose resident textures exceed M MiB through a paged
+    /// cache of M MiB of device memory (its slots and coarse level; docs/two_plane.md "Paged
+    /// rendering"): the asset is charged M MiB instead of its whole size.
+    #[arg(long, value_name = "M")]
+    pub cache_mib: Option<f64>,
+    /// The page cache's policy: none (on demand), lru, or predict (prefetch by dead reckoning
+    /// over the frames each cache rendered).
+    #[arg(long, default_value = "lru", requires = "cache_mib")]
+    pub prefetch: lumigraph_core::page_cache::Prefetch,
+    /// Most pages a frame loads into the page cache.
+    #[arg(long, value_name = "B", default_value_t = lumigraph_core::page_cache::DEFAULT_PAGES_PER_FRAME, value_parser = clap::value_parser!(u32).range(1..), requires = "cache_mib")]
+    pub pages_per_frame: u32,
 }
 
 /// A positive, finite number of seconds, at most a day.
@@ -131,6 +143,17 @@ pub(super) fn serve(args: &ServeArgs) -> Result<()> {
     config.max_asset_decoded_bytes = args
         .max_asset_decoded_bytes
         .unwrap_or(config.asset_memory_budget);
+    if let Some(mib) = args.cache_mib {
+        anyhow::ensure!(
+            mib.is_finite() && mib > 0.0,
+            "--cache-mib {mib}: give a positive number of MiB"
+        );
+        config.page_cache = Some(lumigraph_core::page_cache::CacheConfig::with_mib(
+            mib,
+            args.prefetch,
+            args.pages_per_frame,
+        ));
+    }
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()

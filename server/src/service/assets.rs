@@ -11,6 +11,7 @@ use std::sync::{Arc, Mutex, PoisonError, RwLock};
 
 use lumigraph_core::asset::{AssetFile, AssetHeader};
 use lumigraph_core::gpu::Gpu;
+use lumigraph_core::page_cache::{CacheConfig, CacheLayout, PagedTwoPlane};
 use lumigraph_core::render::{GpuLightField, field_bytes};
 use lumigraph_core::two_plane::TwoPlanes;
 use lumigraph_core::two_plane_render::GpuTwoPlane;
@@ -75,6 +76,48 @@ pub enum AssetField {
     Spherical(GpuLightField),
     /// A two-plane light field.
     TwoPlane(GpuTwoPlane),
+    /// A two-plane light field larger than the page cache's budget (`serve --cache-mib`),
+    /// rendered through a paged cache of that budget.
+    Paged(Box<PagedField>),
+}
+
+/// A two-plane light field's paged cache, shared by every request and stream of the asset (one
+/// frame renders through it at a time).
+pub struct PagedField {
+    /// The cache.
+    pub cache: Mutex<PagedTwoPlane>,
+    gpu: Arc<Gpu>,
+    bytes: u64,
+    summary: CacheSummary,
+}
+
+/// The page cache of an asset rendered through one (`serve --cache-mib`).
+#[derive(Clone, Debug, Serialize, utoipa::ToSchema)]
+pub struct CacheSummary {
+    /// The policy: `none`, `lru` or `predict`.
+    pub prefetch: String,
+    /// Most pages a frame loads.
+    pub pages_per_frame: u32,
+    /// Device bytes of the cache (slots and coarse level), charged to the asset memory budget.
+    pub device_bytes: u64,
+    /// Device bytes the asset would take with every page resident.
+    pub resident_bytes: u64,
+    /// Page slots.
+    pub slots: u32,
+    /// Pages of the asset.
+    pub pages: u32,
+    /// Side of a page in texels.
+    pub page_size: u32,
+    /// The coarse level's downsampling factor.
+    pub coarse_factor: u32,
+}
+
+impl PagedField {
+    /// The cache, locked (a render that panicked leaves it usable: its residency is only ever
+    /// changed with the pages it names uploaded or forgotten).
+    pub fn lock(&self) -> std::sync::MutexGuard<'_, PagedTwoPlane> {
+        self.cache.lock().unwrap_or_else(PoisonError::into_inner)
+    }
 }
 
 impl AssetField {
@@ -83,6 +126,7 @@ impl AssetField {
         match self {
             AssetField::Spherical(f) => f.gpu(),
             AssetField::TwoPlane(f) => f.gpu(),
+            AssetField::Paged(f) => &f.gpu,
         }
     }
 
@@ -91,6 +135,7 @@ impl AssetField {
         match self {
             AssetField::Spherical(f) => f.gpu_bytes,
             AssetField::TwoPlane(f) => f.bytes,
+            AssetField::Paged(f) => f.bytes,
         }
     }
 }
@@ -115,6 +160,9 @@ pub struct AssetLimits {
     pub max_decoded_bytes: u64,
     /// Most texture bytes ([`field_bytes`]) all loaded assets may hold together.
     pub memory_budget: u64,
+    /// The page cache of two-plane light fields whose resident textures exceed its budget
+    /// (`serve --cache-mib`); `None`: every asset resident.
+    pub page_cache: Option<CacheConfig>,
 }
 
 /// One line of `GET /v1/assets`.
@@ -155,6 +203,10 @@ pub struct AssetSummary {
     #[serde(skip_serializing_if = "Option::is_none")]
     #[schema(value_type = Option<Object>)]
     pub planes: Option<TwoPlanes>,
+    /// The page cache it renders through, when its resident textures exceed the server's
+    /// `--cache-mib`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub page_cache: Option<CacheSummary>,
 }
 
 /// An asset's animation.
@@ -203,6 +255,10 @@ impl LoadedAsset {
             file_bytes: self.file_bytes,
             gpu_bytes: self.field.gpu_bytes(),
             planes: h.two_plane().copied(),
+            page_cache: match &self.field {
+                AssetField::Paged(f) => Some(f.summary.clone()),
+                _ => None,
+            },
         }
     }
 }
@@ -254,13 +310,19 @@ pub fn load_file(
     id: &str,
     path: &Path,
 ) -> Result<LoadedAsset, LoadError> {
-    let file = AssetFile::open(path)?;
-    let charge = store.admit(file.header())?;
-    file.verify_all()?;
-    let field = if file.header().two_plane().is_some() {
-        AssetField::TwoPlane(engine.two_plane.upload(&file)?)
+    let file = Arc::new(AssetFile::open(path)?);
+    let (field, charge) = if let Some((config, layout)) = store.paging(file.header(), engine)? {
+        let charge = store.admit_paged(file.header(), &layout)?;
+        (open_paged(engine, id, &file, config)?, charge)
     } else {
-        AssetField::Spherical(engine.renderer.upload(&file)?)
+        let charge = store.admit(file.header())?;
+        file.verify_all()?;
+        let field = if file.header().two_plane().is_some() {
+            AssetField::TwoPlane(engine.two_plane.upload(&file)?)
+        } else {
+            AssetField::Spherical(engine.renderer.upload(&file)?)
+        };
+        (field, charge)
     };
     Ok(LoadedAsset {
         id: id.to_owned(),
@@ -271,6 +333,42 @@ pub fn load_file(
         field,
         _charge: charge,
     })
+}
+
+/// Opens `file`'s page cache of `config` on `engine`'s device (reading, and so checking, every
+/// page once for the coarse level).
+fn open_paged(
+    engine: &Engine,
+    id: &str,
+    file: &Arc<AssetFile>,
+    config: CacheConfig,
+) -> Result<AssetField, LoadError> {
+    let cache = PagedTwoPlane::open(&engine.two_plane, Arc::clone(file), config)?;
+    tracing::info!(
+        asset = id,
+        "paged: {} slots of {}² px for {} pages; {} on the device for {} resident",
+        cache.slots,
+        cache.grid.page_size,
+        cache.grid.total(),
+        describe_bytes(cache.bytes),
+        describe_bytes(cache.full_bytes)
+    );
+    let summary = CacheSummary {
+        prefetch: config.prefetch.to_string(),
+        pages_per_frame: config.pages_per_frame,
+        device_bytes: cache.bytes,
+        resident_bytes: cache.full_bytes,
+        slots: cache.slots,
+        pages: cache.grid.total(),
+        page_size: cache.grid.page_size,
+        coarse_factor: cache.coarse_factor,
+    };
+    Ok(AssetField::Paged(Box::new(PagedField {
+        gpu: Arc::clone(engine.gpu()),
+        bytes: cache.bytes,
+        summary,
+        cache: Mutex::new(cache),
+    })))
 }
 
 /// A fingerprint of an asset file's content, from what the file already checksums: SHA-256 of
@@ -400,7 +498,59 @@ impl AssetStore {
                 describe_bytes(max_decoded),
             )));
         }
-        let bytes = field_bytes(header);
+        self.charge(field_bytes(header))
+    }
+
+    /// Whether `header`'s asset is rendered through the page cache, and the cache's config and
+    /// layout on `engine`'s device: a two-plane light field whose resident textures exceed the
+    /// cache's budget, when the store has one.
+    ///
+    /// # Errors
+    /// [`LoadError::Render`] for a budget that holds no page or a layout beyond the device.
+    pub fn paging(
+        &self,
+        header: &AssetHeader,
+        engine: &Engine,
+    ) -> Result<Option<(CacheConfig, CacheLayout)>, LoadError> {
+        let (Some(config), Some(planes)) = (self.limits.page_cache, header.two_plane()) else {
+            return Ok(None);
+        };
+        let Some(budget) = config.budget_bytes else {
+            return Ok(None);
+        };
+        if field_bytes(header) <= budget {
+            return Ok(None);
+        }
+        let layout = CacheLayout::of(planes, header.page_size, &config, engine.gpu())?;
+        Ok(Some((config, layout)))
+    }
+
+    /// [`Self::admit`] for an asset rendered through a page cache of `layout`: the host holds
+    /// one camera's pages at a time (checked against the decode limit), the device the cache.
+    ///
+    /// # Errors
+    /// As [`Self::admit`].
+    pub fn admit_paged(
+        &self,
+        header: &AssetHeader,
+        layout: &CacheLayout,
+    ) -> Result<MemoryCharge, LoadError> {
+        let [width, height] = header.image_size();
+        // RGBA8 colour and f32 depth of one camera.
+        let camera = u64::from(width) * u64::from(height) * 8;
+        if camera > self.limits.max_decoded_bytes {
+            return Err(LoadError::OverLimit(format!(
+                "one camera of the asset decodes to {} ({width}×{height} px), above the limit of \
+                 {} per asset (--max-asset-decoded-bytes)",
+                describe_bytes(camera),
+                describe_bytes(self.limits.max_decoded_bytes),
+            )));
+        }
+        self.charge(layout.bytes)
+    }
+
+    /// Charges `bytes` of textures to the asset and server memory budgets.
+    fn charge(&self, bytes: u64) -> Result<MemoryCharge, LoadError> {
         let budget = self.limits.memory_budget;
         let mut charged = self.charged.load(Ordering::Acquire);
         loop {

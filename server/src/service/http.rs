@@ -775,6 +775,9 @@ async fn render_response(
         .render(asset, request.view.clone(), plan)
         .await?;
     let decision = rendered.decision;
+    if let Some(pages) = &rendered.pages {
+        state.metrics().pages(pages);
+    }
     let encoding = Encoding {
         format: request.format,
         quality,
@@ -814,6 +817,15 @@ async fn render_response(
         HeaderValue::from(height),
     );
     headers.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    if let Some(pages) = &rendered.pages {
+        for (name, value) in [
+            ("x-page-faults", u64::from(pages.faults)),
+            ("x-pages-loaded", u64::from(pages.pages_loaded)),
+            ("x-degraded-px", pages.degraded_px),
+        ] {
+            headers.insert(HeaderName::from_static(name), HeaderValue::from(value));
+        }
+    }
     for (name, value) in decision.report() {
         let name = HeaderName::from_bytes(format!("x-{name}").as_bytes())
             .map_err(|e| AppError::Internal(e.into()))?;

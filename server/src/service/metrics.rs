@@ -34,6 +34,13 @@ pub struct Metrics {
     adapted_frames: Family<Labels, Counter>,
     link_bandwidth: Histogram,
     link_round_trip: Histogram,
+    page_hits: Counter,
+    page_faults: Counter,
+    pages_loaded: Counter,
+    page_bytes_uploaded: Counter,
+    degraded_pixels: Counter,
+    degraded_frames: Counter,
+    page_read_errors: Counter,
 }
 
 impl Default for Metrics {
@@ -66,6 +73,52 @@ impl Metrics {
         // 10 kB/s .. 655 MB/s in factors of four: a phone on a bad cell to a LAN.
         let link_bandwidth = Histogram::new(exponential_buckets(1e4, 4.0, 9));
         let link_round_trip = latency_histogram();
+        let page_hits = Counter::default();
+        let page_faults = Counter::default();
+        let pages_loaded = Counter::default();
+        let page_bytes_uploaded = Counter::default();
+        let degraded_pixels = Counter::default();
+        let degraded_frames = Counter::default();
+        let page_read_errors = Counter::default();
+        for (name, help, counter) in [
+            (
+                "page_cache_hits",
+                "Pages paged frames touched that were resident when the frame started",
+                &page_hits,
+            ),
+            (
+                "page_cache_faults",
+                "Pages paged frames touched that were not resident when the frame started",
+                &page_faults,
+            ),
+            (
+                "page_cache_pages_loaded",
+                "Pages read from asset files into page caches (needed and prefetched)",
+                &pages_loaded,
+            ),
+            (
+                "page_cache_uploaded_bytes",
+                "Bytes of pages uploaded into page caches",
+                &page_bytes_uploaded,
+            ),
+            (
+                "page_cache_degraded_pixels",
+                "Pixels of paged frames that read the coarse level for a page not resident",
+                &degraded_pixels,
+            ),
+            (
+                "page_cache_degraded_frames",
+                "Paged frames with at least one degraded pixel",
+                &degraded_frames,
+            ),
+            (
+                "page_cache_read_errors",
+                "Page reads that failed (the frame was degraded there and logged)",
+                &page_read_errors,
+            ),
+        ] {
+            registry.register(name, help, counter.clone());
+        }
         registry.register(
             "frames",
             "Frames rendered and sent, by source (http, stream) and quality (interactive, full)",
@@ -166,7 +219,28 @@ impl Metrics {
             adapted_frames,
             link_bandwidth,
             link_round_trip,
+            page_hits,
+            page_faults,
+            pages_loaded,
+            page_bytes_uploaded,
+            degraded_pixels,
+            degraded_frames,
+            page_read_errors,
         }
+    }
+
+    /// Counts a frame rendered through a page cache.
+    pub fn pages(&self, stats: &lumigraph_core::page_cache::PageFrameStats) {
+        self.page_hits
+            .inc_by(u64::from(stats.pages_touched.saturating_sub(stats.faults)));
+        self.page_faults.inc_by(u64::from(stats.faults));
+        self.pages_loaded.inc_by(u64::from(stats.pages_loaded));
+        self.page_bytes_uploaded.inc_by(stats.bytes_uploaded);
+        self.degraded_pixels.inc_by(stats.degraded_px);
+        if stats.degraded_px > 0 {
+            self.degraded_frames.inc();
+        }
+        self.page_read_errors.inc_by(stats.read_errors.len() as u64);
     }
 
     /// Observes a stream session's link estimate (each when known).

@@ -8,6 +8,7 @@ use lumigraph_core::bake::Baker;
 use lumigraph_core::frame::Frame;
 use lumigraph_core::gpu::{Gpu, GpuError};
 use lumigraph_core::lod::LodError;
+use lumigraph_core::page_cache::PageFrameStats;
 use lumigraph_core::quality::{Decision, Plan, Quality, QualityError};
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::render::Renderer;
@@ -88,6 +89,8 @@ pub struct Rendered {
     pub render_ms: f64,
     /// What the plan decided for the view.
     pub decision: Decision,
+    /// The paging of an asset rendered through the page cache.
+    pub pages: Option<PageFrameStats>,
     /// The frame's share of the memory budget: keep it until the frame is encoded.
     pub memory: Charge,
 }
@@ -254,10 +257,20 @@ impl RenderPool {
         let result = tokio::task::spawn_blocking(move || {
             let start = Instant::now();
             let rendered = match &asset.field {
-                AssetField::Spherical(field) => plan.render(&engine_now.renderer, field, &view),
-                AssetField::TwoPlane(field) => {
-                    plan.render_two_plane(&engine_now.two_plane, field, &view)
-                }
+                AssetField::Spherical(field) => plan
+                    .render(&engine_now.renderer, field, &view)
+                    .map(|r| (r, None)),
+                AssetField::TwoPlane(field) => plan
+                    .render_two_plane(&engine_now.two_plane, field, &view)
+                    .map(|r| (r, None)),
+                AssetField::Paged(field) => plan
+                    .render_two_plane_paged(&engine_now.two_plane, &mut field.lock(), &view)
+                    .map(|(r, pages)| {
+                        for e in &pages.read_errors {
+                            tracing::warn!(asset = asset.id, "frame degraded: {e}");
+                        }
+                        (r, Some(pages))
+                    }),
             };
             (rendered, start.elapsed().as_secs_f64() * 1e3)
         })
@@ -265,7 +278,7 @@ impl RenderPool {
         .map_err(|e| AppError::Internal(anyhow::Error::new(e).context("render task failed")))?;
         in_flight.completed(Instant::now());
         let (rendered, render_ms) = result;
-        let rendered = match rendered {
+        let (rendered, pages) = match rendered {
             Ok(rendered) => rendered,
             Err(err) => {
                 return Err(self
@@ -277,6 +290,7 @@ impl RenderPool {
             frame: rendered.frame,
             render_ms,
             decision: rendered.decision,
+            pages,
             memory,
         })
     }

@@ -86,6 +86,10 @@ pub struct ServeConfig {
     pub store: Option<String>,
     /// Most bytes this replica's cache of the store keeps (`ASSETS/.store-cache`).
     pub store_cache_bytes: u64,
+    /// The page cache of each two-plane light field whose resident textures exceed its budget
+    /// (`--cache-mib`, `--prefetch`, `--pages-per-frame`): such an asset is charged the cache's
+    /// bytes and renders through it; `None`: every asset is resident.
+    pub page_cache: Option<lumigraph_core::page_cache::CacheConfig>,
 }
 
 impl ServeConfig {
@@ -118,6 +122,7 @@ impl ServeConfig {
             demo_bake: BakeOptions::default(),
             store: None,
             store_cache_bytes: 8 << 30,
+            page_cache: None,
         }
     }
 
@@ -318,6 +323,7 @@ impl AppState {
                     AssetLimits {
                         max_decoded_bytes: config.max_asset_decoded_bytes,
                         memory_budget: config.asset_memory_budget,
+                        page_cache: config.page_cache,
                     },
                     Arc::clone(&budget),
                 ),

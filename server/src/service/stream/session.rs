@@ -551,6 +551,9 @@ impl Sender<'_> {
                 return self.sink.send(Message::Text(text.into())).await.is_ok();
             }
         };
+        if let Some(pages) = &rendered.pages {
+            self.state.metrics().pages(pages);
+        }
         let pixels_mpx = f64::from(rendered.frame.width) * f64::from(rendered.frame.height) / 1e6;
         if quality == Quality::Interactive && pixels_mpx > 0.0 {
             let sample = rendered.render_ms / pixels_mpx;
