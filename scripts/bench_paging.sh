@@ -3,8 +3,9 @@
 # light field of 17×17 cameras × 1024² (2.3 GiB resident as RGBA8 + f32 depth) replayed at 512²
 # through a cache of CACHE_MIB (default 200: a tenth and less) on four camera traces (slow pan,
 # fast pan, widening field of view and aperture, fast pan that reverses), with each prefetch
-# policy (none, lru, predict) at PAGES pages per frame (default 64), and the fully resident
-# paged renderer as the reference.
+# policy (none, lru, predict) at PAGES pages per frame (default 64), lru and predict again with
+# frames that do not wait for their pages (--async-loads), and the fully resident paged
+# renderer as the reference.
 #   bash scripts/bench_paging.sh [OUT_DIR]   (default out/paging; about 15 min on 2 cores)
 # Writes OUT_DIR/table.md, the traces and the reports beside it.
 set -euo pipefail
@@ -53,23 +54,31 @@ for trace in slow fast widen reverse; do
       --cache-mib "$CACHE_MIB" --prefetch "$policy" --pages-per-frame "$PAGES" \
       --report "$OUT/report-$trace-$policy.json" > /dev/null
   done
+  for policy in lru predict; do
+    $LG render "$ASSET" --trace "$OUT/trace-$trace.json" -o "$OUT/frames-$trace-$policy-async" \
+      --cache-mib "$CACHE_MIB" --prefetch "$policy" --pages-per-frame "$PAGES" --async-loads \
+      --report "$OUT/report-$trace-$policy-async.json" > /dev/null
+  done
 done
 python3 - "$OUT" <<'PY'
 import json, sys
 out = sys.argv[1]
-rows = ["| trace | policy | faults | faults / frame (max) | degraded px / frame | pages loaded | ms / frame (mean, max) | fps |",
+import statistics
+rows = ["| trace | policy | faults | faults / frame (max) | degraded px / frame | pages loaded | ms / frame (mean, median, max) | fps (mean) |",
         "|---|---|---|---|---|---|---|---|"]
 desc = None
 for trace in ["slow", "fast", "widen", "reverse"]:
-    for policy in ["whole", "none", "lru", "predict"]:
+    for policy in ["whole", "none", "lru", "predict", "lru-async", "predict-async"]:
         r = json.load(open(f"{out}/report-{trace}-{policy}.json"))
         s, f = r["summary"], r["frames"]
         if policy != "whole":
             desc = r["cache"]
         n = s["frames"]
-        rows.append(f"| {trace} | {policy if policy != 'whole' else 'all resident'} | {s['faults']} | "
+        name = {"whole": "all resident"}.get(policy, policy.replace("-async", ", async loads"))
+        median = statistics.median(x["ms"] for x in f)
+        rows.append(f"| {trace} | {name} | {s['faults']} | "
                     f"{s['faults'] / n:.1f} ({max(x['faults'] for x in f)}) | {s['degraded_px'] / n:.0f} | "
-                    f"{s['pages_loaded']} | {s['mean_ms']:.1f}, {s['max_ms']:.1f} | {1000 / s['mean_ms']:.1f} |")
+                    f"{s['pages_loaded']} | {s['mean_ms']:.1f}, {median:.1f}, {s['max_ms']:.1f} | {1000 / s['mean_ms']:.1f} |")
 head = (f"Cache: {desc['budget_mib']} MiB budget, {desc['device_mib']:.1f} MiB on the device, {desc['slots']} slots of "
         f"{desc['page_size']}² for {desc['pages']} pages ({desc['resident_asset_mib']:.0f} MiB resident), coarse level "
         f"{desc['coarse_factor']}×, {desc['pages_per_frame']} pages per frame.\n\n")

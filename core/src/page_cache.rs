@@ -18,7 +18,9 @@
 //! - **Per frame** ([`PagedTwoPlane::render`]): the pages needed and not resident are loaded
 //!   first, then (policy `predict`) the most probable pages of the next frames, at most
 //!   `pages_per_frame` pages in all; the frame renders; a fault is a page the frame touched that
-//!   was not resident when it started.
+//!   was not resident when it started. [`PagedTwoPlane::render_nowait`] makes the same plan but
+//!   hands the reads to a reader thread and renders at once: the pages are uploaded by the first
+//!   frame after they arrive.
 
 use std::collections::{BTreeSet, HashMap, VecDeque};
 use std::sync::Arc;
@@ -197,6 +199,10 @@ pub struct PageFrameStats {
     /// Bytes those pages uploaded to the device (colour and depth).
     #[serde(default)]
     pub bytes_uploaded: u64,
+    /// Pages still being read in the background after the frame
+    /// ([`PagedTwoPlane::render_nowait`]).
+    #[serde(default)]
+    pub pages_pending: u32,
     /// Wall time of the frame: planning, page reads and uploads, render and feedback.
     pub ms: f64,
     /// Pages the frame touched (the shader's feedback).
@@ -224,6 +230,7 @@ impl PageFrameStats {
         self.faults += other.faults;
         self.pages_loaded += other.pages_loaded;
         self.bytes_uploaded += other.bytes_uploaded;
+        self.pages_pending = other.pages_pending;
         self.ms += other.ms;
         self.load_ms += other.load_ms;
         self.pages_touched = self.pages_touched.max(other.pages_touched);
@@ -958,8 +965,48 @@ pub struct PagedTwoPlane {
     /// The degraded-pixel count and mask of frames of a pixel count, and its readback copy.
     degraded: Option<(u64, wgpu::Buffer, wgpu::Buffer)>,
     residency: Residency,
+    /// Slot → the page whose texels it holds on the device (or [`NOT_RESIDENT`]): a page the
+    /// residency gave a slot is in the device's table only once its texels are there.
+    slot_data: Vec<u32>,
+    /// The background reader of [`Self::render_nowait`], started on its first frame.
+    loader: Option<Loader>,
     frame: u32,
     history: VecDeque<CameraState>,
+}
+
+/// A thread that reads and decodes pages for [`PagedTwoPlane::render_nowait`] while frames
+/// render: requests of `(page, slot)` in, each page's result out.
+struct Loader {
+    requests: std::sync::mpsc::Sender<Vec<(u32, u32)>>,
+    results: std::sync::mpsc::Receiver<(u32, u32, Result<LoadedPage, RenderError>)>,
+    /// Pages requested and not received yet.
+    in_flight: usize,
+}
+
+impl Loader {
+    fn start(asset: Arc<AssetFile>, grid: PageGrid) -> Result<Loader, RenderError> {
+        let (requests, inbox) = std::sync::mpsc::channel::<Vec<(u32, u32)>>();
+        let (outbox, results) = std::sync::mpsc::channel();
+        std::thread::Builder::new()
+            .name("page-loader".to_owned())
+            .spawn(move || {
+                // Ends when the cache (the requests' sender) is dropped.
+                while let Ok(batch) = inbox.recv() {
+                    let ids: Vec<u32> = batch.iter().map(|&(id, _)| id).collect();
+                    for (&(id, slot), result) in batch.iter().zip(read_pages(&asset, &grid, &ids)) {
+                        if outbox.send((id, slot, result)).is_err() {
+                            return;
+                        }
+                    }
+                }
+            })
+            .map_err(|e| RenderError::Option(format!("cannot start the page loader: {e}")))?;
+        Ok(Loader {
+            requests,
+            results,
+            in_flight: 0,
+        })
+    }
 }
 
 impl Drop for PagedTwoPlane {
@@ -1080,6 +1127,8 @@ impl PagedTwoPlane {
             touched_staging,
             degraded: None,
             residency: Residency::new(total, slots, config.prefetch),
+            slot_data: vec![NOT_RESIDENT; slots as usize],
+            loader: None,
             frame: 0,
             history: VecDeque::new(),
         };
@@ -1184,7 +1233,7 @@ impl PagedTwoPlane {
     }
 
     /// Copies loaded pages into their slots (`loads`: page → slot; `pages` holds them).
-    fn upload(&self, loads: &[(u32, u32)], pages: &[LoadedPage]) {
+    fn upload(&mut self, loads: &[(u32, u32)], pages: &[LoadedPage]) {
         let by_id: HashMap<u32, &LoadedPage> = pages.iter().map(|p| (p.id, p)).collect();
         for &(id, slot) in loads {
             let Some(page) = by_id.get(&id) else {
@@ -1196,6 +1245,7 @@ impl PagedTwoPlane {
             let origin = [x * self.grid.page_size, y * self.grid.page_size, layer];
             self.write(&self.slot_color, origin, [w, h], &page.color);
             self.write(&self.slot_depth, origin, [w, h], &page.depth);
+            self.slot_data[slot as usize] = id;
         }
     }
 
@@ -1213,8 +1263,7 @@ impl PagedTwoPlane {
     /// column in bits 0–7, row in 8–15, layer in 16–31), or `u32::MAX`.
     fn write_table(&self) {
         let packed: Vec<u32> = self
-            .residency
-            .table()
+            .device_table()
             .iter()
             .map(|&slot| {
                 if slot == NOT_RESIDENT {
@@ -1266,7 +1315,7 @@ impl PagedTwoPlane {
                     self.depth_range,
                     &state.view(),
                     &o,
-                    2 * NEEDS_STRIDE,
+                    4 * NEEDS_STRIDE,
                 ) else {
                     // An extrapolated view may be invalid (a field of view past its range):
                     // nothing to prefetch for it.
@@ -1287,17 +1336,102 @@ impl PagedTwoPlane {
         (order, probability)
     }
 
-    /// Renders `view` through the cache: plans and uploads the frame's pages (the needed ones,
-    /// then prefetches), renders, and reads back the shader's feedback.
+    /// Renders `view` through the cache: plans, reads and uploads the frame's pages (the needed
+    /// ones, then prefetches; pages still being read for [`Self::render_nowait`] are waited
+    /// for first), renders, and reads back the shader's feedback.
     ///
     /// # Errors
-    /// As [`TwoPlaneRenderer::render`]; [`RenderError::Asset`] when a page cannot be read (the
-    /// cache is left consistent: the pages that failed are not resident).
+    /// As [`TwoPlaneRenderer::render`]. A page that cannot be read is not an error: it stays
+    /// missing (the frame is degraded there) and is named in the stats' `read_errors`.
     pub fn render(
         &mut self,
         renderer: &TwoPlaneRenderer,
         view: &View,
         options: &TwoPlaneOptions,
+    ) -> Result<(Frame, PageFrameStats), RenderError> {
+        self.render_with(renderer, view, options, true)
+    }
+
+    /// [`Self::render`] without waiting for pages: the frame uploads the pages read in the
+    /// background since the last one, asks a reader thread for the pages it plans (the same
+    /// plan as [`Self::render`]) and renders at once with what is on the device, the coarse
+    /// level where a page is missing. What an interactive view does: no frame waits for the
+    /// file or the decoder.
+    ///
+    /// # Errors
+    /// As [`Self::render`].
+    pub fn render_nowait(
+        &mut self,
+        renderer: &TwoPlaneRenderer,
+        view: &View,
+        options: &TwoPlaneOptions,
+    ) -> Result<(Frame, PageFrameStats), RenderError> {
+        self.render_with(renderer, view, options, false)
+    }
+
+    /// Takes the pages the reader finished (waiting for all of them with `wait`) and uploads
+    /// those whose slot is still theirs; a page that failed is dropped from its slot. Returns
+    /// the pages and bytes uploaded and the read errors.
+    fn receive(&mut self, wait: bool) -> (u32, u64, Vec<String>) {
+        let (mut pages, mut bytes, mut errors) = (0, 0, Vec::new());
+        let Some(loader) = &mut self.loader else {
+            return (pages, bytes, errors);
+        };
+        let mut arrived = Vec::new();
+        while loader.in_flight > 0 {
+            let next = if wait {
+                loader.results.recv().ok()
+            } else {
+                loader.results.try_recv().ok()
+            };
+            let Some(result) = next else {
+                break;
+            };
+            loader.in_flight -= 1;
+            arrived.push(result);
+        }
+        for (id, slot, result) in arrived {
+            match result {
+                Ok(page) => {
+                    // Evicted (or moved) while it was being read: dropped.
+                    if self.residency.table().get(id as usize) == Some(&slot) {
+                        bytes += (page.color.len() + page.depth.len()) as u64;
+                        pages += 1;
+                        self.upload(&[(id, slot)], std::slice::from_ref(&page));
+                    }
+                }
+                Err(e) => {
+                    tracing::warn!(page = id, "page read failed: {e}");
+                    self.residency.forget(id, slot);
+                    errors.push(format!("page {id}: {e}"));
+                }
+            }
+        }
+        (pages, bytes, errors)
+    }
+
+    /// The index table as the device sees it: a page's slot where its texels are there.
+    fn device_table(&self) -> Vec<u32> {
+        self.residency
+            .table()
+            .iter()
+            .enumerate()
+            .map(|(page, &slot)| {
+                if slot != NOT_RESIDENT && self.slot_data[slot as usize] == page as u32 {
+                    slot
+                } else {
+                    NOT_RESIDENT
+                }
+            })
+            .collect()
+    }
+
+    fn render_with(
+        &mut self,
+        renderer: &TwoPlaneRenderer,
+        view: &View,
+        options: &TwoPlaneOptions,
+        wait: bool,
     ) -> Result<(Frame, PageFrameStats), RenderError> {
         options.validate()?;
         let start = std::time::Instant::now();
@@ -1311,7 +1445,10 @@ impl PagedTwoPlane {
         )?;
         self.frame = self.frame.wrapping_add(1).max(1);
         let frame = self.frame;
-        let at_start = self.residency.table().to_vec();
+        let load_start = std::time::Instant::now();
+        let (mut pages_loaded, mut bytes_uploaded, mut read_errors) = self.receive(wait);
+        let mut load_ms = load_start.elapsed().as_secs_f64() * 1e3;
+        let at_start = self.device_table();
         let (prefetch, probability) = match self.config.prefetch {
             Prefetch::Predict => {
                 self.history.push_back(CameraState::of(view, options));
@@ -1330,29 +1467,45 @@ impl PagedTwoPlane {
             self.config.pages_per_frame,
         );
         let load_start = std::time::Instant::now();
-        let ids: Vec<u32> = loads.iter().map(|&(id, _)| id).collect();
-        let mut pages = Vec::with_capacity(ids.len());
-        let mut read_errors = Vec::new();
-        for ((id, slot), result) in loads.iter().zip(read_pages(&self.asset, &self.grid, &ids)) {
-            match result {
-                Ok(page) => pages.push(page),
-                Err(e) => {
-                    // The page stays missing (the frame reads the coarse level there) and its
-                    // slot is free; the page it evicted is gone.
-                    tracing::warn!(page = id, "page read failed: {e}");
-                    self.residency.forget(*id, *slot);
-                    read_errors.push(format!("page {id}: {e}"));
+        if wait {
+            let ids: Vec<u32> = loads.iter().map(|&(id, _)| id).collect();
+            let mut pages = Vec::with_capacity(ids.len());
+            for ((id, slot), result) in loads.iter().zip(read_pages(&self.asset, &self.grid, &ids))
+            {
+                match result {
+                    Ok(page) => pages.push(page),
+                    Err(e) => {
+                        // The page stays missing (the frame reads the coarse level there) and
+                        // its slot is free; the page it evicted is gone.
+                        tracing::warn!(page = id, "page read failed: {e}");
+                        self.residency.forget(*id, *slot);
+                        read_errors.push(format!("page {id}: {e}"));
+                    }
                 }
             }
+            self.upload(&loads, &pages);
+            pages_loaded += pages.len() as u32;
+            bytes_uploaded += pages
+                .iter()
+                .map(|p| (p.color.len() + p.depth.len()) as u64)
+                .sum::<u64>();
+        } else if !loads.is_empty() {
+            let loader = match &mut self.loader {
+                Some(loader) => loader,
+                slot @ None => slot.insert(Loader::start(Arc::clone(&self.asset), self.grid)?),
+            };
+            if loader.requests.send(loads.clone()).is_ok() {
+                loader.in_flight += loads.len();
+            } else {
+                for &(id, slot) in &loads {
+                    self.residency.forget(id, slot);
+                }
+                read_errors.push("the page loader stopped".to_owned());
+            }
         }
-        self.upload(&loads, &pages);
-        let bytes_uploaded: u64 = pages
-            .iter()
-            .map(|p| (p.color.len() + p.depth.len()) as u64)
-            .sum();
-        let load_ms = load_start.elapsed().as_secs_f64() * 1e3;
-        // The table changes only with loads (and the failed ones among them).
-        if !loads.is_empty() {
+        load_ms += load_start.elapsed().as_secs_f64() * 1e3;
+        // The table changes with uploads and with the plan's evictions.
+        if pages_loaded > 0 || !loads.is_empty() || !read_errors.is_empty() {
             self.write_table();
         }
         let uniform = PagingUniform {
@@ -1435,8 +1588,9 @@ impl PagedTwoPlane {
         let stats = PageFrameStats {
             faults,
             degraded_px: u64::from(degraded),
-            pages_loaded: loads.len() as u32,
+            pages_loaded,
             bytes_uploaded,
+            pages_pending: self.loader.as_ref().map_or(0, |l| l.in_flight as u32),
             ms: start.elapsed().as_secs_f64() * 1e3,
             pages_touched: touched.len() as u32,
             pages_projected: needed.len() as u32,
@@ -1453,9 +1607,9 @@ impl PagedTwoPlane {
         Ok((frame_out, stats))
     }
 
-    /// [`Self::render`] averaged over `draws` stratified aperture draws, as
-    /// [`crate::two_plane_render::accumulate_draws`] averages them; the stats of every draw
-    /// merged ([`PageFrameStats::merge`]).
+    /// [`Self::render`] (or with `wait` false [`Self::render_nowait`]) averaged over `draws`
+    /// stratified aperture draws, as [`crate::two_plane_render::accumulate_draws`] averages
+    /// them; the stats of every draw merged ([`PageFrameStats::merge`]).
     ///
     /// # Errors
     /// As [`Self::render`]; [`RenderError::Option`] for `draws` outside 1..=`MAX_DRAWS`.
@@ -1465,10 +1619,11 @@ impl PagedTwoPlane {
         view: &View,
         options: &TwoPlaneOptions,
         draws: u32,
+        wait: bool,
     ) -> Result<(Frame, PageFrameStats), RenderError> {
         let mut stats: Option<PageFrameStats> = None;
         let frame = crate::two_plane_render::accumulate_draws(options, draws, |o| {
-            let (frame, s) = self.render(renderer, view, o)?;
+            let (frame, s) = self.render_with(renderer, view, o, wait)?;
             match &mut stats {
                 Some(total) => total.merge(s),
                 None => stats = Some(s),

@@ -882,7 +882,9 @@ impl Plan {
     }
 
     /// [`Self::render_two_plane`] through a paged cache: the frame and its paging stats (the
-    /// draws' merged).
+    /// draws' merged). `wait`: the frame waits for the pages it plans to load (a still);
+    /// otherwise it renders at once and they arrive for later frames (an interactive view,
+    /// [`crate::page_cache::PagedTwoPlane::render_nowait`]).
     ///
     /// # Errors
     /// As [`Self::render_two_plane`].
@@ -891,9 +893,10 @@ impl Plan {
         renderer: &TwoPlaneRenderer,
         field: &mut crate::page_cache::PagedTwoPlane,
         view: &View,
+        wait: bool,
     ) -> Result<(Rendered, crate::page_cache::PageFrameStats), QualityError> {
         let (options, draws) = self.two_plane_job()?;
-        let (frame, stats) = field.render_accumulated(renderer, view, options, draws)?;
+        let (frame, stats) = field.render_accumulated(renderer, view, options, draws, wait)?;
         let rendered = Rendered {
             frame,
             decision: Self::two_plane_decision(field.planes.camera_count(), options, draws),

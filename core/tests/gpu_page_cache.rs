@@ -63,6 +63,33 @@ fn asset(planes: &TwoPlanes) -> Arc<AssetFile> {
     Arc::new(AssetFile::from_bytes(asset_bytes(planes)).expect("read back"))
 }
 
+/// Checks `frame` against `reference` bit for bit (colour and depth) at every pixel `stats` does
+/// not mark degraded; returns how many pixels were compared and how many were degraded.
+fn exact_where_not_degraded(
+    frame: &lumigraph_core::frame::Frame,
+    reference: &lumigraph_core::frame::Frame,
+    stats: &lumigraph_core::page_cache::PageFrameStats,
+    what: &str,
+) -> (usize, usize) {
+    let (mut exact, mut degraded) = (0, 0);
+    for p in 0..frame.pixel_count() {
+        if stats.degraded_mask[p] {
+            degraded += 1;
+            continue;
+        }
+        exact += 1;
+        assert_eq!(
+            (&frame.color[4 * p..4 * p + 4], frame.depth[p].to_bits()),
+            (
+                &reference.color[4 * p..4 * p + 4],
+                reference.depth[p].to_bits()
+            ),
+            "{what}: pixel {p}"
+        );
+    }
+    (exact, degraded)
+}
+
 /// Every mode: the four uv filters and a refocused aperture.
 fn modes() -> Vec<TwoPlaneOptions> {
     let mut out: Vec<TwoPlaneOptions> = UvFilter::ALL
@@ -176,21 +203,14 @@ fn frames_through_a_small_cache_equal_resident_frames_wherever_no_page_is_missin
                     stats.degraded_mask.iter().filter(|&&d| d).count() as u64,
                     stats.degraded_px
                 );
-                for p in 0..frame.pixel_count() {
-                    if stats.degraded_mask[p] {
-                        degraded += 1;
-                        continue;
-                    }
-                    exact += 1;
-                    assert_eq!(
-                        (&frame.color[4 * p..4 * p + 4], frame.depth[p].to_bits()),
-                        (
-                            &reference.color[4 * p..4 * p + 4],
-                            reference.depth[p].to_bits()
-                        ),
-                        "{policy} {options:?} pixel {p}"
-                    );
-                }
+                let (e, d) = exact_where_not_degraded(
+                    &frame,
+                    &reference,
+                    &stats,
+                    &format!("{policy} {options:?}"),
+                );
+                exact += e;
+                degraded += d;
             }
         }
         assert!(
@@ -226,10 +246,10 @@ fn accumulated_apertures_through_a_cache_equal_resident_ones_where_not_degraded(
     let (mut exact, mut degraded) = (0, 0);
     for v in pan(4, 0.1, 40) {
         let (reference, _) = whole
-            .render_accumulated(&renderer, &v, &options, 4)
+            .render_accumulated(&renderer, &v, &options, 4, true)
             .expect("whole");
         let (frame, stats) = cached
-            .render_accumulated(&renderer, &v, &options, 4)
+            .render_accumulated(&renderer, &v, &options, 4, true)
             .expect("cached");
         assert!(stats.pages_loaded <= 4 * 16, "{}", stats.pages_loaded);
         assert_eq!(
@@ -237,21 +257,9 @@ fn accumulated_apertures_through_a_cache_equal_resident_ones_where_not_degraded(
             u64::from(stats.pages_loaded) * 16 * 16 * 8,
             "RGBA8 and f32 texels of 16x16 pages"
         );
-        for p in 0..frame.pixel_count() {
-            if stats.degraded_mask[p] {
-                degraded += 1;
-                continue;
-            }
-            exact += 1;
-            assert_eq!(
-                (&frame.color[4 * p..4 * p + 4], frame.depth[p].to_bits()),
-                (
-                    &reference.color[4 * p..4 * p + 4],
-                    reference.depth[p].to_bits()
-                ),
-                "pixel {p}"
-            );
-        }
+        let (e, d) = exact_where_not_degraded(&frame, &reference, &stats, "accumulated");
+        exact += e;
+        degraded += d;
     }
     assert!(
         exact > 1000 && degraded > 100,
@@ -259,7 +267,7 @@ fn accumulated_apertures_through_a_cache_equal_resident_ones_where_not_degraded(
     );
     assert!(
         matches!(
-            cached.render_accumulated(&renderer, &pan(1, 0.0, 40)[0], &options, 0),
+            cached.render_accumulated(&renderer, &pan(1, 0.0, 40)[0], &options, 0, true),
             Err(RenderError::Option(_))
         ),
         "0 draws"
@@ -351,4 +359,101 @@ fn bad_budgets_and_corrupt_pages_are_refused() {
         Err(RenderError::Asset(e)) => assert!(!e.to_string().is_empty()),
         other => panic!("a corrupt page: {:?}", other.err()),
     }
+}
+
+/// Frames that do not wait for their pages (`render_nowait`): the first renders at once from the
+/// coarse level alone, the pages arrive from the reader thread for later frames, and a view
+/// held still converges to the fully resident frame, every pixel that is not degraded equal to
+/// it bit for bit on the way. A waiting frame after them takes the pages still being read.
+#[test]
+fn frames_that_do_not_wait_for_pages_converge_to_the_resident_frame() {
+    let planes = planes();
+    let asset = asset(&planes);
+    let renderer = TwoPlaneRenderer::new(gpu());
+    let mut whole =
+        PagedTwoPlane::open(&renderer, Arc::clone(&asset), CacheConfig::whole()).expect("open");
+    let config = CacheConfig {
+        budget_bytes: Some(320 * 1024),
+        prefetch: Prefetch::Lru,
+        pages_per_frame: 6,
+    };
+    let mut cached = PagedTwoPlane::open(&renderer, Arc::clone(&asset), config).expect("open");
+    let options = TwoPlaneOptions::default();
+    let v = &pan(1, 0.0, 40)[0];
+    let (reference, _) = whole.render(&renderer, v, &options).expect("whole");
+    let (_, stats) = cached.render_nowait(&renderer, v, &options).expect("first");
+    assert_eq!(
+        stats.pages_loaded, 0,
+        "nothing arrived before the first frame"
+    );
+    assert_eq!(
+        stats.pages_pending, 6,
+        "the frame's planned pages are being read"
+    );
+    assert_eq!(
+        stats.faults, stats.pages_touched,
+        "no page on the device yet"
+    );
+    assert!(stats.degraded_px > 0);
+    let mut frames = 1;
+    let converged = loop {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        let (frame, stats) = cached.render_nowait(&renderer, v, &options).expect("frame");
+        frames += 1;
+        exact_where_not_degraded(&frame, &reference, &stats, &format!("frame {frames}"));
+        if stats.degraded_px == 0 && stats.pages_pending == 0 || frames > 60 {
+            break stats.degraded_px == 0;
+        }
+    };
+    assert!(converged, "still degraded after {frames} frames");
+    assert!(frames > 2, "6 pages a frame cannot load the view at once");
+    // A moved view: its pages are asked for without waiting, then a waiting frame takes them.
+    let moved = &pan(2, 0.3, 40)[1];
+    let (_, asked) = cached
+        .render_nowait(&renderer, moved, &options)
+        .expect("moved");
+    let (_, waited) = cached.render(&renderer, moved, &options).expect("waited");
+    assert_eq!(waited.pages_pending, 0);
+    assert!(
+        waited.pages_loaded >= asked.pages_pending,
+        "{asked:?} then {waited:?}"
+    );
+}
+
+/// A page that fails to read in the background (the file corrupted under an open cache) is
+/// reported by a later frame and stays missing: that frame is degraded, nothing panics, and
+/// the pages that read well still render.
+#[test]
+fn a_page_failing_to_read_in_the_background_degrades_later_frames() {
+    let planes = planes();
+    let bytes = asset_bytes(&planes);
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join("paged.lfa");
+    std::fs::write(&path, &bytes).expect("write");
+    let asset = Arc::new(AssetFile::open(&path).expect("open"));
+    let renderer = TwoPlaneRenderer::new(gpu());
+    let config = CacheConfig {
+        budget_bytes: Some(320 * 1024),
+        prefetch: Prefetch::Lru,
+        pages_per_frame: 64,
+    };
+    let mut cached = PagedTwoPlane::open(&renderer, asset, config).expect("open");
+    // Every page's bytes flipped on disk (the header and index are in memory).
+    let mut corrupt = bytes.clone();
+    for b in &mut corrupt[bytes.len() / 10..bytes.len() * 9 / 10] {
+        *b ^= 0xa5;
+    }
+    std::fs::write(&path, &corrupt).expect("corrupt");
+    let v = &pan(1, 0.0, 40)[0];
+    let options = TwoPlaneOptions::default();
+    let (_, first) = cached.render_nowait(&renderer, v, &options).expect("first");
+    assert!(first.pages_pending > 0);
+    std::thread::sleep(std::time::Duration::from_millis(50));
+    let (frame, later) = cached.render(&renderer, v, &options).expect("later");
+    assert!(!later.read_errors.is_empty(), "{later:?}");
+    assert!(later.degraded_px > 0);
+    assert!(
+        frame.depth.iter().any(|d| d.is_finite()),
+        "the coarse level shows"
+    );
 }

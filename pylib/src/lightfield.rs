@@ -164,7 +164,7 @@ impl PyLightField {
         let mut frames = Vec::with_capacity(views.len());
         for view in views {
             let (frame, mut stats) = cache
-                .render_accumulated(renderer, view, options, draws)
+                .render_accumulated(renderer, view, options, draws, true)
                 .map_err(|e| errors::render(&e))?;
             stats.degraded_mask = Vec::new();
             paged.summary.add(&stats);

@@ -3045,9 +3045,13 @@ fn paged_trace_replay_reports_and_errors() {
         "paged-trace.json",
         format!("[{}]", frames.join(",")).as_bytes(),
     );
-    for policy in ["none", "lru", "predict", ""] {
+    for policy in ["none", "lru", "predict", "predict-async", ""] {
         let dir = path(&format!("paged-frames-{policy}"));
         let report = path(&format!("paged-report-{policy}.json"));
+        let (policy, asynchronous) = match policy.strip_suffix("-async") {
+            Some(p) => (p, true),
+            None => (policy, false),
+        };
         let mut args = vec![
             "render",
             s(&asset),
@@ -3060,6 +3064,9 @@ fn paged_trace_replay_reports_and_errors() {
         ];
         if !policy.is_empty() {
             args.extend(["--cache-mib", "1", "--prefetch", policy]);
+        }
+        if asynchronous {
+            args.push("--async-loads");
         }
         let o = lumigraph(&args);
         assert!(
@@ -3083,6 +3090,13 @@ fn paged_trace_replay_reports_and_errors() {
         } else {
             assert!(faults > 0, "{policy}: a cold cache faults");
             assert_eq!(r["cache"]["prefetch"].as_str(), Some(policy));
+            assert_eq!(r["cache"]["async_loads"].as_bool(), Some(asynchronous));
+            assert!(frames.iter().all(|f| f["pages_pending"].is_u64()));
+        }
+        if asynchronous {
+            // The first frame renders before any page arrives: all of it read the coarse level.
+            assert_eq!(frames[0]["pages_loaded"].as_u64(), Some(0));
+            assert!(frames[0]["degraded_px"].as_u64() > Some(0));
         }
     }
     let nan = write(

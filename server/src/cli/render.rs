@@ -68,6 +68,11 @@ pub struct CacheArgs {
     /// Write per-frame faults, degraded pixels, pages loaded and times (JSON).
     #[arg(long, value_name = "REPORT.json")]
     pub report: Option<PathBuf>,
+    /// Frames do not wait for the pages they load: a reader thread reads them while the frame
+    /// renders with the pages on the device (the coarse level elsewhere), and they arrive for
+    /// later frames, as in an interactive viewer. Without it each frame waits for its pages.
+    #[arg(long, requires = "cache_mib")]
+    pub async_loads: bool,
 }
 
 impl CacheArgs {
@@ -88,6 +93,7 @@ struct CacheReport<'a> {
 struct CacheDescription {
     prefetch: Option<String>,
     pages_per_frame: u32,
+    async_loads: bool,
     budget_mib: Option<f64>,
     device_mib: f64,
     resident_asset_mib: f64,
@@ -160,7 +166,11 @@ fn render_paged(args: &RenderArgs, asset: AssetFile) -> Result<()> {
     );
     let mut stats = Vec::with_capacity(frames.len());
     for (i, f) in frames.iter().enumerate() {
-        let (frame, s) = field.render(&renderer, &f.view, &f.options(&base))?;
+        let (frame, s) = if cache.async_loads {
+            field.render_nowait(&renderer, &f.view, &f.options(&base))?
+        } else {
+            field.render(&renderer, &f.view, &f.options(&base))?
+        };
         if let Some(e) = s.read_errors.first() {
             bail!("frame {i}: {e}");
         }
@@ -183,6 +193,7 @@ fn render_paged(args: &RenderArgs, asset: AssetFile) -> Result<()> {
             cache: CacheDescription {
                 prefetch: config.budget_bytes.map(|_| config.prefetch.to_string()),
                 pages_per_frame: config.pages_per_frame,
+                async_loads: cache.async_loads,
                 budget_mib: cache.cache_mib,
                 device_mib: mib(field.bytes),
                 resident_asset_mib: mib(field.full_bytes),

@@ -772,7 +772,7 @@ async fn render_response(
     } = body;
     let rendered = state
         .pool()
-        .render(asset, request.view.clone(), plan)
+        .render(asset, request.view.clone(), plan, true)
         .await?;
     let decision = rendered.decision;
     if let Some(pages) = &rendered.pages {

@@ -218,13 +218,16 @@ impl RenderPool {
         }
     }
 
-    /// Renders `view` of `asset` as `plan` says; 503 when the queue is full or the memory
+    /// Renders `view` of `asset` as `plan` says (through a page cache: waiting for the pages the
+    /// frame loads with `wait_for_pages`, else at once with those on the device); 503 when the
+    /// queue is full or the memory
     /// budget stays taken, 413 when the frame alone exceeds the budget.
     pub async fn render(
         &self,
         asset: Arc<LoadedAsset>,
         view: View,
         plan: Plan,
+        wait_for_pages: bool,
     ) -> Result<Rendered, AppError> {
         let _queued = self.queue.clone().try_acquire_owned().map_err(|_| {
             AppError::Unavailable("the render queue is full; retry shortly".to_owned())
@@ -264,7 +267,12 @@ impl RenderPool {
                     .render_two_plane(&engine_now.two_plane, field, &view)
                     .map(|r| (r, None)),
                 AssetField::Paged(field) => plan
-                    .render_two_plane_paged(&engine_now.two_plane, &mut field.lock(), &view)
+                    .render_two_plane_paged(
+                        &engine_now.two_plane,
+                        &mut field.lock(),
+                        &view,
+                        wait_for_pages,
+                    )
                     .map(|(r, pages)| {
                         for e in &pages.read_errors {
                             tracing::warn!(asset = asset.id, "frame degraded: {e}");

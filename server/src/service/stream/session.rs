@@ -537,7 +537,15 @@ impl Sender<'_> {
         // depth extension carries it so the client can reproject the frame.
         let rendered_view = view.clone();
         let (plan, stamp) = self.animation_frame(effective, plan);
-        let rendered = match self.state.pool().render(asset, view, plan).await {
+        // Interactive frames never wait for pages being read (they show the coarse level
+        // there); the resting frame does.
+        let wait_for_pages = quality != Quality::Interactive;
+        let rendered = match self
+            .state
+            .pool()
+            .render(asset, view, plan, wait_for_pages)
+            .await
+        {
             Ok(r) => r,
             Err(err) => {
                 self.state.metrics().error(err.kind());
