@@ -90,6 +90,26 @@ fn exact_where_not_degraded(
     (exact, degraded)
 }
 
+/// A renderer, the fully resident cache of [`asset`] (the reference) and a cache of
+/// `budget_kib` KiB with `prefetch` loading at most `pages_per_frame` pages a frame.
+fn whole_and_cached(
+    budget_kib: u64,
+    prefetch: Prefetch,
+    pages_per_frame: u32,
+) -> (TwoPlaneRenderer, PagedTwoPlane, PagedTwoPlane) {
+    let asset = asset(&planes());
+    let renderer = TwoPlaneRenderer::new(gpu());
+    let whole =
+        PagedTwoPlane::open(&renderer, Arc::clone(&asset), CacheConfig::whole()).expect("open");
+    let config = CacheConfig {
+        budget_bytes: Some(budget_kib * 1024),
+        prefetch,
+        pages_per_frame,
+    };
+    let cached = PagedTwoPlane::open(&renderer, asset, config).expect("open cache");
+    (renderer, whole, cached)
+}
+
 /// Every mode: the four uv filters and a refocused aperture.
 fn modes() -> Vec<TwoPlaneOptions> {
     let mut out: Vec<TwoPlaneOptions> = UvFilter::ALL
@@ -226,17 +246,7 @@ fn frames_through_a_small_cache_equal_resident_frames_wherever_no_page_is_missin
 /// draw's loads.
 #[test]
 fn accumulated_apertures_through_a_cache_equal_resident_ones_where_not_degraded() {
-    let planes = planes();
-    let asset = asset(&planes);
-    let renderer = TwoPlaneRenderer::new(gpu());
-    let mut whole =
-        PagedTwoPlane::open(&renderer, Arc::clone(&asset), CacheConfig::whole()).expect("open");
-    let config = CacheConfig {
-        budget_bytes: Some(320 * 1024),
-        prefetch: Prefetch::Predict,
-        pages_per_frame: 16,
-    };
-    let mut cached = PagedTwoPlane::open(&renderer, Arc::clone(&asset), config).expect("open");
+    let (renderer, mut whole, mut cached) = whole_and_cached(320, Prefetch::Predict, 16);
     let options = TwoPlaneOptions {
         focus: 0.3,
         aperture: 3.0,
@@ -367,17 +377,7 @@ fn bad_budgets_and_corrupt_pages_are_refused() {
 /// it bit for bit on the way. A waiting frame after them takes the pages still being read.
 #[test]
 fn frames_that_do_not_wait_for_pages_converge_to_the_resident_frame() {
-    let planes = planes();
-    let asset = asset(&planes);
-    let renderer = TwoPlaneRenderer::new(gpu());
-    let mut whole =
-        PagedTwoPlane::open(&renderer, Arc::clone(&asset), CacheConfig::whole()).expect("open");
-    let config = CacheConfig {
-        budget_bytes: Some(320 * 1024),
-        prefetch: Prefetch::Lru,
-        pages_per_frame: 6,
-    };
-    let mut cached = PagedTwoPlane::open(&renderer, Arc::clone(&asset), config).expect("open");
+    let (renderer, mut whole, mut cached) = whole_and_cached(320, Prefetch::Lru, 6);
     let options = TwoPlaneOptions::default();
     let v = &pan(1, 0.0, 40)[0];
     let (reference, _) = whole.render(&renderer, v, &options).expect("whole");
