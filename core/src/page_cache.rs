@@ -287,17 +287,11 @@ impl PageSummary {
 
     /// The totals of `frames`.
     pub fn of(frames: &[PageFrameStats]) -> PageSummary {
-        let n = frames.len().max(1) as f64;
-        PageSummary {
-            frames: frames.len() as u32,
-            faults: frames.iter().map(|f| u64::from(f.faults)).sum(),
-            degraded_px: frames.iter().map(|f| f.degraded_px).sum(),
-            pages_loaded: frames.iter().map(|f| u64::from(f.pages_loaded)).sum(),
-            bytes_uploaded: frames.iter().map(|f| f.bytes_uploaded).sum(),
-            mean_ms: frames.iter().map(|f| f.ms).sum::<f64>() / n,
-            max_ms: frames.iter().map(|f| f.ms).fold(0.0, f64::max),
-            projection_missed: frames.iter().map(|f| u64::from(f.projection_missed)).sum(),
+        let mut summary = PageSummary::default();
+        for frame in frames {
+            summary.add(frame);
         }
+        summary
     }
 }
 
@@ -1369,13 +1363,11 @@ impl PagedTwoPlane {
         self.render_with(renderer, view, options, false)
     }
 
-    /// Takes the pages the reader finished (waiting for all of them with `wait`) and uploads
-    /// those whose slot is still theirs; a page that failed is dropped from its slot. Returns
-    /// the pages and bytes uploaded and the read errors.
+    /// Takes the pages the reader finished (waiting for all of them with `wait`) and
+    /// [`Self::accept`]s them.
     fn receive(&mut self, wait: bool) -> (u32, u64, Vec<String>) {
-        let (mut pages, mut bytes, mut errors) = (0, 0, Vec::new());
         let Some(loader) = &mut self.loader else {
-            return (pages, bytes, errors);
+            return (0, 0, Vec::new());
         };
         let mut arrived = Vec::new();
         while loader.in_flight > 0 {
@@ -1390,10 +1382,21 @@ impl PagedTwoPlane {
             loader.in_flight -= 1;
             arrived.push(result);
         }
+        self.accept(arrived)
+    }
+
+    /// Uploads each page read for its slot, where the slot is still its own (a page evicted or
+    /// moved while it was being read is dropped); a page that failed to read stays missing
+    /// (frames read the coarse level there) and its slot is freed. Returns the pages and bytes
+    /// uploaded and the read errors.
+    fn accept(
+        &mut self,
+        arrived: Vec<(u32, u32, Result<LoadedPage, RenderError>)>,
+    ) -> (u32, u64, Vec<String>) {
+        let (mut pages, mut bytes, mut errors) = (0, 0, Vec::new());
         for (id, slot, result) in arrived {
             match result {
                 Ok(page) => {
-                    // Evicted (or moved) while it was being read: dropped.
                     if self.residency.table().get(id as usize) == Some(&slot) {
                         bytes += (page.color.len() + page.depth.len()) as u64;
                         pages += 1;
@@ -1469,26 +1472,17 @@ impl PagedTwoPlane {
         let load_start = std::time::Instant::now();
         if wait {
             let ids: Vec<u32> = loads.iter().map(|&(id, _)| id).collect();
-            let mut pages = Vec::with_capacity(ids.len());
-            for ((id, slot), result) in loads.iter().zip(read_pages(&self.asset, &self.grid, &ids))
-            {
-                match result {
-                    Ok(page) => pages.push(page),
-                    Err(e) => {
-                        // The page stays missing (the frame reads the coarse level there) and
-                        // its slot is free; the page it evicted is gone.
-                        tracing::warn!(page = id, "page read failed: {e}");
-                        self.residency.forget(*id, *slot);
-                        read_errors.push(format!("page {id}: {e}"));
-                    }
-                }
-            }
-            self.upload(&loads, &pages);
-            pages_loaded += pages.len() as u32;
-            bytes_uploaded += pages
-                .iter()
-                .map(|p| (p.color.len() + p.depth.len()) as u64)
-                .sum::<u64>();
+            let read = read_pages(&self.asset, &self.grid, &ids);
+            let (pages, bytes, errors) = self.accept(
+                loads
+                    .iter()
+                    .zip(read)
+                    .map(|(&(id, slot), result)| (id, slot, result))
+                    .collect(),
+            );
+            pages_loaded += pages;
+            bytes_uploaded += bytes;
+            read_errors.extend(errors);
         } else if !loads.is_empty() {
             let loader = match &mut self.loader {
                 Some(loader) => loader,

@@ -87,7 +87,6 @@ pub struct PagedField {
     /// The cache.
     pub cache: Mutex<PagedTwoPlane>,
     gpu: Arc<Gpu>,
-    bytes: u64,
     summary: CacheSummary,
 }
 
@@ -135,7 +134,7 @@ impl AssetField {
         match self {
             AssetField::Spherical(f) => f.gpu_bytes,
             AssetField::TwoPlane(f) => f.bytes,
-            AssetField::Paged(f) => f.bytes,
+            AssetField::Paged(f) => f.summary.device_bytes,
         }
     }
 }
@@ -365,7 +364,6 @@ fn open_paged(
     };
     Ok(AssetField::Paged(Box::new(PagedField {
         gpu: Arc::clone(engine.gpu()),
-        bytes: cache.bytes,
         summary,
         cache: Mutex::new(cache),
     })))

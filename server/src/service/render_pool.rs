@@ -266,19 +266,17 @@ impl RenderPool {
                 AssetField::TwoPlane(field) => plan
                     .render_two_plane(&engine_now.two_plane, field, &view)
                     .map(|r| (r, None)),
-                AssetField::Paged(field) => plan
-                    .render_two_plane_paged(
+                AssetField::Paged(field) => {
+                    // The cache logs the pages that fail to read: under the asset's id.
+                    let _asset = tracing::warn_span!("paged", asset = %asset.id).entered();
+                    plan.render_two_plane_paged(
                         &engine_now.two_plane,
                         &mut field.lock(),
                         &view,
                         wait_for_pages,
                     )
-                    .map(|(r, pages)| {
-                        for e in &pages.read_errors {
-                            tracing::warn!(asset = asset.id, "frame degraded: {e}");
-                        }
-                        (r, Some(pages))
-                    }),
+                    .map(|(r, pages)| (r, Some(pages)))
+                }
             };
             (rendered, start.elapsed().as_secs_f64() * 1e3)
         })
