@@ -71,6 +71,7 @@ pub mod two_plane_io;
 pub mod two_plane_render;
 pub mod view;
 pub mod volume;
+pub mod zstack;
 
 pub use fsutil::{atomic_write, sync_dir, temp_target};
 

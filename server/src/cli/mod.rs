@@ -24,6 +24,7 @@ mod plot;
 mod render;
 mod serve;
 mod two_plane_io;
+mod zstack;
 
 pub use args::{DepthArgs, ShadingArgs, ViewArgs};
 pub use bake::BakeArgs;
@@ -62,6 +63,9 @@ pub enum Command {
     /// Import a folder of images on a camera grid (or the Stanford archive layout) as a
     /// two-plane light field.
     Import(two_plane_io::ImportArgs),
+    /// Synthesise a two-plane light field from a microscope z-stack (multi-page TIFF or a
+    /// folder of slices).
+    ImportZstack(zstack::ImportZStackArgs),
     /// Export a two-plane light field as per-camera images (+ depth) or the plenoptic mosaic.
     Export(two_plane_io::ExportArgs),
     /// Benchmarks: `bench tradeoff` sweeps the quality knobs (speed against accuracy).
@@ -86,6 +90,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Info(args) => info::info(&args),
         Command::ImportViews(args) => import_views::import_views(&args),
         Command::Import(args) => two_plane_io::import(&args),
+        Command::ImportZstack(args) => zstack::import_zstack(&args),
         Command::Export(args) => two_plane_io::export(&args),
         Command::Bench(args) => match args.command {
             BenchCommand::Tradeoff(args) => bench::bench_tradeoff(&args),
