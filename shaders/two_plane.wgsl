@@ -24,4 +24,6 @@ fn depth_at(layer: u32, ji: vec2<f32>) -> f32 {
     return depth_texel(layer, vec2<i32>(round(clamp(ji, vec2<f32>(0.0), hi))));
 }
 
+fn pixel_lod(o: vec3<f32>, xk: f32, yk: f32, ps: vec3<f32>) {}
+
 fn pixel_done(gid: vec3<u32>) {}

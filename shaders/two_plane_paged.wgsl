@@ -8,6 +8,10 @@
 // F × F block), and the pixel counts as degraded. Every page a pixel reads (resident or not)
 // gets this frame's stamp in `touched`: the pages the frame needed.
 //
+// Overview: a pixel that spans at least F st texels (`st_footprint`) reads the coarse level
+// alone, bilinearly (it is a box-filtered copy, the right level for such a pixel), needs no
+// page and counts as an overview pixel, not a degraded one: a zoomed-out view loads nothing.
+//
 // Each texel is looked up in its own page, so the bilinear 2×2 footprint and the 2×2 depth
 // footprint read across page borders correctly without gutters; the common case (all four
 // texels in one page) looks the page up once. A texel's value is the same whichever slot holds
@@ -23,7 +27,14 @@ struct Paging {
     coarse_shift: u32,
     coarse_res: vec2<u32>,
     stamp: u32,
-    pad: u32,
+    // Pixels spanning this many st texels or more read the coarse level (overview): F, or
+    // +inf with the overview off (a comparison, not a branch on the uniform).
+    overview_min: f32,
+    // Words of each per-pixel mask.
+    mask_words: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
 const NOT_RESIDENT: u32 = 0xffffffffu;
@@ -36,10 +47,31 @@ const NOT_RESIDENT: u32 = 0xffffffffu;
 @group(0) @binding(8) var coarse_depths: texture_2d_array<f32>;
 // Per page: the stamp of the last frame that read it.
 @group(0) @binding(9) var<storage, read_write> touched: array<u32>;
-// [0]: degraded pixels; then one bit per pixel (row-major), set where the pixel is degraded.
+// [0]: degraded pixels, [1]: overview pixels; then one bit per pixel (row-major) set where the
+// pixel is degraded, then one where it is overview (`paging.mask_words` words each).
 @group(0) @binding(10) var<storage, read_write> degraded_px: array<atomic<u32>>;
 
 var<private> degraded: bool = false;
+var<private> overview: bool = false;
+
+fn pixel_lod(o: vec3<f32>, xk: f32, yk: f32, ps: vec3<f32>) {
+    overview = st_footprint(o, xk, yk, ps) >= paging.overview_min;
+}
+
+// Bilinear colour of the coarse level of camera `layer` at full-resolution texel `ji`.
+fn coarse_color_at(layer: u32, ji: vec2<f32>) -> vec4<f32> {
+    let scale = 1.0 / f32(1u << paging.coarse_shift);
+    let hi = vec2<f32>(paging.coarse_res) - vec2<f32>(1.0);
+    let x = clamp((ji + vec2<f32>(0.5)) * scale - vec2<f32>(0.5), vec2<f32>(0.0), hi);
+    let t0 = vec2<i32>(floor(x));
+    let t1 = min(t0 + vec2<i32>(1), vec2<i32>(paging.coarse_res) - vec2<i32>(1));
+    let f = x - floor(x);
+    let c00 = textureLoad(coarse_colors, t0, layer, 0);
+    let c10 = textureLoad(coarse_colors, vec2<i32>(t1.x, t0.y), layer, 0);
+    let c01 = textureLoad(coarse_colors, vec2<i32>(t0.x, t1.y), layer, 0);
+    let c11 = textureLoad(coarse_colors, t1, layer, 0);
+    return mix(mix(c00, c10, f.x), mix(c01, c11, f.x), f.y);
+}
 
 // Where a page lives: its slot's atlas layer and the texel of its corner; `ok` false when the
 // page is not resident. The index table holds the slot's place packed (tile column in bits 0–7,
@@ -85,6 +117,9 @@ fn color_in(s: Slot, layer: u32, t: vec2<u32>) -> vec4<f32> {
 // Bilinear colour of camera `layer` at continuous texel `ji` (clamped to the image, as the
 // resident sampler's clamp to edge does): premultiplied (a miss is (0, 0, 0, 0)).
 fn color_at(layer: u32, ji: vec2<f32>) -> vec4<f32> {
+    if overview {
+        return coarse_color_at(layer, ji);
+    }
     let hi = vec2<f32>(params.res) - vec2<f32>(1.0);
     let x = clamp(ji, vec2<f32>(0.0), hi);
     let t0 = vec2<u32>(floor(x));
@@ -109,6 +144,9 @@ fn color_at(layer: u32, ji: vec2<f32>) -> vec4<f32> {
 // Stored depth of texel `p` (inside the image).
 fn depth_texel(layer: u32, p: vec2<i32>) -> f32 {
     let t = vec2<u32>(p);
+    if overview {
+        return textureLoad(coarse_depths, coarse_texel(t), layer, 0).r;
+    }
     let s = resolve(layer, t);
     if s.ok {
         return textureLoad(slot_depths, s.origin + in_page(t), s.layer, 0).r;
@@ -124,9 +162,10 @@ fn depth_at(layer: u32, ji: vec2<f32>) -> f32 {
 }
 
 fn pixel_done(gid: vec3<u32>) {
-    if degraded {
+    if degraded || overview {
         let idx = gid.y * params.size.x + gid.x;
-        atomicAdd(&degraded_px[0], 1u);
-        atomicOr(&degraded_px[1u + idx / 32u], 1u << (idx % 32u));
+        let which = select(0u, 1u, overview);
+        atomicAdd(&degraded_px[which], 1u);
+        atomicOr(&degraded_px[2u + which * paging.mask_words + idx / 32u], 1u << (idx % 32u));
     }
 }

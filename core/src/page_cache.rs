@@ -114,6 +114,10 @@ pub struct CacheConfig {
     pub prefetch: Prefetch,
     /// Most pages loaded per frame.
     pub pages_per_frame: u32,
+    /// Pixels that span the coarse factor F or more st texels read the coarse level (bilinear)
+    /// and need no page: a zoomed-out view loads nothing. Off, they read the pages as every
+    /// other pixel does (what the fully resident renderer shows).
+    pub overview: bool,
 }
 
 impl CacheConfig {
@@ -123,6 +127,7 @@ impl CacheConfig {
             budget_bytes: Some((mib.max(0.0) * 1024.0 * 1024.0) as u64),
             prefetch,
             pages_per_frame,
+            overview: true,
         }
     }
 
@@ -132,6 +137,7 @@ impl CacheConfig {
             budget_bytes: None,
             prefetch: Prefetch::None,
             pages_per_frame: u32::MAX,
+            overview: false,
         }
     }
 }
@@ -192,8 +198,12 @@ impl PageGrid {
 pub struct PageFrameStats {
     /// Pages the frame touched that were not resident when it started.
     pub faults: u32,
-    /// Pixels that read at least one texel from the coarse level.
+    /// Pixels that read at least one texel from the coarse level for want of a page.
     pub degraded_px: u64,
+    /// Pixels that span the coarse factor F or more st texels and read the coarse level by
+    /// choice (overview: they need no page; [`CacheConfig::overview`]).
+    #[serde(default)]
+    pub overview_px: u64,
     /// Pages loaded for this frame (needed ones first, then prefetched ones).
     pub pages_loaded: u32,
     /// Bytes those pages uploaded to the device (colour and depth).
@@ -221,6 +231,9 @@ pub struct PageFrameStats {
     /// Per pixel (row-major): whether it is degraded.
     #[serde(skip)]
     pub degraded_mask: Vec<bool>,
+    /// Per pixel (row-major): whether it is an overview pixel.
+    #[serde(skip)]
+    pub overview_mask: Vec<bool>,
 }
 
 impl PageFrameStats {
@@ -246,6 +259,13 @@ impl PageFrameStats {
         } else {
             self.degraded_px = self.degraded_px.max(other.degraded_px);
         }
+        // Every draw of a frame has the same overview pixels.
+        self.overview_px = self.overview_px.max(other.overview_px);
+        if self.overview_mask.len() == other.overview_mask.len() {
+            for (a, b) in self.overview_mask.iter_mut().zip(other.overview_mask) {
+                *a |= b;
+            }
+        }
     }
 }
 
@@ -258,6 +278,9 @@ pub struct PageSummary {
     pub faults: u64,
     /// Sum of degraded pixels.
     pub degraded_px: u64,
+    /// Sum of overview pixels.
+    #[serde(default)]
+    pub overview_px: u64,
     /// Sum of pages loaded.
     pub pages_loaded: u64,
     /// Sum of bytes uploaded.
@@ -279,6 +302,7 @@ impl PageSummary {
         self.frames += 1;
         self.faults += u64::from(frame.faults);
         self.degraded_px += frame.degraded_px;
+        self.overview_px += frame.overview_px;
         self.pages_loaded += u64::from(frame.pages_loaded);
         self.bytes_uploaded += frame.bytes_uploaded;
         self.max_ms = self.max_ms.max(frame.ms);
@@ -299,7 +323,9 @@ impl PageSummary {
 /// `depth_range`), sorted: every `stride`-th pixel's ray (and the last row and column) is
 /// projected, through the focal plane (or the heights the depth-corrected filter marches), into
 /// every camera the uv filter or aperture reads; each 2×2 group of rays covers the hull of its
-/// projections (a texel wider for the bilinear footprint).
+/// projections (a texel wider for the bilinear footprint). With `overview` (the coarse factor
+/// F of a cache whose [`CacheConfig::overview`] is on), a group whose rays all span F or more
+/// st texels needs no page.
 ///
 /// # Errors
 /// [`RenderError::View`] for an invalid view.
@@ -310,15 +336,19 @@ pub fn needed_pages(
     view: &View,
     options: &TwoPlaneOptions,
     stride: u32,
+    overview: Option<u32>,
 ) -> Result<Vec<u32>, RenderError> {
     /// A projected ray: its uv cell and its points at each height.
     struct Ray {
         cell: [f64; 2],
         points: Vec<DVec3>,
         inside: bool,
+        /// St texels the pixel spans (0 without `overview`).
+        footprint: f64,
     }
     let basis = view.basis(DEFAULT_MAX_VIEW_PX)?;
-    let stride = stride.max(1);
+    // Tiny views sample finer: a light field smaller than a group of rays would slip between.
+    let stride = stride.clamp(1, (basis.width.min(basis.height) / 4).max(1));
     let origin = DVec3::from(planes.st.center);
     let (right, up) = planes.axes();
     let normal = planes.normal();
@@ -354,6 +384,33 @@ pub fn needed_pages(
             (s.dot(right) / sw + 0.5) * res[0] - 0.5,
             (0.5 - s.dot(up) / sh) * res[1] - 0.5,
         ])
+    };
+    // The st texels pixel (i, j) spans, as the shader's `st_footprint` measures them.
+    let footprint = |i: u32, j: u32| {
+        let d = basis.pixel_dir(i, j);
+        let eh = o.dot(normal);
+        let ps = o - eh / d.dot(normal) * d;
+        let span = |n: DVec3| {
+            let along = n.dot(normal);
+            if !(along < 0.0) {
+                return f64::INFINITY;
+            }
+            let delta = o - eh / along * n - ps;
+            (delta.dot(right) / sw * res[0]).hypot(delta.dot(up) / sh * res[1])
+        };
+        span(basis.pixel_dir(i, j + 1)).max(span(basis.pixel_dir(i + 1, j)))
+    };
+    // The (row, column) where the eye's foot on st (the st point nearest the eye) is seen,
+    // where it is in front of the eye (the pixel of smallest footprint).
+    let foot = {
+        let d = -o.dot(normal) * normal;
+        let ahead = d.dot(basis.forward);
+        (ahead > 0.0).then(|| {
+            (
+                f64::from(basis.height) / 2.0 - 0.5 - d.dot(basis.true_up) / ahead * basis.focal_px,
+                f64::from(basis.width) / 2.0 - 0.5 + d.dot(basis.right) / ahead * basis.focal_px,
+            )
+        })
     };
     // The rays on the stride grid: their uv cell and their points at each height.
     let xs: Vec<u32> = (0..basis.width)
@@ -391,6 +448,11 @@ pub fn needed_pages(
                 cell,
                 points,
                 inside,
+                footprint: if overview.is_some() {
+                    footprint(i, j)
+                } else {
+                    0.0
+                },
             }));
         }
     }
@@ -413,6 +475,23 @@ pub fn needed_pages(
                 .filter_map(|&(x, y)| rays[y * nx + x].as_ref())
                 .collect();
             if !corners.iter().any(|r| r.inside) {
+                continue;
+            }
+            // A group of overview rays needs no page when every pixel in it is overview. The
+            // footprint grows away from the pixel nearest the eye's foot on st, so the corners
+            // bound a group that does not hold that pixel; the group that does is measured
+            // pixel by pixel.
+            let holds_foot = foot.is_some_and(|(fi, fj)| {
+                (f64::from(ys[qy])..=f64::from(ys[qy + 1])).contains(&fi)
+                    && (f64::from(xs[qx])..=f64::from(xs[qx + 1])).contains(&fj)
+            });
+            if let Some(f) = overview.map(f64::from)
+                && corners.len() == 4
+                && corners.iter().all(|r| r.footprint >= f)
+                && (!holds_foot
+                    || (ys[qy]..=ys[qy + 1])
+                        .all(|i| (xs[qx]..=xs[qx + 1]).all(|j| footprint(i, j) >= f)))
+            {
                 continue;
             }
             let mut lo = [f64::INFINITY; 2];
@@ -864,7 +943,9 @@ struct PagingUniform {
     coarse_shift: u32,
     coarse_res: [u32; 2],
     stamp: u32,
-    pad: u32,
+    overview_min: f32,
+    mask_words: u32,
+    pad: [u32; 3],
 }
 
 /// A page read from the file: its id and colour and depth texels.
@@ -966,6 +1047,9 @@ pub struct PagedTwoPlane {
     loader: Option<Loader>,
     frame: u32,
     history: VecDeque<CameraState>,
+    /// Pages the last frame touched that its projection missed and that were not on the
+    /// device after its loads (sorted): the next frame needs them whatever its projection says.
+    missed: Vec<u32>,
 }
 
 /// A thread that reads and decodes pages for [`PagedTwoPlane::render_nowait`] while frames
@@ -1125,6 +1209,7 @@ impl PagedTwoPlane {
             loader: None,
             frame: 0,
             history: VecDeque::new(),
+            missed: Vec::new(),
         };
         paged.build_coarse(config.budget_bytes.is_none())?;
         Ok(paged)
@@ -1282,6 +1367,11 @@ impl PagedTwoPlane {
         &self.config
     }
 
+    /// The coarse factor where overview pixels are on.
+    fn overview_factor(&self) -> Option<u32> {
+        self.config.overview.then_some(self.coarse_factor)
+    }
+
     /// Each page the predictive policy would prefetch after the frames so far, with its
     /// probability: for each camera parameter that moved over the last two frames (and for all
     /// of them together), the pages of that parameter dead-reckoned 1, 2, …,
@@ -1310,6 +1400,7 @@ impl PagedTwoPlane {
                     &state.view(),
                     &o,
                     4 * NEEDS_STRIDE,
+                    self.overview_factor(),
                 ) else {
                     // An extrapolated view may be invalid (a field of view past its range):
                     // nothing to prefetch for it.
@@ -1438,14 +1529,22 @@ impl PagedTwoPlane {
     ) -> Result<(Frame, PageFrameStats), RenderError> {
         options.validate()?;
         let start = std::time::Instant::now();
-        let needed = needed_pages(
+        let projected = needed_pages(
             &self.planes,
             &self.grid,
             self.depth_range,
             view,
             options,
             NEEDS_STRIDE,
+            self.overview_factor(),
         )?;
+        // The projection, and the shader's feedback of the last frame where it saw more.
+        let mut needed = projected.clone();
+        if !self.missed.is_empty() {
+            needed.extend(std::mem::take(&mut self.missed));
+            needed.sort_unstable();
+            needed.dedup();
+        }
         self.frame = self.frame.wrapping_add(1).max(1);
         let frame = self.frame;
         let load_start = std::time::Instant::now();
@@ -1502,6 +1601,7 @@ impl PagedTwoPlane {
         if pages_loaded > 0 || !loads.is_empty() || !read_errors.is_empty() {
             self.write_table();
         }
+        let pixels = u64::from(view.width) * u64::from(view.height);
         let uniform = PagingUniform {
             page_shift: self.grid.page_size.trailing_zeros(),
             pages_x: self.grid.pages[0],
@@ -1509,13 +1609,14 @@ impl PagedTwoPlane {
             coarse_shift: self.coarse_factor.trailing_zeros(),
             coarse_res: self.grid.res.map(|n| n.div_ceil(self.coarse_factor)),
             stamp: frame,
-            pad: 0,
+            overview_min: self.overview_factor().map_or(f32::INFINITY, |f| f as f32),
+            mask_words: pixels.div_ceil(32) as u32,
+            pad: [0; 3],
         };
         self.gpu
             .queue
             .write_buffer(&self.paging, 0, bytemuck::bytes_of(&uniform));
-        let pixels = u64::from(view.width) * u64::from(view.height);
-        let mask_bytes = (1 + pixels.div_ceil(32)) * 4;
+        let mask_bytes = (2 + 2 * pixels.div_ceil(32)) * 4;
         if self.degraded.as_ref().is_none_or(|d| d.0 != pixels) {
             let make = |label, usage| {
                 self.gpu.device.create_buffer(&wgpu::BufferDescriptor {
@@ -1563,40 +1664,53 @@ impl PagedTwoPlane {
             options,
         )?;
         let word = |w: &[u8]| u32::from_le_bytes([w[0], w[1], w[2], w[3]]);
-        let (touched, (degraded, degraded_mask)) =
-            self.gpu
-                .map_read_many(&[&self.touched_staging, degraded_staging], |bytes| {
-                    let touched: Vec<u32> = bytes[0]
-                        .chunks_exact(4)
-                        .enumerate()
-                        .filter(|&(_, w)| word(w) == frame)
-                        .map(|(page, _)| page as u32)
-                        .collect();
-                    let words: Vec<u32> = bytes[1].chunks_exact(4).map(word).collect();
-                    let mask: Vec<bool> = (0..pixels as usize)
-                        .map(|i| words[1 + i / 32] >> (i % 32) & 1 == 1)
-                        .collect();
-                    (touched, (words[0], mask))
-                })?;
+        let words = pixels.div_ceil(32) as usize;
+        let (touched, (degraded, overview, degraded_mask, overview_mask)) = self
+            .gpu
+            .map_read_many(&[&self.touched_staging, degraded_staging], |bytes| {
+                let touched: Vec<u32> = bytes[0]
+                    .chunks_exact(4)
+                    .enumerate()
+                    .filter(|&(_, w)| word(w) == frame)
+                    .map(|(page, _)| page as u32)
+                    .collect();
+                let all: Vec<u32> = bytes[1].chunks_exact(4).map(word).collect();
+                let mask = |first: usize| -> Vec<bool> {
+                    (0..pixels as usize)
+                        .map(|i| all[first + i / 32] >> (i % 32) & 1 == 1)
+                        .collect()
+                };
+                (touched, (all[0], all[1], mask(2), mask(2 + words)))
+            })?;
         let faults = self.residency.touched(frame, &touched, &at_start);
+        let on_device = self.device_table();
+        self.missed = touched
+            .iter()
+            .copied()
+            .filter(|&p| {
+                on_device[p as usize] == NOT_RESIDENT && projected.binary_search(&p).is_err()
+            })
+            .collect();
         let stats = PageFrameStats {
             faults,
             degraded_px: u64::from(degraded),
+            overview_px: u64::from(overview),
             pages_loaded,
             bytes_uploaded,
             pages_pending: self.loader.as_ref().map_or(0, |l| l.in_flight as u32),
             ms: start.elapsed().as_secs_f64() * 1e3,
             pages_touched: touched.len() as u32,
-            pages_projected: needed.len() as u32,
-            // `needed` is sorted.
+            pages_projected: projected.len() as u32,
+            // `projected` is sorted.
             projection_missed: touched
                 .iter()
-                .filter(|p| needed.binary_search(p).is_err())
+                .filter(|p| projected.binary_search(p).is_err())
                 .count() as u32,
             resident: self.residency.resident_count(),
             load_ms,
             read_errors,
             degraded_mask,
+            overview_mask,
         };
         Ok((frame_out, stats))
     }

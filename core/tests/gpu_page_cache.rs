@@ -64,7 +64,7 @@ fn asset(planes: &TwoPlanes) -> Arc<AssetFile> {
 }
 
 /// Checks `frame` against `reference` bit for bit (colour and depth) at every pixel `stats` does
-/// not mark degraded; returns how many pixels were compared and how many were degraded.
+/// not mark degraded or overview; returns how many pixels were compared and how many were not.
 fn exact_where_not_degraded(
     frame: &lumigraph_core::frame::Frame,
     reference: &lumigraph_core::frame::Frame,
@@ -73,7 +73,7 @@ fn exact_where_not_degraded(
 ) -> (usize, usize) {
     let (mut exact, mut degraded) = (0, 0);
     for p in 0..frame.pixel_count() {
-        if stats.degraded_mask[p] {
+        if stats.degraded_mask[p] || stats.overview_mask[p] {
             degraded += 1;
             continue;
         }
@@ -105,6 +105,7 @@ fn whole_and_cached(
         budget_bytes: Some(budget_kib * 1024),
         prefetch,
         pages_per_frame,
+        overview: false,
     };
     let cached = PagedTwoPlane::open(&renderer, asset, config).expect("open cache");
     (renderer, whole, cached)
@@ -202,6 +203,7 @@ fn frames_through_a_small_cache_equal_resident_frames_wherever_no_page_is_missin
                 budget_bytes: Some(128 * 1024),
                 prefetch: policy,
                 pages_per_frame: 6,
+                overview: false,
             };
             let mut cached =
                 PagedTwoPlane::open(&renderer, Arc::clone(&asset), config).expect("open cache");
@@ -300,8 +302,16 @@ fn projected_pages_cover_the_pages_frames_touch() {
         for v in &views {
             let (_, stats) = whole.render(&renderer, v, &options).expect("render");
             assert_eq!(stats.projection_missed, 0, "{options:?} {v:?}");
-            let projected =
-                needed_pages(&planes, &whole.grid, whole.depth_range, v, &options, 8).expect("ok");
+            let projected = needed_pages(
+                &planes,
+                &whole.grid,
+                whole.depth_range,
+                v,
+                &options,
+                8,
+                None,
+            )
+            .expect("ok");
             assert_eq!(projected.len() as u32, stats.pages_projected);
         }
     }
@@ -320,6 +330,7 @@ fn prediction_faults_less_than_lru_on_a_fast_pan() {
             budget_bytes: Some(160 * 1024),
             prefetch: policy,
             pages_per_frame: 24,
+            overview: false,
         };
         let mut cached =
             PagedTwoPlane::open(&renderer, Arc::clone(&asset), config).expect("open cache");
@@ -356,6 +367,7 @@ fn bad_budgets_and_corrupt_pages_are_refused() {
         budget_bytes: Some(1024),
         prefetch: Prefetch::Lru,
         pages_per_frame: 8,
+        overview: false,
     };
     match PagedTwoPlane::open(&renderer, asset(&planes), tiny) {
         Err(RenderError::Option(m)) => assert!(m.contains("holds no"), "{m}"),
@@ -436,6 +448,7 @@ fn a_page_failing_to_read_in_the_background_degrades_later_frames() {
         budget_bytes: Some(320 * 1024),
         prefetch: Prefetch::Lru,
         pages_per_frame: 64,
+        overview: false,
     };
     let mut cached = PagedTwoPlane::open(&renderer, asset, config).expect("open");
     // Every page's bytes flipped on disk (the header and index are in memory).
@@ -456,4 +469,74 @@ fn a_page_failing_to_read_in_the_background_degrades_later_frames() {
         frame.depth.iter().any(|d| d.is_finite()),
         "the coarse level shows"
     );
+}
+
+/// Overview pixels (spanning the coarse factor F or more st texels) read the coarse level and
+/// need no page: a zoomed-out view touches, projects and loads none; as the same view grows
+/// the overview gives way to pages pixel by pixel, the pages are exact where read, and the
+/// projection still covers every page touched.
+#[test]
+fn overview_pixels_read_the_coarse_level_and_need_no_page() {
+    let planes = planes();
+    let asset = asset(&planes);
+    let renderer = TwoPlaneRenderer::new(gpu());
+    let mut whole =
+        PagedTwoPlane::open(&renderer, Arc::clone(&asset), CacheConfig::whole()).expect("open");
+    let config = CacheConfig {
+        budget_bytes: Some(160 * 1024),
+        prefetch: Prefetch::Lru,
+        pages_per_frame: 64,
+        overview: true,
+    };
+    let mut cached = PagedTwoPlane::open(&renderer, asset, config).expect("open cache");
+    assert_eq!(cached.coarse_factor, 8);
+    let options = TwoPlaneOptions::default();
+    let mut mixed = 0;
+    let straight = |size| view([0.1, 0.05, 4.0], [0.0, 0.0, 0.0], 30.0, size);
+    // Oblique: the st texels a pixel spans grow across the frame.
+    let oblique = |size| view([-0.5, 0.0, 3.0], [1.0, 0.0, 0.0], 40.0, size);
+    for (name, v) in [
+        ("straight", straight(6)),
+        ("straight", straight(16)),
+        ("oblique", oblique(8)),
+        ("oblique", oblique(9)),
+        ("oblique", oblique(10)),
+        ("oblique", oblique(11)),
+        ("oblique", oblique(16)),
+    ] {
+        let size = v.width;
+        // Twice: the second frame has every page it reads.
+        cached.render(&renderer, &v, &options).expect("render");
+        let (frame, stats) = cached.render(&renderer, &v, &options).expect("render");
+        let (reference, _) = whole.render(&renderer, &v, &options).expect("whole");
+        let covered = frame.depth.iter().filter(|d| d.is_finite()).count() as u64;
+        assert!(covered > 0);
+        assert_eq!(stats.projection_missed, 0, "size {size}");
+        assert_eq!(
+            stats.overview_mask.iter().filter(|&&o| o).count() as u64,
+            stats.overview_px
+        );
+        exact_where_not_degraded(&frame, &reference, &stats, &format!("size {size}"));
+        if name == "straight" && size == 6 {
+            // 11 texels a pixel and more: nothing touched, projected or loaded.
+            assert_eq!(stats.overview_px, covered);
+            assert_eq!(
+                (stats.pages_touched, stats.pages_projected, stats.faults),
+                (0, 0, 0)
+            );
+            // The coarse level is the same image box-filtered: close to the full one.
+            let diff: u64 = frame
+                .color
+                .iter()
+                .zip(&reference.color)
+                .map(|(a, b)| u64::from(a.abs_diff(*b)))
+                .sum();
+            let mean = diff as f64 / (4 * covered) as f64;
+            assert!(mean < 12.0, "mean colour difference {mean:.2} codes");
+        }
+        if stats.overview_px > 0 && stats.overview_px < covered {
+            mixed += 1;
+        }
+    }
+    assert!(mixed > 0, "no size mixed overview and paged pixels");
 }

@@ -435,11 +435,12 @@ impl PyLightField {
     /// ``budget_bytes``, and once the first frame opened it ``slots``, ``pages``, ``page_size``,
     /// ``coarse_factor``, ``device_bytes``, ``resident_bytes``. ``last`` (the last frame; None
     /// before any): ``faults`` (pages it touched that were not resident when it started),
-    /// ``degraded_px``, ``pages_loaded``, ``bytes_uploaded``, ``ms``, ``pages_touched``,
+    /// ``degraded_px``, ``overview_px`` (pixels spanning the coarse factor or more texels,
+    /// read from the coarse level by choice), ``pages_loaded``, ``bytes_uploaded``, ``ms``, ``pages_touched``,
     /// ``pages_projected``, ``projection_missed``, ``resident``, ``load_ms`` and
     /// ``read_errors`` when pages failed to read. ``summary``: ``frames``, ``faults``,
     /// ``degraded_px``, ``pages_loaded``, ``bytes_uploaded``, ``mean_ms``, ``max_ms``,
-    /// ``projection_missed`` over every frame so far.
+    /// ``overview_px``, ``projection_missed`` over every frame so far.
     #[getter]
     fn page_stats<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
         let Some(config) = self.paging else {

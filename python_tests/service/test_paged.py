@@ -102,6 +102,9 @@ def test_paged_asset_converges_to_the_resident_frame_and_reports_its_pages(
     assert metric(text, "lumigraph_page_cache_uploaded_bytes_total") == loaded * PAGE_BYTES
     assert metric(text, "lumigraph_page_cache_degraded_pixels_total") == degraded
     assert metric(text, "lumigraph_page_cache_degraded_frames_total") == len(replies) - 2
+    # This view spans less than a texel a pixel: no overview pixels.
+    assert all(int(r.headers["x-overview-px"]) == 0 for r in replies)
+    assert metric(text, "lumigraph_page_cache_overview_pixels_total") == 0
     assert metric(text, "lumigraph_page_cache_hits_total") > 0
 
     async def stream() -> None:

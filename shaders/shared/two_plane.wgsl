@@ -55,10 +55,32 @@ const INF_BITS: u32 = 0x7f800000u;
 
 // The cameras' images are read through `color_at`, `depth_at` and `depth_texel`, defined by the
 // file appended to this one: shaders/two_plane.wgsl (every camera a texture-array layer) or
-// shaders/two_plane_paged.wgsl (pages in a cache, found through an index table).
+// shaders/two_plane_paged.wgsl (pages in a cache, found through an index table). The appended
+// file's `pixel_lod` sees each pixel inside the light field before it is shaded (the paged one
+// chooses its level there) and `pixel_done` after.
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(3) var<storage, read_write> out_color: array<u32>;
 @group(0) @binding(4) var<storage, read_write> out_depth: array<u32>;
+
+// How many st texels pixel (xk, yk) of the view (ray from `o` meeting st at `ps`) spans: the
+// larger of the distances, in texels, to where its right and lower neighbours' rays meet st.
+fn st_footprint(o: vec3<f32>, xk: f32, yk: f32, ps: vec3<f32>) -> f32 {
+    let step = 1.0 / params.focal_px;
+    let eh = dot(o, params.normal);
+    let r = vec2<f32>(params.res) / params.st_size;
+    var widest = 0.0;
+    for (var k = 0u; k < 2u; k++) {
+        let dk = select(vec2<f32>(xk + step, yk), vec2<f32>(xk, yk - step), k == 1u);
+        let d = dk.x * params.view_right + dk.y * params.view_up + params.forward;
+        let along = dot(d, params.normal);
+        if !(along < 0.0) {
+            return 3.4e38;
+        }
+        let delta = o - (eh / along) * d - ps;
+        widest = max(widest, length(vec2<f32>(dot(delta, params.right), dot(delta, params.up)) * r));
+    }
+    return widest;
+}
 
 fn camera_pos(a: u32, b: u32) -> vec3<f32> {
     let g = vec2<f32>(params.grid);
@@ -271,6 +293,7 @@ fn shade_pixel(gid: vec3<u32>) {
     if any(uv < vec2<f32>(0.0)) || any(uv > vec2<f32>(1.0)) || any(st < vec2<f32>(0.0)) || any(st > vec2<f32>(1.0)) {
         return;
     }
+    pixel_lod(o, xk, yk, ps);
     let g = vec2<f32>(params.grid);
     let cell = clamp(uv * g - vec2<f32>(0.5), vec2<f32>(0.0), g - vec2<f32>(1.0));
     let last = params.grid - vec2<u32>(1u);

@@ -73,6 +73,10 @@ pub struct CacheArgs {
     /// later frames, as in an interactive viewer. Without it each frame waits for its pages.
     #[arg(long, requires = "cache_mib")]
     pub async_loads: bool,
+    /// Pixels that span the coarse factor F or more st texels read the pages like every other
+    /// pixel, instead of the coarse level (the overview a zoomed-out view needs no page for).
+    #[arg(long, requires = "cache_mib")]
+    pub no_overview: bool,
 }
 
 impl CacheArgs {
@@ -94,6 +98,7 @@ struct CacheDescription {
     prefetch: Option<String>,
     pages_per_frame: u32,
     async_loads: bool,
+    overview: bool,
     budget_mib: Option<f64>,
     device_mib: f64,
     resident_asset_mib: f64,
@@ -146,7 +151,10 @@ fn render_paged(args: &RenderArgs, asset: AssetFile) -> Result<()> {
             if cache.pages_per_frame == 0 {
                 bail!("--pages-per-frame 0: give at least 1");
             }
-            CacheConfig::with_mib(mib, cache.prefetch, cache.pages_per_frame)
+            CacheConfig {
+                overview: !cache.no_overview,
+                ..CacheConfig::with_mib(mib, cache.prefetch, cache.pages_per_frame)
+            }
         }
     };
     let renderer = lumigraph_core::two_plane_render::TwoPlaneRenderer::new(gpu()?);
@@ -176,15 +184,20 @@ fn render_paged(args: &RenderArgs, asset: AssetFile) -> Result<()> {
         }
         write_outputs(&frame, i, many, &args.output, &args.depth)?;
         println!(
-            "frame {i:03}: {:.2} ms, {} faults, {} pages loaded, {} px degraded",
-            s.ms, s.faults, s.pages_loaded, s.degraded_px
+            "frame {i:03}: {:.2} ms, {} faults, {} pages loaded, {} px degraded, {} px overview",
+            s.ms, s.faults, s.pages_loaded, s.degraded_px, s.overview_px
         );
         stats.push(s);
     }
     let summary = PageSummary::of(&stats);
     println!(
-        "{} frames: {} faults, {} pages loaded, {} px degraded, {:.2} ms mean",
-        summary.frames, summary.faults, summary.pages_loaded, summary.degraded_px, summary.mean_ms
+        "{} frames: {} faults, {} pages loaded, {} px degraded, {} px overview, {:.2} ms mean",
+        summary.frames,
+        summary.faults,
+        summary.pages_loaded,
+        summary.degraded_px,
+        summary.overview_px,
+        summary.mean_ms
     );
     if let Some(path) = &cache.report {
         let report = CacheReport {
@@ -194,6 +207,7 @@ fn render_paged(args: &RenderArgs, asset: AssetFile) -> Result<()> {
                 prefetch: config.budget_bytes.map(|_| config.prefetch.to_string()),
                 pages_per_frame: config.pages_per_frame,
                 async_loads: cache.async_loads,
+                overview: config.overview,
                 budget_mib: cache.cache_mib,
                 device_mib: mib(field.bytes),
                 resident_asset_mib: mib(field.full_bytes),

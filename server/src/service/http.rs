@@ -822,6 +822,7 @@ async fn render_response(
             ("x-page-faults", u64::from(pages.faults)),
             ("x-pages-loaded", u64::from(pages.pages_loaded)),
             ("x-degraded-px", pages.degraded_px),
+            ("x-overview-px", pages.overview_px),
         ] {
             headers.insert(HeaderName::from_static(name), HeaderValue::from(value));
         }

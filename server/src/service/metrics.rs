@@ -40,6 +40,7 @@ pub struct Metrics {
     page_bytes_uploaded: Counter,
     degraded_pixels: Counter,
     degraded_frames: Counter,
+    overview_pixels: Counter,
     page_read_errors: Counter,
 }
 
@@ -79,6 +80,7 @@ impl Metrics {
         let page_bytes_uploaded = Counter::default();
         let degraded_pixels = Counter::default();
         let degraded_frames = Counter::default();
+        let overview_pixels = Counter::default();
         let page_read_errors = Counter::default();
         for (name, help, counter) in [
             (
@@ -110,6 +112,12 @@ impl Metrics {
                 "page_cache_degraded_frames",
                 "Paged frames with at least one degraded pixel",
                 &degraded_frames,
+            ),
+            (
+                "page_cache_overview_pixels",
+                "Pixels of paged frames that spanned the coarse factor or more st texels and read \
+                 the coarse level by choice (no page needed)",
+                &overview_pixels,
             ),
             (
                 "page_cache_read_errors",
@@ -225,6 +233,7 @@ impl Metrics {
             page_bytes_uploaded,
             degraded_pixels,
             degraded_frames,
+            overview_pixels,
             page_read_errors,
         }
     }
@@ -237,6 +246,7 @@ impl Metrics {
         self.pages_loaded.inc_by(u64::from(stats.pages_loaded));
         self.page_bytes_uploaded.inc_by(stats.bytes_uploaded);
         self.degraded_pixels.inc_by(stats.degraded_px);
+        self.overview_pixels.inc_by(stats.overview_px);
         if stats.degraded_px > 0 {
             self.degraded_frames.inc();
         }
