@@ -335,6 +335,15 @@ fn the_mri_head_as_a_light_field_renders_close_to_its_direct_ray_cast() {
         .read_image(ImageKey::new(0, 0, 2 * 7 + 3, Channel::Color))
         .expect("read");
     assert_eq!(stored, color);
+    // The row-by-row synthesis is each pixel's ray marched: codes within 1 (f64 rounding of
+    // the sample positions at a code's half-way point).
+    let c = planes.camera(3, 2);
+    for (k, px) in color.chunks_exact(4).enumerate() {
+        let (i, j) = ((k / 197) as u32, (k % 197) as u32);
+        let ray = stack.march(&o, report.window, c, planes.st_point(i, j) - c);
+        let code = (255.0 * ray.value).round() as i32;
+        assert!((i32::from(px[0]) - code).abs() <= 1, "texel ({i}, {j})");
+    }
 
     let renderer = TwoPlaneRenderer::new(common::gpu());
     let field = renderer.upload(&asset).expect("upload");

@@ -314,3 +314,30 @@ pub fn volume(
     require_real(&l, name)?;
     Ok((dims, Voxels::Scalar(contiguous(&l.array, "float32")?)))
 }
+
+/// A z-stack array, shape `(nz, ny, nx)` (slices of rows, row 0 on top), `uint8` or `uint16`:
+/// `((nx, ny, nz), bits, values)` with x fastest.
+pub fn zstack(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<([u32; 3], u8, Vec<u16>)> {
+    let l = loose(obj, name)?;
+    let [nz, ny, nx] = l.shape[..] else {
+        return Err(PyValueError::new_err(format!(
+            "{name} must be a 3-D array of shape (nz, ny, nx), got shape {}",
+            shape_text(&l.shape)
+        )));
+    };
+    let bits = match l.dtype.as_str() {
+        "uint8" => 8,
+        "uint16" => 16,
+        other => {
+            return Err(PyTypeError::new_err(format!(
+                "{name} must be uint8 or uint16 (a microscope's grey values), got dtype {other}"
+            )));
+        }
+    };
+    let side = |n: usize| u32::try_from(n).unwrap_or(u32::MAX);
+    let size = [side(nx), side(ny), side(nz)];
+    // The core checks the sizes before anything is copied.
+    lumigraph_core::zstack::ZStack::check_size(size)
+        .map_err(|e| PyValueError::new_err(format!("{name}: {e}")))?;
+    Ok((size, bits, contiguous(&l.array, "uint16")?))
+}

@@ -35,6 +35,7 @@ mod mesh;
 mod metrics;
 mod view;
 mod volume;
+mod zstack;
 
 use pyo3::prelude::*;
 
@@ -58,6 +59,7 @@ fn _lumigraph(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(lightfield::bake, m)?)?;
     m.add_function(wrap_pyfunction!(lightfield::bake_two_plane, m)?)?;
     m.add_function(wrap_pyfunction!(lightfield::import_lightfield, m)?)?;
+    m.add_function(wrap_pyfunction!(zstack::import_zstack, m)?)?;
     m.add_function(wrap_pyfunction!(mesh::reference_render, m)?)?;
     m.add_function(wrap_pyfunction!(volume::reference_volume, m)?)?;
     m.add_function(wrap_pyfunction!(volume::bake_volume, m)?)?;

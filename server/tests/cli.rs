@@ -3127,3 +3127,130 @@ fn paged_trace_replay_reports_and_errors() {
         assert!(!err.contains("panicked"), "{err}");
     }
 }
+
+/// `import-zstack`: a folder of 16-bit slices and the demo specimen become two-plane light
+/// fields that render (through the cache too, where a zoomed-out view is all overview); bad
+/// stacks and options fail with one clear line.
+#[test]
+fn zstack_import_renders_and_refuses_bad_stacks() {
+    let slices = path("zstack-slices");
+    std::fs::create_dir_all(&slices).expect("dir");
+    for k in 0..5u16 {
+        // A bright bead every 37 pixels, shifted per slice, over a background rising with k.
+        let pixels: Vec<u16> = (0..32 * 24u16)
+            .map(|i| {
+                if i % 37 == k * 3 {
+                    60000
+                } else {
+                    1000 + k * 100
+                }
+            })
+            .collect();
+        let image = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_raw(32, 24, pixels)
+            .expect("image");
+        image
+            .save(slices.join(format!("slice_{k}.png")))
+            .expect("save");
+    }
+    let asset = path("zstack.lfa");
+    let o = lumigraph(&[
+        "import-zstack",
+        s(&slices),
+        "-o",
+        s(&asset),
+        "--grid",
+        "3x3",
+        "--spacing",
+        "0.5,0.5,2",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("z-stack 32x24x5 at 16 bits"), "{out}");
+    let file = lumigraph_core::asset::AssetFile::open(&asset).expect("open");
+    let planes = *file.header().two_plane().expect("two-plane");
+    assert_eq!(planes.uv.grid, [3, 3]);
+    assert_eq!(planes.st.resolution, [32, 24]);
+    // A view from above through the cache of a few KiB, far enough that every pixel spans the
+    // coarse factor or more texels: nothing to load.
+    let h = planes.uv.center[2];
+    let view = format!(
+        r#"{{"eye": [0, 0, {}], "target": [0, 0, 0], "up": [0, 1, 0], "yfov_deg": 20, "width": 8, "height": 8}}"#,
+        3.0 * h
+    );
+    let views = path("zstack-view.json");
+    std::fs::write(&views, &view).expect("write");
+    let frame = path("zstack-frame.png");
+    let report = path("zstack-report.json");
+    let o = lumigraph(&[
+        "render",
+        s(&asset),
+        "--views",
+        s(&views),
+        "-o",
+        s(&frame),
+        "--cache-mib",
+        "0.1",
+        "--report",
+        s(&report),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
+    let f = &r["frames"][0];
+    assert!(f["overview_px"].as_u64().expect("overview") > 0, "{r}");
+    assert_eq!(f["pages_touched"], 0, "{r}");
+    assert_eq!(r["cache"]["overview"], true);
+
+    // The demo specimen.
+    let demo = path("zstack-demo.lfa");
+    let o = lumigraph(&[
+        "import-zstack",
+        "--demo",
+        "48x40x6",
+        "-o",
+        s(&demo),
+        "--grid",
+        "2x2",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    for (args, expected) in [
+        (vec!["import-zstack", "-o", "x.lfa"], "<STACK>"),
+        (
+            vec!["import-zstack", s(&slices), "-o", "x.lfa", "--window", "5"],
+            "LO,HI",
+        ),
+        (
+            vec!["import-zstack", s(&slices), "-o", "x.lfa", "--angle", "80"],
+            "angle",
+        ),
+        (
+            vec![
+                "import-zstack",
+                s(&slices),
+                "-o",
+                "x.lfa",
+                "--composite",
+                "sum",
+            ],
+            "mip or over",
+        ),
+        (
+            vec!["import-zstack", "--demo", "8x8", "-o", "x.lfa"],
+            "WxHxD",
+        ),
+        (
+            vec!["import-zstack", "--demo", "9000x8x8", "-o", "x.lfa"],
+            "8192",
+        ),
+        (
+            vec!["import-zstack", s(&frame), "-o", "x.lfa"],
+            "zstack-frame.png",
+        ),
+    ] {
+        let o = lumigraph(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?}");
+        assert!(err.contains(expected), "{args:?}: {err}");
+    }
+}

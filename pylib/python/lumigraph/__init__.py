@@ -45,6 +45,7 @@ from ._lumigraph import bake as _bake
 from ._lumigraph import bake_two_plane as _bake_two_plane
 from ._lumigraph import bake_volume as _bake_volume
 from ._lumigraph import import_lightfield as _import_lightfield
+from ._lumigraph import import_zstack as _import_zstack
 from ._lumigraph import reference_render as _reference_render
 from ._lumigraph import reference_volume as _reference_volume
 
@@ -70,6 +71,7 @@ __all__ = [
     "bake_volume",
     "device_info",
     "import_lightfield",
+    "import_zstack",
     "metrics",
     "orbit_views",
     "reference_render",
@@ -426,6 +428,65 @@ def import_lightfield(
         os.fspath(path),
         layout=layout,
         planes=text,
+        output=None if output is None else os.fspath(output),
+    )
+
+
+def import_zstack(
+    stack: Any,
+    *,
+    spacing: Sequence[float] | None = None,
+    grid: tuple[int, int] = (9, 9),
+    angle: float = 15.0,
+    composite: str = "mip",
+    window: tuple[float, float] | None = None,
+    opacity: float = 0.1,
+    depth_threshold: float = 0.25,
+    output: str | os.PathLike[str] | None = None,
+) -> LightField:
+    """Synthesises a two-plane light field from a microscope z-stack (docs/zstack.md).
+
+    Cameras on a cone above the stack's middle slice; each camera pixel's ray is composited
+    through the slices (``"mip"``: maximum intensity; ``"over"``: emission-absorption) and the
+    hit's depth stored, so every two-plane renderer, refocus on a slice (``focus=z``) and the
+    paged cache (:meth:`LightField.open` with ``cache_mib``) work on it.
+
+    Args:
+        stack: a multi-page TIFF or a folder of 8/16-bit grey slices (a path), or a
+            ``uint8``/``uint16`` array of shape ``(nz, ny, nx)`` (slice 0 at the bottom, row 0
+            on top), e.g. from ``tifffile`` or ``skimage.io``.
+        spacing: voxel spacing ``(sx, sy, sz)`` (the light field's world unit; default: a TIFF's
+            ImageJ metadata, else 1, 1, 1).
+        grid: cameras per row and rows.
+        angle: half-angle of the cameras' cone, degrees (0 < angle <= 60).
+        composite: ``"mip"`` or ``"over"``.
+        window: grey values mapped to black and white (default: the 0.1 and 99.9 percentiles).
+        opacity: ``"over"``: opacity per slice at full intensity, in (0, 1].
+        depth_threshold: ``"mip"``: fraction of the window a ray's maximum must reach for its
+            depth to be stored (else the middle slice's plane), in [0, 1].
+        output: write the asset here (atomically) and open it from there; ``None`` keeps it in
+            memory.
+
+    Returns:
+        The :class:`LightField` (``kind == "two_plane"``).
+
+    Raises:
+        FileNotFoundError: a path that does not exist. TypeError: an array that is not uint8 or
+            uint16. ValueError: a bad option, a stack of the wrong shape or size, slices of
+            mixed sizes or an unreadable file (the message names it).
+    """
+    source: Any = stack
+    if isinstance(stack, (str, os.PathLike)):
+        source = os.fspath(stack)
+    return _import_zstack(
+        source,
+        spacing=None if spacing is None else [float(v) for v in spacing],
+        grid=[int(grid[0]), int(grid[1])],
+        angle=float(angle),
+        composite=composite,
+        window=None if window is None else [float(window[0]), float(window[1])],
+        opacity=float(opacity),
+        depth_threshold=float(depth_threshold),
         output=None if output is None else os.fspath(output),
     )
 

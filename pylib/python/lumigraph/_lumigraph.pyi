@@ -9,7 +9,7 @@ import numpy.typing as npt
 __version__: str
 __all__ = [
     "AssetError", "BakeError", "Frame", "LightField", "LumigraphError", "Mesh", "MeshError",
-    "RenderError", "View", "bake", "bake_two_plane", "bake_volume", "compare", "depth_error", "device_info", "import_lightfield", "mae", "masked_psnr",
+    "RenderError", "View", "bake", "bake_two_plane", "bake_volume", "compare", "depth_error", "device_info", "import_lightfield", "import_zstack", "mae", "masked_psnr",
     "orbit_views", "psnr", "reference_render", "reference_volume", "ssim", "__version__",
 ]
 
@@ -254,6 +254,18 @@ def import_lightfield(
     *,
     layout: str,
     planes: str | None,
+    output: str | PathLike[str] | None,
+) -> LightField: ...
+def import_zstack(
+    stack: npt.ArrayLike | str | PathLike[str],
+    *,
+    spacing: Sequence[float] | None,
+    grid: Sequence[int],
+    angle: float,
+    composite: str,
+    window: Sequence[float] | None,
+    opacity: float,
+    depth_threshold: float,
     output: str | PathLike[str] | None,
 ) -> LightField: ...
 def reference_render(

@@ -15,7 +15,12 @@ use super::common::progress_bar;
 pub struct ImportZStackArgs {
     /// A multi-page TIFF, or a folder of single-slice TIFFs or PNGs ordered by the numbers in
     /// their names; 8- or 16-bit grey.
-    pub stack: PathBuf,
+    #[arg(required_unless_present = "demo", conflicts_with = "demo")]
+    pub stack: Option<PathBuf>,
+    /// Instead of a stack: a synthetic fluorescence specimen of WxHxD voxels (filaments and
+    /// beads, 16-bit, 0.2 x 0.2 x 1 um).
+    #[arg(long, value_name = "WxHxD", value_parser = parse_size_triple)]
+    pub demo: Option<[u32; 3]>,
     /// Output asset (.lfa).
     #[arg(short, long)]
     pub output: PathBuf,
@@ -41,6 +46,21 @@ pub struct ImportZStackArgs {
     /// middle slice's plane).
     #[arg(long, default_value_t = zstack::DEFAULT_DEPTH_THRESHOLD)]
     pub depth_threshold: f64,
+}
+
+/// `WxHxD` as three whole numbers.
+fn parse_size_triple(s: &str) -> Result<[u32; 3], String> {
+    let parts: Vec<u32> = s
+        .split(['x', 'X'])
+        .map(|p| p.trim().parse::<u32>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| format!("`{s}`: give three whole numbers as WxHxD, e.g. 1024x1024x61"))?;
+    match parts[..] {
+        [w, h, d] => Ok([w, h, d]),
+        _ => Err(format!(
+            "`{s}`: give three whole numbers as WxHxD, e.g. 1024x1024x61"
+        )),
+    }
 }
 
 pub(super) fn import_zstack(args: &ImportZStackArgs) -> Result<()> {
@@ -71,18 +91,29 @@ pub(super) fn import_zstack(args: &ImportZStackArgs) -> Result<()> {
         depth_threshold: args.depth_threshold,
     };
     options.validate()?;
-    let stack = zstack::read_stack(&args.stack, args.spacing)
-        .with_context(|| format!("cannot read the z-stack {}", args.stack.display()))?;
+    let (stack, source) = match (&args.stack, args.demo) {
+        (Some(path), _) => (
+            zstack::read_stack(path, args.spacing)
+                .with_context(|| format!("cannot read the z-stack {}", path.display()))?,
+            path.clone(),
+        ),
+        (None, Some(size)) => {
+            let mut stack = zstack::demo_stack(size).context("the demo stack")?;
+            if let Some(spacing) = args.spacing {
+                stack =
+                    zstack::ZStack::new(stack.size, stack.bits, spacing, stack.voxels().to_vec())?;
+            }
+            let [w, h, d] = size;
+            (stack, PathBuf::from(format!("demo-{w}x{h}x{d}")))
+        }
+        (None, None) => anyhow::bail!("give a stack or --demo WxHxD"),
+    };
     let [nu, nv] = args.grid;
     let bar = progress_bar(u64::from(nu * nv), "synthesising cameras");
-    let report = zstack::import_zstack(
-        &stack,
-        &args.stack,
-        &options,
-        &args.output,
-        &mut |done, _| bar.set_position(u64::from(done)),
-    )
-    .with_context(|| format!("cannot import {}", args.stack.display()))?;
+    let report = zstack::import_zstack(&stack, &source, &options, &args.output, &mut |done, _| {
+        bar.set_position(u64::from(done));
+    })
+    .with_context(|| format!("cannot import {}", source.display()))?;
     bar.finish_and_clear();
     let [nx, ny, nz] = report.size;
     let [sx, sy, sz] = report.spacing;
