@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Regenerates every table of BENCHMARKS.md (release build, real-mesh fixtures + the demo), one
 # script after another, each into its own folder under OUT_DIR:
-#   bash scripts/bench_all.sh [OUT_DIR]   (default out/bench; about 100 min on 2-core lavapipe)
+#   bash scripts/bench_all.sh [OUT_DIR]   (default out/bench; about 170 min on 2-core lavapipe)
 # Run it on an otherwise idle machine: the timings are only as steady as the host.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -50,4 +50,11 @@ step "batch baking (scripts/bench_distributed.sh)" "$OUT/distributed/table.md: '
 bash scripts/bench_distributed.sh "$OUT/distributed"
 step "replicas behind the router (scripts/bench_replicas.sh)" "$OUT/replicas.md: 'Replicas behind the router'"
 bash scripts/bench_replicas.sh "$OUT/replicas.md"
+step "block compression (scripts/bench_compression.sh)" "$OUT/compression/table.md: 'Block compression'"
+bash scripts/bench_compression.sh "$OUT/compression"
+step "paged two-plane rendering (scripts/bench_paging.sh)" "$OUT/paging/table.md: 'Paged two-plane rendering'"
+bash scripts/bench_paging.sh "$OUT/paging"
+step "z-stacks (scripts/bench_zstack.sh, twice)" "$OUT/zstack/table.md and $OUT/zstack8k/table.md: 'z-stacks'"
+bash scripts/bench_zstack.sh "$OUT/zstack"
+SIZE=8192x8192x13 GRID=3x3 bash scripts/bench_zstack.sh "$OUT/zstack8k"
 echo "== done: tables in $OUT"
