@@ -84,8 +84,8 @@ impl From<TwoPlaneError> for TwoPlaneIoError {
     }
 }
 
-/// The whole numbers in a file stem, in order.
-fn numbers(stem: &str) -> Vec<u64> {
+/// The whole numbers in a file stem, in order (also what orders a z-stack's slice files).
+pub(crate) fn numbers(stem: &str) -> Vec<u64> {
     let mut out = Vec::new();
     let mut current: Option<u64> = None;
     for c in stem.chars() {

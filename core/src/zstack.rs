@@ -383,26 +383,6 @@ fn read_png_slice(path: &Path) -> Result<Slice> {
     Ok(Slice { size, bits, values })
 }
 
-/// The whole numbers in a file name, in order (the key that orders a folder's slices).
-fn name_numbers(name: &str) -> Vec<u64> {
-    let mut out = Vec::new();
-    let mut current: Option<u64> = None;
-    for c in name.chars() {
-        if let Some(d) = c.to_digit(10) {
-            current = Some(
-                current
-                    .unwrap_or(0)
-                    .saturating_mul(10)
-                    .saturating_add(u64::from(d)),
-            );
-        } else if let Some(n) = current.take() {
-            out.push(n);
-        }
-    }
-    out.extend(current);
-    out
-}
-
 /// Reads a stack: `path` is a (multi-page) TIFF, or a folder whose `.tif`/`.tiff`/`.png` files
 /// are its slices, ordered by the whole numbers in their names (then by name), one image each.
 /// `spacing` overrides the file's (ImageJ metadata) and the default 1, 1, 1.
@@ -426,7 +406,7 @@ pub fn read_stack(path: &Path, spacing: Option<[f64; 3]>) -> Result<ZStack> {
                     .file_name()
                     .map(|n| n.to_string_lossy().into_owned())
                     .unwrap_or_default();
-                files.push((name_numbers(&name), name, p));
+                files.push((crate::two_plane_io::numbers(&name), name, p));
             }
         }
         if files.is_empty() {

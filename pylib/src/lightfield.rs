@@ -1145,15 +1145,7 @@ pub fn import_lightfield(
                 .map_err(PyValueError::new_err)?,
         )
     };
-    let target = output.clone().unwrap_or_else(|| {
-        let nanos = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos());
-        std::env::temp_dir().join(format!(
-            "lumigraph-import-{}-{nanos}.lfa",
-            std::process::id()
-        ))
-    });
+    let target = import_target(output.as_deref(), "import");
     let imported = py.detach(|| match grid {
         None => lumigraph_core::lenslet::import_lenslet(&path, &target, &mut |_, _| {})
             .map(|_| ())
@@ -1174,7 +1166,30 @@ pub fn import_lightfield(
             path.display()
         )));
     }
-    if output.is_some() {
+    open_import(py, target, output.is_some())
+}
+
+/// Where an import writes: `output`, or a temporary file (named after `what`) for a light
+/// field held in memory.
+pub(crate) fn import_target(output: Option<&std::path::Path>, what: &str) -> PathBuf {
+    output.map_or_else(
+        || {
+            let nanos = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_nanos());
+            std::env::temp_dir().join(format!(
+                "lumigraph-{what}-{}-{nanos}.lfa",
+                std::process::id()
+            ))
+        },
+        std::path::Path::to_path_buf,
+    )
+}
+
+/// The light field an import wrote to `target`: opened from there when it is the caller's
+/// `output` (`kept`), else read into memory and the temporary file removed.
+pub(crate) fn open_import(py: Python<'_>, target: PathBuf, kept: bool) -> PyResult<PyLightField> {
+    if kept {
         let shown = target.display().to_string();
         let asset = py
             .detach(|| AssetFile::open(&target))

@@ -3,13 +3,12 @@
 
 use std::path::PathBuf;
 
-use lumigraph_core::asset::AssetFile;
 use lumigraph_core::zstack::{self, Composite, ZStack, ZStackOptions};
 use pyo3::exceptions::{PyFileNotFoundError, PyValueError};
 use pyo3::prelude::*;
 
-use crate::lightfield::{Origin, PyLightField};
-use crate::{arrays, errors};
+use crate::arrays;
+use crate::lightfield::{PyLightField, import_target, open_import};
 
 /// Native z-stack import (the Python `import_zstack` documents it and checks the types).
 #[pyfunction]
@@ -56,26 +55,8 @@ pub fn import_zstack(
         let [x, y, z] = size;
         (made, PathBuf::from(format!("array {x}x{y}x{z}")))
     };
-    let target = output.clone().unwrap_or_else(|| {
-        let nanos = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos());
-        std::env::temp_dir().join(format!(
-            "lumigraph-zstack-{}-{nanos}.lfa",
-            std::process::id()
-        ))
-    });
+    let target = import_target(output.as_deref(), "zstack");
     py.detach(|| zstack::import_zstack(&stack, &source, &options, &target, &mut |_, _| {}))
         .map_err(|e| PyValueError::new_err(format!("cannot import the z-stack: {e}")))?;
-    if output.is_some() {
-        let shown = target.display().to_string();
-        let asset = py
-            .detach(|| AssetFile::open(&target))
-            .map_err(|e| errors::asset(&e, Some(&shown)))?;
-        return Ok(PyLightField::new(asset, Origin::File(target)));
-    }
-    let bytes = std::fs::read(&target);
-    let _ = std::fs::remove_file(&target);
-    let bytes = bytes.map_err(|e| PyValueError::new_err(format!("cannot read the import: {e}")))?;
-    PyLightField::from_encoded(py, bytes)
+    open_import(py, target, output.is_some())
 }
