@@ -114,6 +114,63 @@ impl Default for BakeOptions {
     }
 }
 
+/// Checks block codecs against the bake: the colour codec must keep colour stored in
+/// `color_encoding` (`bc1` keeps 1-bit alpha only, so premultiplied semi-transparent colour takes
+/// `bc7`), the depth codec compresses 8-bit codes, and blocks tile the maps.
+///
+/// # Errors
+/// [`BakeError::BadCodec`] naming the codec and what to use instead.
+pub fn check_codecs(
+    color_codec: Option<BlockCodec>,
+    depth_codec: Option<BlockCodec>,
+    color_encoding: Encoding,
+    depth_bits: u8,
+    resolution: u32,
+) -> Result<(), BakeError> {
+    let fitting = |channel, encoding| {
+        BlockCodec::ALL
+            .iter()
+            .filter(|c| c.allowed_for(channel, encoding))
+            .map(|c| c.name())
+            .collect::<Vec<_>>()
+            .join(" or ")
+    };
+    if let Some(codec) = color_codec
+        && !codec.allowed_for(Channel::Color, color_encoding)
+    {
+        let why = if color_encoding == Encoding::Rgba8Premultiplied {
+            " (this colour is semi-transparent and premultiplied; bc1 keeps 1-bit alpha only)"
+        } else {
+            ""
+        };
+        return Err(BakeError::BadCodec(format!(
+            "colour codec {codec}: use {}{why}",
+            fitting(Channel::Color, color_encoding)
+        )));
+    }
+    if let Some(codec) = depth_codec
+        && !codec.allowed_for(Channel::Depth, Encoding::R8)
+    {
+        return Err(BakeError::BadCodec(format!(
+            "depth codec {codec}: use {}",
+            fitting(Channel::Depth, Encoding::R8)
+        )));
+    }
+    if depth_codec.is_some() && depth_bits != 8 {
+        return Err(BakeError::BadCodec(
+            "depth codec bc4 compresses 8-bit depth: bake with 8 depth bits".to_owned(),
+        ));
+    }
+    if (color_codec.is_some() || depth_codec.is_some())
+        && !resolution.is_multiple_of(crate::asset::BLOCK)
+    {
+        return Err(BakeError::BadCodec(format!(
+            "block compression needs a resolution that is a multiple of 4, not {resolution}"
+        )));
+    }
+    Ok(())
+}
+
 impl BakeOptions {
     /// The options an asset was baked with, as its provenance records them; defaults for what
     /// it lacks or cannot be read (assets written before a field existed), the recorded
@@ -142,31 +199,13 @@ impl BakeOptions {
         if self.depth_bits != 8 && self.depth_bits != 16 {
             return Err(BakeError::BadDepthBits(self.depth_bits));
         }
-        if let Some(codec) = self.color_codec
-            && !codec.allowed_for(Channel::Color, Encoding::Rgba8)
-        {
-            return Err(BakeError::BadCodec(format!(
-                "colour codec {codec}: use bc1 or bc7"
-            )));
-        }
-        if let Some(codec) = self.depth_codec
-            && !codec.allowed_for(Channel::Depth, Encoding::R8)
-        {
-            return Err(BakeError::BadCodec(format!("depth codec {codec}: use bc4")));
-        }
-        if self.depth_codec.is_some() && self.depth_bits != 8 {
-            return Err(BakeError::BadCodec(
-                "depth codec bc4 compresses 8-bit depth: bake with 8 depth bits".to_owned(),
-            ));
-        }
-        if (self.color_codec.is_some() || self.depth_codec.is_some())
-            && !self.resolution.is_multiple_of(crate::asset::BLOCK)
-        {
-            return Err(BakeError::BadCodec(format!(
-                "block compression needs a resolution that is a multiple of 4, not {}",
-                self.resolution
-            )));
-        }
+        check_codecs(
+            self.color_codec,
+            self.depth_codec,
+            Encoding::Rgba8,
+            self.depth_bits,
+            self.resolution,
+        )?;
         self.shading.validate()?;
         if let Some(count) = self.lights {
             crate::light::proxy_level(count).ok_or(crate::light::LightError::BadCount(count))?;

@@ -31,10 +31,10 @@ use super::raycast::{RaycastError, RaycastOptions, Segment, SplitRule, VolumeRay
 use super::tf::TransferFunction;
 use super::{Volume, Voxels};
 use crate::asset::{
-    AssetError, AssetHeader, AssetWriter, Channel, Encoding, ImageKey, LayerOrder, LfFrame,
-    Provenance, encode_asset,
+    AssetError, AssetHeader, AssetWriter, BlockCodec, Channel, Encoding, ImageKey, LayerOrder,
+    LfFrame, Provenance, encode_asset,
 };
-use crate::bake::{BakeError, encode_depth, gpu_cameras};
+use crate::bake::{BakeError, check_codecs, encode_depth, gpu_cameras};
 use crate::geometry;
 use crate::gpu::{Gpu, GpuError, storage_buffer};
 
@@ -79,6 +79,10 @@ pub struct VolumeBakeOptions {
     pub depth_bits: u8,
     /// Sampling, shading and depth threshold (DESIGN §9).
     pub raycast: RaycastOptions,
+    /// Block codec of the premultiplied colour pages (`bc7`; `None` stores RGBA8).
+    pub color_codec: Option<BlockCodec>,
+    /// Block codec of the depth pages (`bc4`, with 8-bit depth; `None` stores the codes).
+    pub depth_codec: Option<BlockCodec>,
 }
 
 impl Default for VolumeBakeOptions {
@@ -88,6 +92,8 @@ impl Default for VolumeBakeOptions {
             resolution: 256,
             depth_bits: 16,
             raycast: RaycastOptions::default(),
+            color_codec: None,
+            depth_codec: None,
         }
     }
 }
@@ -982,6 +988,13 @@ fn prepare(
     if options.depth_bits != 8 && options.depth_bits != 16 {
         return Err(BakeError::BadDepthBits(options.depth_bits).into());
     }
+    check_codecs(
+        options.color_codec,
+        options.depth_codec,
+        Encoding::Rgba8Premultiplied,
+        options.depth_bits,
+        options.resolution,
+    )?;
     // The same checks the direct ray caster makes, before anything is uploaded.
     for layer in &layers[1..] {
         layer.rays(volume, &options.raycast)?;
@@ -1003,6 +1016,8 @@ fn prepare(
             "light": r.light,
             "ambient": r.ambient,
             "dims": volume.dims,
+            "color_codec": options.color_codec,
+            "depth_codec": options.depth_codec,
         }),
         triangles: 0,
         vertices: 0,
@@ -1039,6 +1054,8 @@ fn prepare(
         provenance,
     )?;
     header.set_color_encoding(Encoding::Rgba8Premultiplied);
+    header.set_compression(Channel::Color, options.color_codec)?;
+    header.set_compression(Channel::Depth, options.depth_codec)?;
     header.set_layer_order(VolumeLayer::order(layers));
     header.layers = layers
         .iter()

@@ -47,12 +47,14 @@ pub struct BakeArgs {
     #[arg(long, default_value_t = 16, allow_hyphen_values = true)]
     pub depth_bits: u8,
     /// Colour pages: raw RGBA8 texels, or block-compressed (bc1: 4 bits per texel, bc7: 8;
-    /// docs/format.md §7.1). Both drop the edge texels (§8.5). Spherical and two-plane bakes.
-    #[arg(long, value_enum, default_value_t = ColorCodec::Raw)]
+    /// docs/format.md §7.1). Both drop the edge texels (§8.5). Spherical and two-plane bakes;
+    /// volumes take bc7 (their colour is premultiplied and semi-transparent: bc1 keeps 1-bit
+    /// alpha only).
+    #[arg(long, value_enum, default_value_t = ColorCodec::Raw, conflicts_with = "auto")]
     pub color_codec: ColorCodec,
     /// Depth pages: r16 (the default; as --depth-bits 16), r8 (as --depth-bits 8) or bc4 (8-bit
-    /// codes block-compressed to 4 bits per texel). Spherical bakes.
-    #[arg(long, value_enum, conflicts_with = "depth_bits")]
+    /// codes block-compressed to 4 bits per texel). Spherical bakes, meshes and volumes.
+    #[arg(long, value_enum, conflicts_with_all = ["depth_bits", "auto"])]
     pub depth_codec: Option<DepthCodec>,
     /// Shading.
     #[command(flatten)]
@@ -189,6 +191,18 @@ pub enum DepthCodec {
     Bc4,
 }
 
+impl BakeArgs {
+    /// Depth bits and block codec: `--depth-codec` where given, else `--depth-bits` codes.
+    fn depth_storage(&self) -> (u8, Option<BlockCodec>) {
+        match self.depth_codec {
+            None => (self.depth_bits, None),
+            Some(DepthCodec::R16) => (16, None),
+            Some(DepthCodec::R8) => (8, None),
+            Some(DepthCodec::Bc4) => (8, Some(BlockCodec::Bc4)),
+        }
+    }
+}
+
 /// `--two-plane PLANES.json|auto`: captures the mesh (or demo) into a two-plane asset.
 fn bake_two_plane(args: &BakeArgs, planes_arg: &str) -> Result<()> {
     use lumigraph_core::two_plane::{self, TwoPlanes};
@@ -291,12 +305,7 @@ pub(super) fn bake(args: &BakeArgs) -> Result<()> {
     if args.auto {
         return bake_auto(args);
     }
-    let (depth_bits, depth_codec) = match args.depth_codec {
-        None => (args.depth_bits, None),
-        Some(DepthCodec::R16) => (16, None),
-        Some(DepthCodec::R8) => (8, None),
-        Some(DepthCodec::Bc4) => (8, Some(BlockCodec::Bc4)),
-    };
+    let (depth_bits, depth_codec) = args.depth_storage();
     let options = BakeOptions {
         cameras: args.cameras,
         resolution: args.resolution,
@@ -621,11 +630,14 @@ fn bake_volume(path: &std::path::Path, args: &BakeArgs) -> Result<()> {
     let (volume, layers, raycast) =
         args.volume
             .load_layers(path, &args.shading, args.layers.as_deref())?;
+    let (depth_bits, depth_codec) = args.depth_storage();
     let options = VolumeBakeOptions {
         cameras: args.cameras,
         resolution: args.resolution,
-        depth_bits: args.depth_bits,
+        depth_bits,
         raycast,
+        color_codec: args.color_codec.block(),
+        depth_codec,
     };
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
     let provenance = Provenance {
