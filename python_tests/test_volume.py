@@ -225,6 +225,44 @@ def test_bake_volume_refuses_bad_input() -> None:
         lg.bake_volume("/nonexistent/head.nii.gz", tf="mri-brain", progress=False)
 
 
+def _compression(lf: lg.LightField) -> dict[str, str | None]:
+    return {c["name"]: c.get("compression") for c in lf.info["channels"]}
+
+
+def test_block_compressed_volume_bakes_render_close_to_raw() -> None:
+    """``color_codec="bc7"`` keeps the premultiplied colour with its alpha, ``depth_codec="bc4"``
+    the 8-bit depth; the compressed bake's frame over black stays within 3 dB of the raw bake's
+    PSNR against the direct ray cast (measured 23.95 against 23.98 dB here; the Rust suite
+    measures 1.3 dB masked on a 96-px blob, where more of the frame is rim), and ``"bc1"``
+    (1-bit alpha) is refused for semi-transparent colour."""
+    vol = _blob()
+    tf = {"points": [[0.0, 0, 0, 0, 0], [0.1, 0.2, 0.5, 0.9, 0.05], [0.5, 1, 0.8, 0.4, 0.8]]}
+    common = {"tf": tf, "spacing": (0.8, 1.0, 1.2), "cameras": 42, "resolution": 64, "progress": False}
+    raw = lg.bake_volume(vol, **common)  # type: ignore[arg-type]
+    packed = lg.bake_volume(vol, color_codec="bc7", depth_codec="bc4", **common)  # type: ignore[arg-type]
+    assert _compression(raw) == {"color": None, "depth": None}
+    assert _compression(packed) == {"color": "bc7", "depth": "bc4"}
+    view = {"eye": [30.0, 14.0, -20.0], "target": [6.0, 8.5, 11.4], "up": [0, 1, 0], "yfov_deg": 40, "width": 64, "height": 64}
+    truth = _over_black(lg.reference_volume(vol, view, tf=tf, spacing=(0.8, 1.0, 1.2)).color)
+
+    def psnr(lf: lg.LightField) -> float:
+        mse = ((_over_black(lf.render(view).color) - truth) ** 2).mean()
+        return float(10 * np.log10(255.0**2 / mse))
+
+    raw_db, packed_db = psnr(raw), psnr(packed)
+    assert packed_db > raw_db - 3.0, f"bc7 + bc4 {packed_db:.2f} dB against raw {raw_db:.2f} dB"
+    with pytest.raises(ValueError, match="premultiplied"):
+        lg.bake_volume(vol, color_codec="bc1", **common)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="unknown block codec"):
+        lg.bake_volume(vol, color_codec="dxt1", **common)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="use r16, r8 or bc4"):
+        lg.bake_volume(vol, depth_codec="latc1", **common)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="do not pass depth_bits"):
+        lg.bake_volume(vol, depth_codec="bc4", depth_bits=16, **common)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="multiple of 4"):
+        lg.bake_volume(vol, tf=tf, cameras=12, resolution=30, color_codec="bc7", progress=False)
+
+
 def test_layered_bake_renders_runtime_opacities_like_the_layered_reference() -> None:
     """A two-layer multi light field (the blob's faint outside and its dense inside through
     separate TFs): ``render(view, layers=...)`` against ``reference_volume(layers=...,

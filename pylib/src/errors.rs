@@ -103,7 +103,8 @@ pub fn bake(error: &CoreBakeError) -> PyErr {
         | CoreBakeError::Lights(_)
         | CoreBakeError::LightsUnlit
         | CoreBakeError::Deform(_)
-        | CoreBakeError::StatesWithLights => PyValueError::new_err(error.to_string()),
+        | CoreBakeError::StatesWithLights
+        | CoreBakeError::BadCodec(_) => PyValueError::new_err(error.to_string()),
         CoreBakeError::Shading(e) => shading(e),
         other => BakeError::new_err(chain(other)),
     }

@@ -4,7 +4,7 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 
-use lumigraph_core::asset::{AssetFile, Provenance};
+use lumigraph_core::asset::{AssetFile, BlockCodec, Provenance};
 use lumigraph_core::auto_bake::{self, AutoEngines, AutoStage, AutoTarget};
 use lumigraph_core::bake::{BakeOptions, StateBake};
 use lumigraph_core::calibration;
@@ -802,9 +802,25 @@ impl PyLightField {
     }
 }
 
+/// The block codecs of `color_codec=` and `depth_codec=` (`None` or `"raw"`: no codec); whether
+/// they fit the bake is checked with the bake's options.
+pub(crate) fn codecs(
+    color: Option<&str>,
+    depth: Option<&str>,
+) -> PyResult<(Option<BlockCodec>, Option<BlockCodec>)> {
+    let parse = |name: Option<&str>, what: &str| match name {
+        None | Some("raw") => Ok(None),
+        Some(name) => name
+            .parse::<BlockCodec>()
+            .map(Some)
+            .map_err(|e| PyValueError::new_err(format!("{what}: {e}"))),
+    };
+    Ok((parse(color, "color_codec")?, parse(depth, "depth_codec")?))
+}
+
 /// Native bake on a `Mesh` (the Python `bake_mesh` converts other inputs and the progress flag).
 #[pyfunction]
-#[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress, calibrate = false, auto = false, target_psnr = None, max_bytes = None, shadows = false, lights = None, states = None, animation = None))]
+#[pyo3(signature = (mesh, *, cameras, resolution, light, ambient, specular, unlit, depth_bits, progress, calibrate = false, auto = false, target_psnr = None, max_bytes = None, shadows = false, lights = None, states = None, animation = None, color_codec = None, depth_codec = None))]
 // Python's keyword-only flags, one parameter each (the Python signature is the interface).
 #[allow(clippy::fn_params_excessive_bools)]
 pub fn bake(
@@ -826,6 +842,8 @@ pub fn bake(
     lights: Option<u32>,
     states: Option<Vec<(String, Bound<'_, PyMesh>)>>,
     animation: Option<(PathBuf, Option<String>, f64)>,
+    color_codec: Option<String>,
+    depth_codec: Option<String>,
 ) -> PyResult<PyLightField> {
     if let Some(callback) = &progress
         && !callback.bind(py).is_callable()
@@ -847,6 +865,13 @@ pub fn bake(
         return Err(PyValueError::new_err(
             "lights: an automatic bake chooses settings for the base state only; bake light \
              states without auto",
+        ));
+    }
+    let (color_codec, depth_codec) = codecs(color_codec.as_deref(), depth_codec.as_deref())?;
+    if auto && (color_codec.is_some() || depth_codec.is_some()) {
+        return Err(PyValueError::new_err(
+            "color_codec, depth_codec: an automatic bake chooses settings for raw pages; bake \
+             block-compressed pages without auto",
         ));
     }
     let states: Vec<(String, Arc<lumigraph_core::mesh::Mesh>, String, String)> = states
@@ -880,8 +905,8 @@ pub fn bake(
         depth_bits,
         lights,
         one_sided: false,
-        color_codec: None,
-        depth_codec: None,
+        color_codec,
+        depth_codec,
     };
     options.validate().map_err(|e| errors::bake(&e))?;
     // An animation: its frames, frame 0 the base mesh.

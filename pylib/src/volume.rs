@@ -145,7 +145,7 @@ fn load_volume(
 
 /// Native volume bake (the Python wrapper documents it).
 #[pyfunction]
-#[pyo3(signature = (volume, *, tf, layers, spacing, origin, labels, shade, step, depth_threshold, light, ambient, cameras, resolution, depth_bits, progress))]
+#[pyo3(signature = (volume, *, tf, layers, spacing, origin, labels, shade, step, depth_threshold, light, ambient, cameras, resolution, depth_bits, progress, color_codec = None, depth_codec = None))]
 pub fn bake_volume(
     py: Python<'_>,
     volume: &Bound<'_, PyAny>,
@@ -163,6 +163,8 @@ pub fn bake_volume(
     resolution: u32,
     depth_bits: u8,
     progress: Option<Py<PyAny>>,
+    color_codec: Option<String>,
+    depth_codec: Option<String>,
 ) -> PyResult<PyLightField> {
     if let Some(callback) = &progress
         && !callback.bind(py).is_callable()
@@ -171,6 +173,8 @@ pub fn bake_volume(
             "progress must be a bool or a callable(done, total)",
         ));
     }
+    let (color_codec, depth_codec) =
+        crate::lightfield::codecs(color_codec.as_deref(), depth_codec.as_deref())?;
     let layers = tf_or_layers(tf, layers)?;
     let (volume, provenance) = load_volume(py, volume, spacing, origin, labels)?;
     let options = VolumeBakeOptions {
@@ -184,6 +188,8 @@ pub fn bake_volume(
             ambient,
             depth_threshold,
         },
+        color_codec,
+        depth_codec,
     };
     let (bytes, callback_error) = py.detach(|| {
         let baker =

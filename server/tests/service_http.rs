@@ -1353,6 +1353,16 @@ async fn auto_bake_jobs() {
             r#"{"cameras": 42, "depth_bits": 8}"#,
             "cameras, depth_bits",
         ),
+        (
+            "true",
+            r#"{"color_codec": "bc1"}"#,
+            "color_codec: an automatic bake chooses settings for raw pages",
+        ),
+        (
+            "true",
+            r#"{"depth_codec": "bc4"}"#,
+            "depth_codec: an automatic",
+        ),
     ] {
         let mut fields: Vec<(&str, Option<&str>, &[u8])> = vec![
             ("mesh", Some("ico.obj"), obj.as_bytes()),

@@ -219,6 +219,8 @@ def bake_mesh(
     shadows: bool = False,
     lights: int | None = None,
     states: Mapping[str, MeshLike] | None = None,
+    color_codec: str = "raw",
+    depth_codec: str | None = None,
 ) -> LightField:
     """Bakes a mesh into a spherical light field on the GPU (GIL released).
 
@@ -254,6 +256,12 @@ def bake_mesh(
             ``lf.deformations`` says what each stores. Not with ``auto`` or ``lights``.
         depth_bits: depth precision, 16 (default) or 8. With ``auto=True``, ``cameras``,
             ``resolution`` and ``depth_bits`` are chosen and must not be given.
+        color_codec: colour pages as RGBA8 texels (``"raw"``, default) or GPU blocks:
+            ``"bc1"`` (4 bits per texel) or ``"bc7"`` (8); both drop the edge texels that place
+            silhouettes between texels (``docs/format.md`` §7.1; BENCHMARKS "Block
+            compression" measures the loss). Not with ``auto``.
+        depth_codec: ``"r16"``, ``"r8"`` (as ``depth_bits``) or ``"bc4"`` (8-bit codes in
+            4-bit blocks; blurs depth across silhouettes). Not with ``depth_bits`` or ``auto``.
         progress: True prints "baking cameras k/n" to stderr; a callable gets
             ``(cameras_done, cameras_total)`` (its first exception is raised after the bake);
             False is silent.
@@ -298,6 +306,9 @@ def bake_mesh(
         ]
         if given:
             raise ValueError(f"auto=True chooses {', '.join(given)}: do not pass them")
+        if depth_codec is not None or color_codec != "raw":
+            raise ValueError("auto=True bakes raw pages: do not pass color_codec or depth_codec")
+    bits, depth_block = _depth_storage(depth_codec, depth_bits)
     native = as_mesh(mesh)
     callback = _progress_callback(progress)
     return _bake(
@@ -308,7 +319,7 @@ def bake_mesh(
         ambient=ambient,
         specular=specular,
         unlit=unlit,
-        depth_bits=16 if depth_bits is None else depth_bits,
+        depth_bits=bits,
         progress=callback,
         calibrate=calibrate,
         auto=auto,
@@ -317,7 +328,22 @@ def bake_mesh(
         shadows=shadows,
         lights=lights,
         states=None if states is None else [(name, as_mesh(m)) for name, m in states.items()],
+        color_codec=color_codec,
+        depth_codec=depth_block,
     )
+
+
+def _depth_storage(depth_codec: str | None, depth_bits: int | None) -> tuple[int, str | None]:
+    """Depth bits and block codec of ``depth_codec`` (``"r16"``, ``"r8"``, ``"bc4"``) or of
+    ``depth_bits`` (default 16): the command line's ``--depth-codec`` and ``--depth-bits``."""
+    if depth_codec is None:
+        return (16 if depth_bits is None else depth_bits, None)
+    if depth_bits is not None:
+        raise ValueError("depth_codec sets the depth bits: do not pass depth_bits too")
+    storage = {"r16": (16, None), "r8": (8, None), "bc4": (8, "bc4")}
+    if depth_codec not in storage:
+        raise ValueError(f"depth_codec {depth_codec!r}: use r16, r8 or bc4")
+    return storage[depth_codec]
 
 
 def _planes_json(planes: object, other: str) -> str:
@@ -595,8 +621,10 @@ def bake_volume(
     ambient: float = DEFAULT_AMBIENT,
     cameras: int = 162,
     resolution: int = 256,
-    depth_bits: int = 16,
+    depth_bits: int | None = None,
     progress: bool | Callable[[int, int], object] = True,
+    color_codec: str = "raw",
+    depth_codec: str | None = None,
 ) -> LightField:
     """Bakes a volume into a semi-transparent spherical light field on the GPU (GIL released).
 
@@ -626,14 +654,18 @@ def bake_volume(
         progress: True prints "baking cameras k/n" to stderr; a callable gets
             ``(cameras_done, cameras_total)`` (its first exception is raised after the bake);
             False is silent.
+        color_codec: ``"raw"`` (default) or ``"bc7"`` (8 bits per texel, alpha kept); the
+            colour is premultiplied and semi-transparent, so ``"bc1"`` (1-bit alpha) is refused.
+        depth_codec: as in :func:`bake_mesh` (``"r16"``, ``"r8"``, ``"bc4"``).
 
     Returns:
         The baked :class:`LightField` (in memory; :meth:`LightField.save` writes it).
 
     Raises:
-        FileNotFoundError: no such file. ValueError: a bad array, file, tf or option.
+        FileNotFoundError: no such file. ValueError: a bad array, file, tf, option or codec.
         TypeError: an argument of the wrong type. BakeError: the GPU device failed.
     """
+    bits, depth_block = _depth_storage(depth_codec, depth_bits)
     callback = _progress_callback(progress)
     return _bake_volume(
         volume,
@@ -649,8 +681,10 @@ def bake_volume(
         ambient=ambient,
         cameras=cameras,
         resolution=resolution,
-        depth_bits=depth_bits,
+        depth_bits=bits,
         progress=callback,
+        color_codec=color_codec,
+        depth_codec=depth_block,
     )
 
 

@@ -234,6 +234,8 @@ def bake(
     lights: int | None = None,
     states: Sequence[tuple[str, Mesh]] | None = None,
     animation: tuple[str, str | None, float] | None = None,
+    color_codec: str | None = None,
+    depth_codec: str | None = None,
 ) -> LightField: ...
 def bake_two_plane(
     mesh: Mesh,
@@ -312,6 +314,8 @@ def bake_volume(
     resolution: int,
     depth_bits: int,
     progress: Callable[[int, int], object] | None,
+    color_codec: str | None = None,
+    depth_codec: str | None = None,
 ) -> LightField: ...
 def device_info() -> str: ...
 def psnr(a: _Image, b: _Image, *, mask: npt.ArrayLike | None = None) -> float: ...

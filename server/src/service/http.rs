@@ -1042,6 +1042,15 @@ pub async fn bake(
                     .to_owned(),
             ));
         }
+        if let Some(key) = ["color_codec", "depth_codec"]
+            .into_iter()
+            .find(|k| map.contains_key(*k))
+        {
+            return Err(AppError::Invalid(format!(
+                "{key}: an automatic bake chooses settings for raw pages; bake block-compressed \
+                 pages without auto"
+            )));
+        }
     }
     let mut options: BakeOptions = match options_value {
         None => BakeOptions::default(),
