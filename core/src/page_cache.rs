@@ -259,13 +259,8 @@ impl PageFrameStats {
         } else {
             self.degraded_px = self.degraded_px.max(other.degraded_px);
         }
-        // Every draw of a frame has the same overview pixels.
-        self.overview_px = self.overview_px.max(other.overview_px);
-        if self.overview_mask.len() == other.overview_mask.len() {
-            for (a, b) in self.overview_mask.iter_mut().zip(other.overview_mask) {
-                *a |= b;
-            }
-        }
+        // Every draw of a frame has the same overview pixels (the footprint depends on the
+        // view alone), so the first draw's count and mask stand.
     }
 }
 
@@ -385,11 +380,10 @@ pub fn needed_pages(
             (0.5 - s.dot(up) / sh) * res[1] - 0.5,
         ])
     };
-    // The st texels pixel (i, j) spans, as the shader's `st_footprint` measures them.
-    let footprint = |i: u32, j: u32| {
-        let d = basis.pixel_dir(i, j);
-        let eh = o.dot(normal);
-        let ps = o - eh / d.dot(normal) * d;
+    let eh = o.dot(normal);
+    // The st texels pixel (i, j) spans, as the shader's `st_footprint` measures them, from
+    // `ps`, where its ray meets st.
+    let footprint_from = |ps: DVec3, i: u32, j: u32| {
         let span = |n: DVec3| {
             let along = n.dot(normal);
             if !(along < 0.0) {
@@ -399,6 +393,10 @@ pub fn needed_pages(
             (delta.dot(right) / sw * res[0]).hypot(delta.dot(up) / sh * res[1])
         };
         span(basis.pixel_dir(i, j + 1)).max(span(basis.pixel_dir(i + 1, j)))
+    };
+    let footprint = |i: u32, j: u32| {
+        let d = basis.pixel_dir(i, j);
+        footprint_from(o - eh / d.dot(normal) * d, i, j)
     };
     // The (row, column) where the eye's foot on st (the st point nearest the eye) is seen,
     // where it is in front of the eye (the pixel of smallest footprint).
@@ -426,7 +424,6 @@ pub fn needed_pages(
         for &j in &xs {
             let d = basis.pixel_dir(i, j);
             let along = d.dot(normal);
-            let eh = o.dot(normal);
             if !(along < 0.0) {
                 rays.push(None);
                 continue;
@@ -435,7 +432,8 @@ pub fn needed_pages(
             let t_st = -eh / along;
             let pu = o + t_uv * d - uv_center;
             let uv = [pu.dot(right) / uw + 0.5, 0.5 - pu.dot(up) / uh];
-            let ps = o + t_st * d;
+            // As `footprint`'s (the same rounding as the shader's).
+            let ps = o - eh / along * d;
             let st = [ps.dot(right) / sw + 0.5, 0.5 - ps.dot(up) / sh];
             let inside =
                 t_uv >= 0.0 && t_st > t_uv && uv.iter().chain(&st).all(|x| (0.0..=1.0).contains(x));
@@ -449,7 +447,7 @@ pub fn needed_pages(
                 points,
                 inside,
                 footprint: if overview.is_some() {
-                    footprint(i, j)
+                    footprint_from(ps, i, j)
                 } else {
                     0.0
                 },
@@ -1539,12 +1537,15 @@ impl PagedTwoPlane {
             self.overview_factor(),
         )?;
         // The projection, and the shader's feedback of the last frame where it saw more.
-        let mut needed = projected.clone();
-        if !self.missed.is_empty() {
+        let needed: std::borrow::Cow<'_, [u32]> = if self.missed.is_empty() {
+            std::borrow::Cow::Borrowed(&projected)
+        } else {
+            let mut needed = projected.clone();
             needed.extend(std::mem::take(&mut self.missed));
             needed.sort_unstable();
             needed.dedup();
-        }
+            std::borrow::Cow::Owned(needed)
+        };
         self.frame = self.frame.wrapping_add(1).max(1);
         let frame = self.frame;
         let load_start = std::time::Instant::now();

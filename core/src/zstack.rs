@@ -91,7 +91,7 @@ impl ZStack {
     /// # Errors
     /// [`ZStackError::Stack`] for sizes out of range or a voxel count that does not match.
     pub fn new(size: [u32; 3], bits: u8, spacing: [f64; 3], voxels: Vec<u16>) -> Result<ZStack> {
-        check_size(size)?;
+        Self::check_size(size)?;
         check_spacing(spacing)?;
         if bits != 8 && bits != 16 {
             return Err(ZStackError::Stack(format!(
@@ -173,35 +173,31 @@ impl ZStack {
     /// # Errors
     /// [`ZStackError::Stack`] naming the limit.
     pub fn check_size(size: [u32; 3]) -> Result<()> {
-        check_size(size)
+        let [nx, ny, nz] = size;
+        if nx == 0 || ny == 0 || nz == 0 {
+            return Err(ZStackError::Stack(format!(
+                "an empty stack ({nx}x{ny}x{nz})"
+            )));
+        }
+        if nx > MAX_ST_RESOLUTION || ny > MAX_ST_RESOLUTION {
+            return Err(ZStackError::Stack(format!(
+                "slices of {nx}x{ny} pixels: at most {MAX_ST_RESOLUTION} a side (a light field's \
+                 images are textures); bin or crop the stack first"
+            )));
+        }
+        if nz > MAX_SLICES {
+            return Err(ZStackError::Stack(format!(
+                "{nz} slices: at most {MAX_SLICES}"
+            )));
+        }
+        let voxels = u64::from(nx) * u64::from(ny) * u64::from(nz);
+        if voxels > MAX_VOXELS {
+            return Err(ZStackError::Stack(format!(
+                "{voxels} voxels: at most {MAX_VOXELS}"
+            )));
+        }
+        Ok(())
     }
-}
-
-fn check_size(size: [u32; 3]) -> Result<()> {
-    let [nx, ny, nz] = size;
-    if nx == 0 || ny == 0 || nz == 0 {
-        return Err(ZStackError::Stack(format!(
-            "an empty stack ({nx}x{ny}x{nz})"
-        )));
-    }
-    if nx > MAX_ST_RESOLUTION || ny > MAX_ST_RESOLUTION {
-        return Err(ZStackError::Stack(format!(
-            "slices of {nx}x{ny} pixels: at most {MAX_ST_RESOLUTION} a side (a light field's \
-             images are textures); bin or crop the stack first"
-        )));
-    }
-    if nz > MAX_SLICES {
-        return Err(ZStackError::Stack(format!(
-            "{nz} slices: at most {MAX_SLICES}"
-        )));
-    }
-    let voxels = u64::from(nx) * u64::from(ny) * u64::from(nz);
-    if voxels > MAX_VOXELS {
-        return Err(ZStackError::Stack(format!(
-            "{voxels} voxels: at most {MAX_VOXELS}"
-        )));
-    }
-    Ok(())
 }
 
 fn check_spacing(spacing: [f64; 3]) -> Result<()> {
@@ -463,7 +459,7 @@ pub fn read_stack(path: &Path, spacing: Option<[f64; 3]>) -> Result<ZStack> {
         }
     }
     let stack_size = [size[0], size[1], slices.len() as u32];
-    check_size(stack_size)?;
+    ZStack::check_size(stack_size)?;
     let voxels: Vec<u16> = slices.into_iter().flat_map(|s| s.values).collect();
     ZStack::new(
         stack_size,
@@ -606,6 +602,102 @@ pub struct RaySample {
     pub hit: Option<f64>,
 }
 
+/// Maps raw grey values through a window `[lo, hi]` to [0, 1].
+#[derive(Clone, Copy, Debug)]
+struct Windowing {
+    lo: f64,
+    scale: f64,
+}
+
+impl Windowing {
+    fn new(window: [f64; 2]) -> Self {
+        Self {
+            lo: window[0],
+            scale: 1.0 / (window[1] - window[0]),
+        }
+    }
+
+    #[inline]
+    fn map(self, v: f64) -> f64 {
+        ((v - self.lo) * self.scale).clamp(0.0, 1.0)
+    }
+}
+
+/// One ray's composite, fed its raw samples front to back ([`Composite`]).
+#[derive(Clone, Copy, Debug)]
+struct Accumulator {
+    /// `mip`: the largest sample so far and its ray parameter.
+    best: f64,
+    best_t: f64,
+    /// `over`: premultiplied grey and opacity so far, and where the opacity reached ½.
+    emitted: f64,
+    opacity: f64,
+    over_t: Option<f64>,
+}
+
+impl Accumulator {
+    const EMPTY: Accumulator = Accumulator {
+        best: f64::NEG_INFINITY,
+        best_t: 0.0,
+        emitted: 0.0,
+        opacity: 0.0,
+        over_t: None,
+    };
+
+    /// Whether later samples can no longer change the result (`over` at full opacity).
+    #[inline]
+    fn done(&self) -> bool {
+        self.opacity > 0.999
+    }
+
+    /// Adds the raw sample `v` at ray parameter `t` (after every sample in front of it).
+    #[inline]
+    fn add(&mut self, options: &ZStackOptions, windowing: Windowing, v: f64, t: f64) {
+        match options.composite {
+            Composite::Mip => {
+                if v > self.best {
+                    self.best = v;
+                    self.best_t = t;
+                }
+            }
+            Composite::Over => {
+                if self.done() {
+                    return;
+                }
+                let v = windowing.map(v);
+                let alpha = (options.opacity * v).min(1.0);
+                self.emitted += (1.0 - self.opacity) * alpha * v;
+                let before = self.opacity;
+                self.opacity += (1.0 - self.opacity) * alpha;
+                if before < 0.5 && self.opacity >= 0.5 {
+                    self.over_t = Some(t);
+                }
+            }
+        }
+    }
+
+    /// The ray's value and hit.
+    fn finish(&self, options: &ZStackOptions, windowing: Windowing) -> RaySample {
+        match options.composite {
+            Composite::Mip if self.best.is_finite() => {
+                let value = windowing.map(self.best);
+                RaySample {
+                    value,
+                    hit: (value > 0.0 && value >= options.depth_threshold).then_some(self.best_t),
+                }
+            }
+            Composite::Mip => RaySample {
+                value: 0.0,
+                hit: None,
+            },
+            Composite::Over => RaySample {
+                value: self.emitted,
+                hit: self.over_t,
+            },
+        }
+    }
+}
+
 impl ZStack {
     /// Composites the ray `origin + t · dir` (t > 0) through the slices front to back
     /// ([module docs](self)); slice k is the plane at height `(k − (nz − 1)/2) · sz`, sampled
@@ -619,18 +711,12 @@ impl ZStack {
     ) -> RaySample {
         let [nx, ny, nz] = self.size;
         let [sx, sy, _] = self.spacing;
-        let scale = 1.0 / (window[1] - window[0]);
-        let map = |v: f64| ((v - window[0]) * scale).clamp(0.0, 1.0);
-        let empty = RaySample {
-            value: 0.0,
-            hit: None,
-        };
+        let windowing = Windowing::new(window);
+        let mut ray = Accumulator::EMPTY;
         if dir.z == 0.0 || !dir.is_finite() || !origin.is_finite() {
-            return empty;
+            return ray.finish(options, windowing);
         }
         let (hx, hy) = (f64::from(nx) / 2.0 - 0.5, f64::from(ny) / 2.0 - 0.5);
-        let (mut best, mut best_t) = (f64::NEG_INFINITY, 0.0);
-        let (mut emitted, mut opacity, mut over_hit) = (0.0f64, 0.0f64, None);
         // Front to back: down the slices when the ray goes down.
         for n in 0..nz {
             let k = if dir.z < 0.0 { nz - 1 - n } else { n };
@@ -638,51 +724,54 @@ impl ZStack {
             if t <= 0.0 {
                 continue;
             }
+            if ray.done() {
+                break;
+            }
             let x = (origin.x + t * dir.x) / sx + hx;
             let y = hy - (origin.y + t * dir.y) / sy;
-            let v = self.sample(k as usize, x, y);
-            match options.composite {
-                Composite::Mip => {
-                    if v > best {
-                        best = v;
-                        best_t = t;
-                    }
-                }
-                Composite::Over => {
-                    let v = map(v);
-                    let alpha = (options.opacity * v).min(1.0);
-                    emitted += (1.0 - opacity) * alpha * v;
-                    let before = opacity;
-                    opacity += (1.0 - opacity) * alpha;
-                    if before < 0.5 && opacity >= 0.5 {
-                        over_hit = Some(t);
-                    }
-                    if opacity > 0.999 {
-                        break;
-                    }
-                }
-            }
+            ray.add(options, windowing, self.sample(k as usize, x, y), t);
         }
-        match options.composite {
-            Composite::Mip if best.is_finite() => {
-                let value = map(best);
-                RaySample {
-                    value,
-                    hit: (value > 0.0 && value >= options.depth_threshold).then_some(best_t),
-                }
-            }
-            Composite::Mip => empty,
-            Composite::Over => RaySample {
-                value: emitted,
-                hit: over_hit,
-            },
-        }
+        ray.finish(options, windowing)
     }
 }
 
 /// The 8-bit code of a value in [0, 1].
 fn code(value: f64) -> u8 {
     (255.0 * value).round().clamp(0.0, 255.0) as u8
+}
+
+/// Runs `row(i, first_row, second_row)` for every row `i` of two row-major images of `rows`
+/// rows (`first` and `second` split into equal rows) on the machine's cores, a band of rows
+/// each.
+fn rows_in_parallel<T: Send, F: Fn(u32, &mut [u8], &mut [T]) + Sync>(
+    rows: usize,
+    first: &mut [u8],
+    second: &mut [T],
+    row: &F,
+) {
+    if rows == 0 {
+        return;
+    }
+    let (a, b) = (first.len() / rows, second.len() / rows);
+    let workers = std::thread::available_parallelism()
+        .map_or(1, std::num::NonZeroUsize::get)
+        .min(rows);
+    let chunk = rows.div_ceil(workers);
+    std::thread::scope(|scope| {
+        for (part, (f, s)) in first
+            .chunks_mut(chunk * a)
+            .zip(second.chunks_mut(chunk * b))
+            .enumerate()
+        {
+            scope.spawn(move || {
+                for (r, (frow, srow)) in
+                    f.chunks_exact_mut(a).zip(s.chunks_exact_mut(b)).enumerate()
+                {
+                    row((part * chunk + r) as u32, frow, srow);
+                }
+            });
+        }
+    });
 }
 
 /// Runs `pixel(row, column)` over `width × height` pixels on the machine's cores: each
@@ -693,32 +782,13 @@ fn per_pixel(
     pixel: &(dyn Fn(u32, u32) -> ([u8; 4], f32) + Sync),
 ) -> (Vec<u8>, Vec<f32>) {
     let (w, rows) = (width as usize, height as usize);
-    let workers = std::thread::available_parallelism()
-        .map_or(1, std::num::NonZeroUsize::get)
-        .min(rows.max(1));
-    let chunk = rows.div_ceil(workers).max(1);
     let mut color = vec![0u8; rows * w * 4];
     let mut value = vec![0f32; rows * w];
-    std::thread::scope(|scope| {
-        for (part, (c, d)) in color
-            .chunks_mut(chunk * w * 4)
-            .zip(value.chunks_mut(chunk * w))
-            .enumerate()
-        {
-            scope.spawn(move || {
-                for (r, (crow, drow)) in c
-                    .chunks_exact_mut(w * 4)
-                    .zip(d.chunks_exact_mut(w))
-                    .enumerate()
-                {
-                    let i = (part * chunk + r) as u32;
-                    for j in 0..width {
-                        let (rgba, z) = pixel(i, j);
-                        crow[j as usize * 4..j as usize * 4 + 4].copy_from_slice(&rgba);
-                        drow[j as usize] = z;
-                    }
-                }
-            });
+    rows_in_parallel(rows, &mut color, &mut value, &|i, crow, drow| {
+        for j in 0..width {
+            let (rgba, z) = pixel(i, j);
+            crow[j as usize * 4..j as usize * 4 + 4].copy_from_slice(&rgba);
+            drow[j as usize] = z;
         }
     });
     (color, value)
@@ -744,8 +814,7 @@ pub fn synthesize_camera(
     let [sx, sy, _] = stack.spacing;
     let (hx, hy) = (f64::from(nx) / 2.0 - 0.5, f64::from(ny) / 2.0 - 0.5);
     let h = camera.z;
-    let scale = 1.0 / (window[1] - window[0]);
-    let map = |v: f64| ((v - window[0]) * scale).clamp(0.0, 1.0);
+    let windowing = Windowing::new(window);
     let plane = nx as usize * ny as usize;
     let w = nx as usize;
     // Front to back: the cameras are above every slice.
@@ -755,11 +824,7 @@ pub fn synthesize_camera(
         .filter(|&(_, t)| t > 0.0)
         .collect();
     let row = |i: u32, color: &mut [u8], depth: &mut [u8]| {
-        let mut best = vec![f64::NEG_INFINITY; w];
-        let mut best_t = vec![0.0f64; w];
-        let mut emitted = vec![0.0f64; w];
-        let mut opacity = vec![0.0f64; w];
-        let mut over_t = vec![f64::NAN; w];
+        let mut rays = vec![Accumulator::EMPTY; w];
         let mut values = vec![0.0f64; w];
         for &(k, t) in &slices {
             let y = t * f64::from(i) + (hy - camera.y / sy) * (1.0 - t);
@@ -786,83 +851,25 @@ pub fn synthesize_camera(
                     *value = upper * (1.0 - ty) + lower * ty;
                 }
             }
-            match options.composite {
-                Composite::Mip => {
-                    for ((&v, best), best_t) in values.iter().zip(&mut best).zip(&mut best_t) {
-                        if v > *best {
-                            *best = v;
-                            *best_t = t;
-                        }
-                    }
-                }
-                Composite::Over => {
-                    for (((&v, emitted), opacity), over_t) in values
-                        .iter()
-                        .zip(&mut emitted)
-                        .zip(&mut opacity)
-                        .zip(&mut over_t)
-                    {
-                        if *opacity > 0.999 {
-                            continue;
-                        }
-                        let v = map(v);
-                        let alpha = (options.opacity * v).min(1.0);
-                        *emitted += (1.0 - *opacity) * alpha * v;
-                        let before = *opacity;
-                        *opacity += (1.0 - *opacity) * alpha;
-                        if before < 0.5 && *opacity >= 0.5 {
-                            *over_t = t;
-                        }
-                    }
-                }
+            for (&v, ray) in values.iter().zip(&mut rays) {
+                ray.add(options, windowing, v, t);
             }
         }
-        for (j, (rgba, z)) in color
+        for ((rgba, z), ray) in color
             .chunks_exact_mut(4)
             .zip(depth.chunks_exact_mut(4))
-            .enumerate()
+            .zip(&rays)
         {
-            let (value, hit) = match options.composite {
-                Composite::Mip if best[j].is_finite() => {
-                    let v = map(best[j]);
-                    (
-                        v,
-                        (v > 0.0 && v >= options.depth_threshold).then_some(best_t[j]),
-                    )
-                }
-                Composite::Mip => (0.0, None),
-                Composite::Over => (emitted[j], (!over_t[j].is_nan()).then_some(over_t[j])),
-            };
-            let c = code(value);
+            let ray = ray.finish(options, windowing);
+            let c = code(ray.value);
             rgba.copy_from_slice(&[c, c, c, 255]);
-            z.copy_from_slice(&(hit.map_or(1.0, |t| t as f32)).to_le_bytes());
+            z.copy_from_slice(&(ray.hit.map_or(1.0, |t| t as f32)).to_le_bytes());
         }
     };
     let rows = ny as usize;
-    let workers = std::thread::available_parallelism()
-        .map_or(1, std::num::NonZeroUsize::get)
-        .min(rows);
-    let chunk = rows.div_ceil(workers);
     let mut color = vec![0u8; rows * w * 4];
     let mut depth = vec![0u8; rows * w * 4];
-    std::thread::scope(|scope| {
-        for (part, (c, d)) in color
-            .chunks_mut(chunk * w * 4)
-            .zip(depth.chunks_mut(chunk * w * 4))
-            .enumerate()
-        {
-            let row = &row;
-            scope.spawn(move || {
-                for (r, (crow, drow)) in c
-                    .chunks_exact_mut(w * 4)
-                    .zip(d.chunks_exact_mut(w * 4))
-                    .enumerate()
-                {
-                    row((part * chunk + r) as u32, crow, drow);
-                }
-            });
-        }
-    });
+    rows_in_parallel(rows, &mut color, &mut depth, &row);
     (color, depth)
 }
 
@@ -987,7 +994,7 @@ pub fn import_zstack(
 /// [`ZStackError::Stack`] for a size out of range.
 pub fn demo_stack(size: [u32; 3]) -> Result<ZStack> {
     use rand::{RngExt, SeedableRng};
-    check_size(size)?;
+    ZStack::check_size(size)?;
     let [nx, ny, nz] = size.map(|n| n as usize);
     let mut rng = rand_pcg::Pcg64::seed_from_u64(0x5eed_2a57);
     let mut acc = vec![0f32; nx * ny * nz];

@@ -118,22 +118,47 @@ fn parse_vec3(s: &str) -> Result<[f32; 3], String> {
 
 /// `X,Y,Z` as f64, each finite.
 pub(super) fn parse_vec3_f64(s: &str) -> Result<[f64; 3], String> {
+    parse_f64s(s)
+}
+
+/// `N` comma-separated f64s, each finite.
+pub(super) fn parse_f64s<const N: usize>(s: &str) -> Result<[f64; N], String> {
     let parts: Vec<&str> = s.split(',').map(str::trim).collect();
-    let [x, y, z] = parts[..] else {
-        return Err(format!("expected 3 comma-separated numbers, got `{s}`"));
-    };
-    let num = |p: &str| match p.parse::<f64>() {
-        Ok(v) if v.is_finite() => Ok(v),
-        _ => Err(format!("`{p}` is not a finite number")),
-    };
-    Ok([num(x)?, num(y)?, num(z)?])
+    if parts.len() != N {
+        return Err(format!("expected {N} comma-separated numbers, got `{s}`"));
+    }
+    let mut out = [0.0; N];
+    for (value, part) in out.iter_mut().zip(parts) {
+        *value = match part.parse::<f64>() {
+            Ok(v) if v.is_finite() => v,
+            _ => return Err(format!("`{part}` is not a finite number")),
+        };
+    }
+    Ok(out)
 }
 
 /// `NxM` (a camera grid or an image size) as two whole numbers.
 pub(super) fn parse_size_pair(s: &str) -> Result<[u32; 2], String> {
-    s.split_once(['x', 'X'])
-        .and_then(|(a, b)| Some([a.trim().parse().ok()?, b.trim().parse().ok()?]))
-        .ok_or_else(|| format!("`{s}`: give two whole numbers as NxM, e.g. 8x8"))
+    parse_sizes(s, "NxM, e.g. 8x8")
+}
+
+/// `WxHxD` (a stack's columns, rows and slices) as three whole numbers.
+pub(super) fn parse_size_triple(s: &str) -> Result<[u32; 3], String> {
+    parse_sizes(s, "WxHxD, e.g. 1024x1024x61")
+}
+
+/// `N` whole numbers separated by `x`; `form` shows the expected form in the error.
+fn parse_sizes<const N: usize>(s: &str, form: &str) -> Result<[u32; N], String> {
+    let bad = || format!("`{s}`: give {N} whole numbers as {form}");
+    let parts: Vec<&str> = s.split(['x', 'X']).collect();
+    if parts.len() != N {
+        return Err(bad());
+    }
+    let mut out = [0; N];
+    for (value, part) in out.iter_mut().zip(parts) {
+        *value = part.trim().parse().map_err(|_| bad())?;
+    }
+    Ok(out)
 }
 
 fn parse_pair(s: &str) -> Result<(f32, f32), String> {

@@ -7,7 +7,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use lumigraph_core::zstack::{self, Composite, ZStackOptions};
 
-use super::args::{parse_size_pair, parse_vec3_f64};
+use super::args::{parse_f64s, parse_size_pair, parse_size_triple, parse_vec3_f64};
 use super::common::progress_bar;
 
 /// `lumigraph import-zstack`.
@@ -37,8 +37,8 @@ pub struct ImportZStackArgs {
     #[arg(long, default_value = "mip")]
     pub composite: String,
     /// Grey values mapped to black and white, LO,HI (default: the 0.1 and 99.9 percentiles).
-    #[arg(long, value_name = "LO,HI")]
-    pub window: Option<String>,
+    #[arg(long, value_name = "LO,HI", value_parser = parse_f64s::<2>)]
+    pub window: Option<[f64; 2]>,
     /// over: opacity per slice at full intensity.
     #[arg(long, default_value_t = zstack::DEFAULT_OPACITY)]
     pub opacity: f64,
@@ -48,45 +48,16 @@ pub struct ImportZStackArgs {
     pub depth_threshold: f64,
 }
 
-/// `WxHxD` as three whole numbers.
-fn parse_size_triple(s: &str) -> Result<[u32; 3], String> {
-    let parts: Vec<u32> = s
-        .split(['x', 'X'])
-        .map(|p| p.trim().parse::<u32>())
-        .collect::<std::result::Result<_, _>>()
-        .map_err(|_| format!("`{s}`: give three whole numbers as WxHxD, e.g. 1024x1024x61"))?;
-    match parts[..] {
-        [w, h, d] => Ok([w, h, d]),
-        _ => Err(format!(
-            "`{s}`: give three whole numbers as WxHxD, e.g. 1024x1024x61"
-        )),
-    }
-}
-
 pub(super) fn import_zstack(args: &ImportZStackArgs) -> Result<()> {
     let composite: Composite = args
         .composite
         .parse()
         .map_err(|e: String| anyhow::anyhow!(e))?;
-    let window = match &args.window {
-        Some(s) => {
-            let parts: Vec<f64> = s
-                .split(',')
-                .map(|p| p.trim().parse::<f64>())
-                .collect::<std::result::Result<_, _>>()
-                .map_err(|_| anyhow::anyhow!("--window {s}: give LO,HI as two numbers"))?;
-            let [lo, hi] = parts[..] else {
-                anyhow::bail!("--window {s}: give LO,HI as two numbers");
-            };
-            Some([lo, hi])
-        }
-        None => None,
-    };
     let options = ZStackOptions {
         grid: args.grid,
         angle_deg: args.angle,
         composite,
-        window,
+        window: args.window,
         opacity: args.opacity,
         depth_threshold: args.depth_threshold,
     };
