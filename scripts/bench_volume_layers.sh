@@ -60,22 +60,7 @@ evaluate() {
 evaluate "$three" "$OUT/eval-3.json"
 evaluate "$one" "$OUT/eval-1.json"
 evaluate "$tf3" "$OUT/eval-tf3.json"
-python3 - "$one.info.txt" "$OUT/views.json" <<'PY'
-import json, math, random, re, sys
-info = open(sys.argv[1]).read()
-m = re.search(r"centre \[([^\]]+)\], radius ([0-9.eE+-]+)", info)
-c = [float(x) for x in m.group(1).split(",")]
-r = float(m.group(2))
-rng = random.Random(7)
-views = []
-for _ in range(12):
-    z = rng.uniform(-1, 1); a = rng.uniform(0, 2 * math.pi); s = math.sqrt(1 - z * z)
-    d = [s * math.cos(a), s * math.sin(a), z]
-    up = [1, 0, 0] if abs(d[1]) > 0.9 else [0, 1, 0]
-    views.append({"eye": [c[i] + 2.5 * r * d[i] for i in range(3)], "target": c, "up": up,
-                  "yfov_deg": 40, "width": 512, "height": 512})
-json.dump(views, open(sys.argv[2], "w"))
-PY
+timing_views "$one.info.txt" "$OUT/views.json"
 : > "$OUT/timing.txt"
 # The layered assets twice: composited where the adapter suits (auto) and, as `three_gpu` and
 # `tf3_gpu`, on the GPU whatever the adapter (LUMIGRAPH_COMPOSITE=gpu).
