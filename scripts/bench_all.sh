@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Regenerates every table of BENCHMARKS.md (release build, real-mesh fixtures + the demo), one
 # script after another, each into its own folder under OUT_DIR:
-#   bash scripts/bench_all.sh [OUT_DIR]   (default out/bench; about 170 min on 2-core lavapipe)
+#   bash scripts/bench_all.sh [OUT_DIR]   (default out/bench; about 215 min on 2-core lavapipe)
 # Run it on an otherwise idle machine: the timings are only as steady as the host.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -25,6 +25,8 @@ step "volume light fields (scripts/bench_volume.sh)" "$OUT/volume/table.md: 'Vol
 bash scripts/bench_volume.sh "$OUT/volume"
 step "volume multi light fields (scripts/bench_volume_layers.sh)" "$OUT/volume-layers/table.md: 'Volume light fields', 3-layer rows"
 bash scripts/bench_volume_layers.sh "$OUT/volume-layers"
+step "volume block compression (scripts/bench_volume_codecs.sh)" "$OUT/volume-codecs/table.md: 'Volume light fields', compressed rows"
+bash scripts/bench_volume_codecs.sh "$OUT/volume-codecs"
 step "shadows (scripts/bench_shadows.sh)" "$OUT/shadows/table.md: 'Shadows'"
 bash scripts/bench_shadows.sh "$OUT/shadows"
 step "light states (scripts/bench_lights.sh)" "$OUT/lights/table.md: 'Light states'"

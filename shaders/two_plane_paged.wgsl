@@ -51,11 +51,16 @@ const NOT_RESIDENT: u32 = 0xffffffffu;
 // pixel is degraded, then one where it is overview (`paging.mask_words` words each).
 @group(0) @binding(10) var<storage, read_write> degraded_px: array<atomic<u32>>;
 
+// Whether any pixel of the frame may be an overview pixel: the pipeline is specialised per
+// frame (the projection bounds the frame's footprints), so a frame that cannot have one skips
+// the footprint test.
+override OVERVIEW: bool = true;
+
 var<private> degraded: bool = false;
 var<private> overview: bool = false;
 
 fn pixel_lod(o: vec3<f32>, xk: f32, yk: f32, ps: vec3<f32>) {
-    overview = st_footprint(o, xk, yk, ps) >= paging.overview_min;
+    overview = OVERVIEW && st_footprint(o, xk, yk, ps) >= paging.overview_min;
 }
 
 // Bilinear colour of the coarse level of camera `layer` at full-resolution texel `ji`.

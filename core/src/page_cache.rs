@@ -333,6 +333,29 @@ pub fn needed_pages(
     stride: u32,
     overview: Option<u32>,
 ) -> Result<Vec<u32>, RenderError> {
+    Ok(project(planes, grid, depth_range, view, options, stride, overview)?.pages)
+}
+
+/// What [`project`] found.
+struct Projection {
+    /// [`needed_pages`].
+    pages: Vec<u32>,
+    /// The largest st footprint of the projected rays (0 without `overview`): the frame's
+    /// pixels span about this many st texels at most (the footprint grows towards the frame's
+    /// edges, which the rays include).
+    max_footprint: f64,
+}
+
+/// [`needed_pages`], and the largest footprint it measured.
+fn project(
+    planes: &TwoPlanes,
+    grid: &PageGrid,
+    depth_range: [f32; 2],
+    view: &View,
+    options: &TwoPlaneOptions,
+    stride: u32,
+    overview: Option<u32>,
+) -> Result<Projection, RenderError> {
     /// A projected ray: its uv cell and its points at each height.
     struct Ray {
         cell: [f64; 2],
@@ -541,7 +564,14 @@ pub fn needed_pages(
             }
         }
     }
-    Ok(pages.into_iter().collect())
+    Ok(Projection {
+        pages: pages.into_iter().collect(),
+        max_footprint: rays
+            .iter()
+            .flatten()
+            .map(|r| r.footprint)
+            .fold(0.0, f64::max),
+    })
 }
 
 /// The camera parameters dead reckoning extrapolates (seed 003: position, aperture, focus,
@@ -1527,7 +1557,10 @@ impl PagedTwoPlane {
     ) -> Result<(Frame, PageFrameStats), RenderError> {
         options.validate()?;
         let start = std::time::Instant::now();
-        let projected = needed_pages(
+        let Projection {
+            pages: projected,
+            max_footprint,
+        } = project(
             &self.planes,
             &self.grid,
             self.depth_range,
@@ -1536,6 +1569,12 @@ impl PagedTwoPlane {
             NEEDS_STRIDE,
             self.overview_factor(),
         )?;
+        // Overview pixels are possible where the projected rays reach half the coarse factor
+        // (a wide margin: between rays the footprint changes little); otherwise the frame runs
+        // the pipeline without the footprint test.
+        let overview = self
+            .overview_factor()
+            .is_some_and(|f| max_footprint >= f64::from(f) / 2.0);
         // The projection, and the shader's feedback of the last frame where it saw more.
         let needed: std::borrow::Cow<'_, [u32]> = if self.missed.is_empty() {
             std::borrow::Cow::Borrowed(&projected)
@@ -1660,6 +1699,7 @@ impl PagedTwoPlane {
                 degraded,
                 touched_staging: &self.touched_staging,
                 degraded_staging,
+                overview,
             }),
             view,
             options,

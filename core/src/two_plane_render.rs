@@ -270,7 +270,8 @@ struct PagedPipelines {
     module: wgpu::ShaderModule,
     pipeline_layout: wgpu::PipelineLayout,
     layout: wgpu::BindGroupLayout,
-    pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 5],
+    /// Per mode, without and with overview pixels.
+    pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 10],
 }
 
 /// What a paged frame binds besides the parameters and outputs: the cache's slot atlases, its
@@ -288,6 +289,8 @@ pub(crate) struct PagedBinding<'a> {
     pub degraded: &'a wgpu::Buffer,
     pub touched_staging: &'a wgpu::Buffer,
     pub degraded_staging: &'a wgpu::Buffer,
+    /// Whether the frame may have overview pixels (the pipeline's `OVERVIEW`).
+    pub overview: bool,
 }
 
 /// The images a frame reads: every camera resident, or pages through a cache.
@@ -311,25 +314,31 @@ fn buffer_binding(binding: u32, buffer: &wgpu::Buffer) -> wgpu::BindGroupEntry<'
 }
 
 /// The pipeline of a mode (the uv filter's, or the aperture's) from `module`, compiled once into
-/// `slots`.
-fn mode_pipeline<'p>(
+/// `slots`; `overview` specialises the paged shader's `OVERVIEW` (`None` for the resident
+/// shader, which has no such override), doubling the slots.
+fn mode_pipeline<'p, const N: usize>(
     gpu: &Gpu,
-    slots: &'p [std::sync::OnceLock<wgpu::ComputePipeline>; 5],
+    slots: &'p [std::sync::OnceLock<wgpu::ComputePipeline>; N],
     module: &wgpu::ShaderModule,
     layout: &wgpu::PipelineLayout,
     options: &TwoPlaneOptions,
+    overview: Option<bool>,
 ) -> &'p wgpu::ComputePipeline {
     let aperture = options.aperture > 0.0;
-    let slot = if aperture {
+    let mode = if aperture {
         4
     } else {
         options.uv_filter.code() as usize
     };
+    let slot = mode + if overview == Some(true) { 5 } else { 0 };
     slots[slot].get_or_init(|| {
-        let constants = [
+        let mut constants = vec![
             ("MODE", f64::from(options.uv_filter.code())),
             ("APERTURE", if aperture { 1.0 } else { 0.0 }),
         ];
+        if let Some(overview) = overview {
+            constants.push(("OVERVIEW", if overview { 1.0 } else { 0.0 }));
+        }
         gpu.device
             .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some("two-plane"),
@@ -721,6 +730,7 @@ impl TwoPlaneRenderer {
                     &self.module,
                     &self.pipeline_layout,
                     options,
+                    None,
                 );
                 (bind, pipeline)
             }
@@ -748,6 +758,7 @@ impl TwoPlaneRenderer {
                     &pp.module,
                     &pp.pipeline_layout,
                     options,
+                    Some(paged.overview),
                 );
                 (bind, pipeline)
             }

@@ -435,19 +435,30 @@ fn two_plane_pipelines_have_no_branch_on_uniform_values_alone() {
     ] {
         for mode in 0..4 {
             for aperture in [false, true] {
-                let specialised = source
-                    .replace(
-                        "override MODE: u32 = 1u;",
-                        &format!("const MODE: u32 = {mode}u;"),
-                    )
-                    .replace(
-                        "override APERTURE: bool = false;",
-                        &format!("const APERTURE: bool = {aperture};"),
-                    );
-                found.extend(uniform_branches_of(
-                    &specialised,
-                    &format!("MODE {mode}, APERTURE {aperture}, paged {paged}"),
-                ));
+                for overview in [false, true] {
+                    if overview && !paged {
+                        continue;
+                    }
+                    let specialised = source
+                        .replace(
+                            "override MODE: u32 = 1u;",
+                            &format!("const MODE: u32 = {mode}u;"),
+                        )
+                        .replace(
+                            "override APERTURE: bool = false;",
+                            &format!("const APERTURE: bool = {aperture};"),
+                        )
+                        .replace(
+                            "override OVERVIEW: bool = true;",
+                            &format!("const OVERVIEW: bool = {overview};"),
+                        );
+                    found.extend(uniform_branches_of(
+                        &specialised,
+                        &format!(
+                            "MODE {mode}, APERTURE {aperture}, OVERVIEW {overview}, paged {paged}"
+                        ),
+                    ));
+                }
             }
         }
     }
