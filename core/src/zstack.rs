@@ -654,25 +654,33 @@ impl Accumulator {
     #[inline]
     fn add(&mut self, options: &ZStackOptions, windowing: Windowing, v: f64, t: f64) {
         match options.composite {
-            Composite::Mip => {
-                if v > self.best {
-                    self.best = v;
-                    self.best_t = t;
-                }
-            }
-            Composite::Over => {
-                if self.done() {
-                    return;
-                }
-                let v = windowing.map(v);
-                let alpha = (options.opacity * v).min(1.0);
-                self.emitted += (1.0 - self.opacity) * alpha * v;
-                let before = self.opacity;
-                self.opacity += (1.0 - self.opacity) * alpha;
-                if before < 0.5 && self.opacity >= 0.5 {
-                    self.over_t = Some(t);
-                }
-            }
+            Composite::Mip => self.add_mip(v, t),
+            Composite::Over => self.add_over(options.opacity, windowing, v, t),
+        }
+    }
+
+    /// [`Self::add`] for `mip`.
+    #[inline]
+    fn add_mip(&mut self, v: f64, t: f64) {
+        if v > self.best {
+            self.best = v;
+            self.best_t = t;
+        }
+    }
+
+    /// [`Self::add`] for `over` with `opacity` per slice at full intensity.
+    #[inline]
+    fn add_over(&mut self, opacity: f64, windowing: Windowing, v: f64, t: f64) {
+        if self.done() {
+            return;
+        }
+        let v = windowing.map(v);
+        let alpha = (opacity * v).min(1.0);
+        self.emitted += (1.0 - self.opacity) * alpha * v;
+        let before = self.opacity;
+        self.opacity += (1.0 - self.opacity) * alpha;
+        if before < 0.5 && self.opacity >= 0.5 {
+            self.over_t = Some(t);
         }
     }
 
@@ -851,8 +859,18 @@ pub fn synthesize_camera(
                     *value = upper * (1.0 - ty) + lower * ty;
                 }
             }
-            for (&v, ray) in values.iter().zip(&mut rays) {
-                ray.add(options, windowing, v, t);
+            // The composite chosen once per slice, not per pixel.
+            match options.composite {
+                Composite::Mip => {
+                    for (&v, ray) in values.iter().zip(&mut rays) {
+                        ray.add_mip(v, t);
+                    }
+                }
+                Composite::Over => {
+                    for (&v, ray) in values.iter().zip(&mut rays) {
+                        ray.add_over(options.opacity, windowing, v, t);
+                    }
+                }
             }
         }
         for ((rgba, z), ray) in color
