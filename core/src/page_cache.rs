@@ -314,6 +314,17 @@ impl PageSummary {
     }
 }
 
+/// What [`needed_pages`] found.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Projection {
+    /// The pages, sorted.
+    pub pages: Vec<u32>,
+    /// The largest st footprint of the projected rays (0 without `overview`): the frame's
+    /// pixels span about this many st texels at most (the footprint grows towards the frame's
+    /// edges, which the rays include).
+    pub max_footprint: f64,
+}
+
 /// The pages of `grid` that rendering `view` of `planes` with `options` reads (stored depths in
 /// `depth_range`), sorted: every `stride`-th pixel's ray (and the last row and column) is
 /// projected, through the focal plane (or the heights the depth-corrected filter marches), into
@@ -325,29 +336,6 @@ impl PageSummary {
 /// # Errors
 /// [`RenderError::View`] for an invalid view.
 pub fn needed_pages(
-    planes: &TwoPlanes,
-    grid: &PageGrid,
-    depth_range: [f32; 2],
-    view: &View,
-    options: &TwoPlaneOptions,
-    stride: u32,
-    overview: Option<u32>,
-) -> Result<Vec<u32>, RenderError> {
-    Ok(project(planes, grid, depth_range, view, options, stride, overview)?.pages)
-}
-
-/// What [`project`] found.
-struct Projection {
-    /// [`needed_pages`].
-    pages: Vec<u32>,
-    /// The largest st footprint of the projected rays (0 without `overview`): the frame's
-    /// pixels span about this many st texels at most (the footprint grows towards the frame's
-    /// edges, which the rays include).
-    max_footprint: f64,
-}
-
-/// [`needed_pages`], and the largest footprint it measured.
-fn project(
     planes: &TwoPlanes,
     grid: &PageGrid,
     depth_range: [f32; 2],
@@ -1421,7 +1409,7 @@ impl PagedTwoPlane {
                 let mut o = *options;
                 o.focus = state.focus;
                 o.aperture = state.aperture;
-                let Ok(pages) = needed_pages(
+                let Ok(Projection { pages, .. }) = needed_pages(
                     &self.planes,
                     &self.grid,
                     self.depth_range,
@@ -1560,7 +1548,7 @@ impl PagedTwoPlane {
         let Projection {
             pages: projected,
             max_footprint,
-        } = project(
+        } = needed_pages(
             &self.planes,
             &self.grid,
             self.depth_range,

@@ -311,7 +311,8 @@ fn projected_pages_cover_the_pages_frames_touch() {
                 8,
                 None,
             )
-            .expect("ok");
+            .expect("ok")
+            .pages;
             assert_eq!(projected.len() as u32, stats.pages_projected);
         }
     }

@@ -1194,17 +1194,25 @@ fn reference_ray_casts_a_volume() {
     );
 }
 
+/// The 24³ ball as `NAME.npy` and a transfer function with a faint halo and an opaque core as
+/// `NAME-tf.json`.
+fn ball_with_tf(name: &str) -> (PathBuf, PathBuf) {
+    (
+        write(&format!("{name}.npy"), &ball_npy(24)),
+        write(
+            &format!("{name}-tf.json"),
+            br#"{"points": [[0, 0, 0, 0, 0], [40, 0.2, 0.6, 1, 0.05], [80, 1, 0.5, 0, 0.9]]}"#,
+        ),
+    )
+}
+
 /// `bake VOLUME --tf`: a premultiplied volume light field (format version 2) that `info`
 /// describes, `render` draws with alpha, and `eval --volume` scores against the direct ray cast
 /// with the transfer function the asset recorded; volume flags and bad combinations fail
 /// cleanly.
 #[test]
 fn bakes_renders_and_scores_a_volume_light_field() {
-    let volume = write("bake-ball.npy", &ball_npy(24));
-    let tf = write(
-        "bake-ball-tf.json",
-        br#"{"points": [[0, 0, 0, 0, 0], [40, 0.2, 0.6, 1, 0.05], [80, 1, 0.5, 0, 0.9]]}"#,
-    );
+    let (volume, tf) = ball_with_tf("bake-ball");
     let asset = path("ball.lfa");
     let o = lumigraph(&[
         "bake",
@@ -1257,22 +1265,7 @@ fn bakes_renders_and_scores_a_volume_light_field() {
     );
     assert_eq!(alpha(0, 0), 0, "the corner is empty");
 
-    let o = lumigraph(&[
-        "eval",
-        s(&asset),
-        "--volume",
-        s(&volume),
-        "--spacing",
-        "0.5,0.5,0.5",
-        "--views",
-        "3",
-        "--size",
-        "64",
-        "--floor",
-        "--json",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("eval JSON");
+    let report = eval_ball(s(&asset), s(&volume), "3", "64", &["--floor"]);
     // The GPU's direct ray cast agrees with the CPU's up to f32 rounding: the floor is far
     // above the light field's error.
     let floor = report["mean_floor"]["masked_psnr"].as_f64().expect("floor");
@@ -1372,11 +1365,7 @@ fn ball_before_backdrop(name: &str, ball: &str, backdrop: &Path) -> PathBuf {
 /// colour.
 #[test]
 fn block_compressed_volume_bakes_score_close_to_raw() {
-    let volume = write("bc-ball.npy", &ball_npy(24));
-    let tf = write(
-        "bc-ball-tf.json",
-        br#"{"points": [[0, 0, 0, 0, 0], [40, 0.2, 0.6, 1, 0.05], [80, 1, 0.5, 0, 0.9]]}"#,
-    );
+    let (volume, tf) = ball_with_tf("bc-ball");
     let bake = |asset: &Path, codecs: &[&str]| {
         let mut args = vec![
             "bake",
@@ -1396,22 +1385,9 @@ fn block_compressed_volume_bakes_score_close_to_raw() {
         lumigraph(&args)
     };
     let eval = |asset: &Path| {
-        let o = lumigraph(&[
-            "eval",
-            s(asset),
-            "--volume",
-            s(&volume),
-            "--spacing",
-            "0.5,0.5,0.5",
-            "--views",
-            "3",
-            "--size",
-            "64",
-            "--json",
-        ]);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("eval JSON");
-        report["mean"]["masked_psnr"].as_f64().expect("masked PSNR")
+        eval_ball(s(asset), s(&volume), "3", "64", &[])["mean"]["masked_psnr"]
+            .as_f64()
+            .expect("masked PSNR")
     };
     let raw = path("bc-ball-raw.lfa");
     let o = bake(&raw, &[]);
@@ -1482,7 +1458,24 @@ fn centre_rgba(args: &[&str], view: &Path, out: &str) -> [u8; 4] {
 /// `eval ASSET --volume VOLUME --layers OPACITIES` of a ball asset on two 48² views: each view's
 /// masked PSNR against the composited reference.
 fn eval_ball_layers(asset: &str, volume: &str, opacities: &str) -> Vec<f64> {
-    let o = lumigraph(&[
+    eval_ball(asset, volume, "2", "48", &["--layers", opacities])["views"]
+        .as_array()
+        .expect("views")
+        .iter()
+        .map(|view| view["masked_psnr"].as_f64().expect("masked PSNR"))
+        .collect()
+}
+
+/// `eval ASSET --volume VOLUME` of a ball at 0.5 spacing on `views` views of `size`², plus
+/// `extra`; the run must succeed. Its JSON report.
+fn eval_ball(
+    asset: &str,
+    volume: &str,
+    views: &str,
+    size: &str,
+    extra: &[&str],
+) -> serde_json::Value {
+    let mut args = vec![
         "eval",
         asset,
         "--volume",
@@ -1490,21 +1483,15 @@ fn eval_ball_layers(asset: &str, volume: &str, opacities: &str) -> Vec<f64> {
         "--spacing",
         "0.5,0.5,0.5",
         "--views",
-        "2",
+        views,
         "--size",
-        "48",
-        "--layers",
-        opacities,
+        size,
         "--json",
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    let o = lumigraph(&args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&o.stdout).expect("eval JSON");
-    report["views"]
-        .as_array()
-        .expect("views")
-        .iter()
-        .map(|view| view["masked_psnr"].as_f64().expect("masked PSNR"))
-        .collect()
+    serde_json::from_slice(&o.stdout).expect("eval JSON")
 }
 
 #[test]
