@@ -1214,21 +1214,7 @@ fn ball_with_tf(name: &str) -> (PathBuf, PathBuf) {
 fn bakes_renders_and_scores_a_volume_light_field() {
     let (volume, tf) = ball_with_tf("bake-ball");
     let asset = path("ball.lfa");
-    let o = lumigraph(&[
-        "bake",
-        s(&volume),
-        "--spacing",
-        "0.5,0.5,0.5",
-        "--tf",
-        s(&tf),
-        "--shade",
-        "--cameras",
-        "42",
-        "--resolution",
-        "64",
-        "-o",
-        s(&asset),
-    ]);
+    let o = bake_ball(s(&volume), s(&asset), &["--tf", s(&tf), "--shade"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(
@@ -1367,22 +1353,9 @@ fn ball_before_backdrop(name: &str, ball: &str, backdrop: &Path) -> PathBuf {
 fn block_compressed_volume_bakes_score_close_to_raw() {
     let (volume, tf) = ball_with_tf("bc-ball");
     let bake = |asset: &Path, codecs: &[&str]| {
-        let mut args = vec![
-            "bake",
-            s(&volume),
-            "--spacing",
-            "0.5,0.5,0.5",
-            "--tf",
-            s(&tf),
-            "--cameras",
-            "42",
-            "--resolution",
-            "64",
-            "-o",
-            s(asset),
-        ];
-        args.extend_from_slice(codecs);
-        lumigraph(&args)
+        let mut extra = vec!["--tf", s(&tf)];
+        extra.extend_from_slice(codecs);
+        bake_ball(s(&volume), s(asset), &extra)
     };
     let eval = |asset: &Path| {
         eval_ball(s(asset), s(&volume), "3", "64", &[])["mean"]["masked_psnr"]
@@ -1425,22 +1398,27 @@ fn block_compressed_volume_bakes_score_close_to_raw() {
 /// `bake VOLUME --layers LAYERS` of the ball at 0.5 spacing, 42 cameras × 64 px, into `asset`;
 /// the run must succeed.
 fn bake_ball_layers(volume: &str, layers: &Path, asset: &str) -> Output {
-    let o = lumigraph(&[
+    let o = bake_ball(volume, asset, &["--layers", s(layers)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    o
+}
+
+/// `bake VOLUME -o ASSET` of a ball at 0.5 spacing, 42 cameras × 64 px, plus `extra`.
+fn bake_ball(volume: &str, asset: &str, extra: &[&str]) -> Output {
+    let mut args = vec![
         "bake",
         volume,
         "--spacing",
         "0.5,0.5,0.5",
-        "--layers",
-        s(layers),
         "--cameras",
         "42",
         "--resolution",
         "64",
         "-o",
         asset,
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    o
+    ];
+    args.extend_from_slice(extra);
+    lumigraph(&args)
 }
 
 /// Runs `args --view VIEW -o OUT` (a 48² view) and returns the RGBA of the PNG's centre.
