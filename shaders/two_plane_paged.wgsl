@@ -59,6 +59,13 @@ override OVERVIEW: bool = true;
 var<private> degraded: bool = false;
 var<private> overview: bool = false;
 
+// The depth-corrected march reads every sample (pages hold no depth pyramid).
+const DEPTH_PYRAMID: bool = false;
+
+fn depth_bound(layer: u32, lo: vec2<i32>, hi: vec2<i32>) -> f32 {
+    return 0.0;
+}
+
 fn pixel_lod(o: vec3<f32>, xk: f32, yk: f32, ps: vec3<f32>) {
     overview = OVERVIEW && st_footprint(o, xk, yk, ps) >= paging.overview_min;
 }

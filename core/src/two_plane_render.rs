@@ -13,7 +13,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::asset::{AssetError, AssetFile, Channel, ImageKey};
 use crate::frame::{Frame, FrameStats};
-use crate::gpu::{Gpu, buffer_entry, empty_texture_array, texture_entry};
+use crate::gpu::{
+    Gpu, buffer_entry, empty_texture_array, empty_texture_array_with_mips, texture_entry,
+};
 use crate::render::RenderError;
 use crate::two_plane::TwoPlanes;
 use crate::view::{DEFAULT_MAX_VIEW_PX, View};
@@ -238,8 +240,46 @@ pub fn field_bytes_with(planes: &TwoPlanes, color_codec: Option<crate::asset::Bl
     let color = color_codec.map_or(u64::from(ns) * u64::from(nt) * 4, |c| {
         c.stored_bytes(ns, nt)
     });
-    u64::from(Gpu::padded_layers(planes.camera_count()))
-        * (color + u64::from(ns) * u64::from(nt) * 4)
+    let depth: u64 = depth_bound_sizes([ns, nt])
+        .map(|[w, h]| u64::from(w) * u64::from(h) * 4)
+        .sum();
+    u64::from(Gpu::padded_layers(planes.camera_count())) * (color + depth)
+}
+
+/// Sizes of the depth texture's mip levels, level 0 (the stored depth) first: `max(1, side >>
+/// level)` down to 1 × 1, as the device allocates them.
+fn depth_bound_sizes([w, h]: [u32; 2]) -> impl Iterator<Item = [u32; 2]> {
+    let levels = u32::BITS - w.max(h).max(1).leading_zeros();
+    (0..levels).map(move |l| [(w >> l).max(1), (h >> l).max(1)])
+}
+
+/// The depth pyramid above one camera's stored depths (`w × h`, finite or +inf): level `l`
+/// (from 1) holds the smallest depth, the highest surface, of its block of level 0. Texel `x`
+/// of a level covers texels `2x` and `2x + 1` of the level below, and the last one also covers
+/// what is left of an odd row or column, so the block of level-0 texel `t` at level `l` is
+/// `min(t >> l, size_l − 1)` and every texel lies in exactly one block.
+/// The depth-corrected march skips ray segments that lie above every block they project to.
+fn depth_bound_levels(depth: &[f32], [w, h]: [u32; 2]) -> Vec<Vec<f32>> {
+    let sizes: Vec<[u32; 2]> = depth_bound_sizes([w, h]).collect();
+    let mut levels: Vec<Vec<f32>> = Vec::with_capacity(sizes.len().saturating_sub(1));
+    for pair in sizes.windows(2) {
+        let ([pw, ph], [nw, nh]) = (pair[0], pair[1]);
+        let below = levels.last().map_or(depth, Vec::as_slice);
+        // Texels of the level below that texel `x` of `n` covers (`p` below).
+        let span = |x: u32, n: u32, p: u32| {
+            (2 * x) as usize..=(if x + 1 == n { p - 1 } else { 2 * x + 1 }) as usize
+        };
+        let level = (0..nh)
+            .flat_map(|y| (0..nw).map(move |x| (x, y)))
+            .map(|(x, y)| {
+                span(y, nh, ph)
+                    .flat_map(|row| below[row * pw as usize..][span(x, nw, pw)].iter())
+                    .fold(f32::INFINITY, |m, &d| m.min(d))
+            })
+            .collect();
+        levels.push(level);
+    }
+    levels
 }
 
 struct Outputs {
@@ -256,8 +296,11 @@ pub struct TwoPlaneRenderer {
     gpu: Arc<Gpu>,
     module: wgpu::ShaderModule,
     pipeline_layout: wgpu::PipelineLayout,
-    /// One pipeline per uv filter, and one for the aperture, compiled on first use.
-    pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 5],
+    /// One pipeline per uv filter, and one for the aperture, without and with the depth
+    /// pyramid, compiled on first use.
+    pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 10],
+    /// Whether the depth-corrected march skips samples above the depth pyramid's bound.
+    depth_pyramid: bool,
     layout: wgpu::BindGroupLayout,
     sampler: wgpu::Sampler,
     outputs: Mutex<Option<Outputs>>,
@@ -322,7 +365,7 @@ fn mode_pipeline<'p, const N: usize>(
     module: &wgpu::ShaderModule,
     layout: &wgpu::PipelineLayout,
     options: &TwoPlaneOptions,
-    overview: Option<bool>,
+    (flag, on): (&str, bool),
 ) -> &'p wgpu::ComputePipeline {
     let aperture = options.aperture > 0.0;
     let mode = if aperture {
@@ -330,15 +373,13 @@ fn mode_pipeline<'p, const N: usize>(
     } else {
         options.uv_filter.code() as usize
     };
-    let slot = mode + if overview == Some(true) { 5 } else { 0 };
+    let slot = mode + if on { 5 } else { 0 };
     slots[slot].get_or_init(|| {
-        let mut constants = vec![
+        let constants = [
             ("MODE", f64::from(options.uv_filter.code())),
             ("APERTURE", if aperture { 1.0 } else { 0.0 }),
+            (flag, if on { 1.0 } else { 0.0 }),
         ];
-        if let Some(overview) = overview {
-            constants.push(("OVERVIEW", if overview { 1.0 } else { 0.0 }));
-        }
         gpu.device
             .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some("two-plane"),
@@ -437,6 +478,18 @@ impl TwoPlaneRenderer {
             sampler,
             outputs: Mutex::new(None),
             paged: std::sync::OnceLock::new(),
+            depth_pyramid: true,
+        }
+    }
+
+    /// The renderer whose depth-corrected march reads every sample instead of skipping those the
+    /// depth pyramid shows to lie above every surface (the skips change no pixel: this is the
+    /// reference they are tested and measured against).
+    #[must_use]
+    pub fn reading_every_sample(self) -> TwoPlaneRenderer {
+        TwoPlaneRenderer {
+            depth_pyramid: false,
+            ..self
         }
     }
 
@@ -507,6 +560,7 @@ impl TwoPlaneRenderer {
             )));
         }
         let make = |label, format| empty_texture_array(&self.gpu, label, format, [ns, nt, layers]);
+        let sizes: Vec<[u32; 2]> = depth_bound_sizes([ns, nt]).collect();
         // Block-compressed colour stays compressed where the device samples it cheaply
         // ([`Gpu::keeps_compressed`]).
         let blocks = asset
@@ -515,55 +569,80 @@ impl TwoPlaneRenderer {
             .and_then(|codec| Some((codec, codec.texture_format()?)));
         let color_format = blocks.map_or(wgpu::TextureFormat::Rgba8Unorm, |(_, f)| f);
         let color = make("two-plane colour", color_format);
-        let depth = make("two-plane depth", wgpu::TextureFormat::R32Float);
+        // The stored depths with their pyramid of smallest depths above them.
+        let depth = empty_texture_array_with_mips(
+            &self.gpu,
+            "two-plane depth",
+            wgpu::TextureFormat::R32Float,
+            [ns, nt, layers],
+            sizes.len() as u32,
+        );
+        let write = |texture, mip_level, z, data: &[u8], row_bytes, [w, h]: [u32; 2], rows| {
+            self.gpu.queue.write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture,
+                    mip_level,
+                    origin: wgpu::Origin3d { x: 0, y: 0, z },
+                    aspect: wgpu::TextureAspect::All,
+                },
+                data,
+                wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(row_bytes),
+                    rows_per_image: Some(rows),
+                },
+                wgpu::Extent3d {
+                    width: w,
+                    height: h,
+                    depth_or_array_layers: 1,
+                },
+            );
+        };
         let mut range = [f32::INFINITY, f32::NEG_INFINITY];
         for camera in 0..cameras {
-            for (channel, texture) in [(Channel::Color, &color), (Channel::Depth, &depth)] {
-                let key = ImageKey::new(0, 0, camera, channel);
-                let (image, row_bytes, rows) = match blocks {
-                    Some((codec, _)) if channel == Channel::Color => (
-                        asset.read_image_blocks(key)?,
-                        ns / crate::asset::BLOCK * codec.block_bytes(),
-                        nt / crate::asset::BLOCK,
-                    ),
-                    _ => (asset.read_image(key)?, ns * 4, nt),
-                };
-                if channel == Channel::Depth {
-                    for d in image.chunks_exact(4) {
-                        let d = f32::from_le_bytes([d[0], d[1], d[2], d[3]]);
-                        if d.is_finite() {
-                            range = [range[0].min(d), range[1].max(d)];
-                        } else if !(d.is_infinite() && d > 0.0) {
-                            return Err(RenderError::Asset(AssetError::Header(format!(
-                                "camera {camera} stores depth {d}: two-plane depth is finite or \
-                                 +inf"
-                            ))));
-                        }
-                    }
+            let key = ImageKey::new(0, 0, camera, Channel::Color);
+            match blocks {
+                Some((codec, _)) => write(
+                    &color,
+                    0,
+                    camera,
+                    &asset.read_image_blocks(key)?,
+                    ns / crate::asset::BLOCK * codec.block_bytes(),
+                    [ns, nt],
+                    nt / crate::asset::BLOCK,
+                ),
+                None => write(
+                    &color,
+                    0,
+                    camera,
+                    &asset.read_image(key)?,
+                    ns * 4,
+                    [ns, nt],
+                    nt,
+                ),
+            }
+            let image = asset.read_image(ImageKey::new(0, 0, camera, Channel::Depth))?;
+            let stored: Vec<f32> = image
+                .chunks_exact(4)
+                .map(|d| f32::from_le_bytes([d[0], d[1], d[2], d[3]]))
+                .collect();
+            for &d in &stored {
+                if d.is_finite() {
+                    range = [range[0].min(d), range[1].max(d)];
+                } else if !(d.is_infinite() && d > 0.0) {
+                    return Err(RenderError::Asset(AssetError::Header(format!(
+                        "camera {camera} stores depth {d}: two-plane depth is finite or +inf"
+                    ))));
                 }
-                self.gpu.queue.write_texture(
-                    wgpu::TexelCopyTextureInfo {
-                        texture,
-                        mip_level: 0,
-                        origin: wgpu::Origin3d {
-                            x: 0,
-                            y: 0,
-                            z: camera,
-                        },
-                        aspect: wgpu::TextureAspect::All,
-                    },
-                    &image,
-                    wgpu::TexelCopyBufferLayout {
-                        offset: 0,
-                        bytes_per_row: Some(row_bytes),
-                        rows_per_image: Some(rows),
-                    },
-                    wgpu::Extent3d {
-                        width: ns,
-                        height: nt,
-                        depth_or_array_layers: 1,
-                    },
-                );
+            }
+            write(&depth, 0, camera, &image, ns * 4, [ns, nt], nt);
+            for (level, (texels, [w, h])) in depth_bound_levels(&stored, [ns, nt])
+                .iter()
+                .zip(sizes.iter().skip(1).copied())
+                .enumerate()
+            {
+                let bytes: &[u8] = bytemuck::cast_slice(texels);
+                write(&depth, level as u32 + 1, camera, bytes, w * 4, [w, h], h);
             }
         }
         self.gpu.wait()?;
@@ -730,7 +809,7 @@ impl TwoPlaneRenderer {
                     &self.module,
                     &self.pipeline_layout,
                     options,
-                    None,
+                    ("DEPTH_PYRAMID", self.depth_pyramid),
                 );
                 (bind, pipeline)
             }
@@ -758,7 +837,7 @@ impl TwoPlaneRenderer {
                     &pp.module,
                     &pp.pipeline_layout,
                     options,
-                    Some(paged.overview),
+                    ("OVERVIEW", paged.overview),
                 );
                 (bind, pipeline)
             }
@@ -987,4 +1066,52 @@ pub fn restrict(frame: &Frame, region: &[bool], background: [u8; 4]) -> Frame {
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{depth_bound_levels, depth_bound_sizes};
+
+    /// Every texel of level `l` holds the smallest depth of the level-0 texels whose block is
+    /// `min(t >> l, size − 1)` per axis (odd and non-square sides, misses at +inf).
+    #[test]
+    fn depth_pyramid_levels_hold_the_smallest_depth_of_their_blocks() {
+        for [w, h] in [
+            [1u32, 1],
+            [2, 1],
+            [5, 3],
+            [7, 16],
+            [13, 9],
+            [64, 64],
+            [33, 100],
+        ] {
+            let depth: Vec<f32> = (0..w * h)
+                .map(|i| {
+                    let v = (i.wrapping_mul(2_654_435_761) >> 7) % 1000;
+                    if v % 7 == 0 {
+                        f32::INFINITY
+                    } else {
+                        v as f32 / 1000.0
+                    }
+                })
+                .collect();
+            let sizes: Vec<[u32; 2]> = depth_bound_sizes([w, h]).collect();
+            assert_eq!(sizes[0], [w, h]);
+            assert_eq!(*sizes.last().unwrap(), [1, 1]);
+            let levels = depth_bound_levels(&depth, [w, h]);
+            assert_eq!(levels.len() + 1, sizes.len());
+            for (l, level) in levels.iter().enumerate() {
+                let l = l as u32 + 1;
+                let [lw, lh] = sizes[l as usize];
+                let mut expected = vec![f32::INFINITY; (lw * lh) as usize];
+                for y in 0..h {
+                    for x in 0..w {
+                        let b = ((y >> l).min(lh - 1) * lw + (x >> l).min(lw - 1)) as usize;
+                        expected[b] = expected[b].min(depth[(y * w + x) as usize]);
+                    }
+                }
+                assert_eq!(level, &expected, "{w}x{h} level {l}");
+            }
+        }
+    }
 }

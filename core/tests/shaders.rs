@@ -435,10 +435,8 @@ fn two_plane_pipelines_have_no_branch_on_uniform_values_alone() {
     ] {
         for mode in 0..4 {
             for aperture in [false, true] {
-                for overview in [false, true] {
-                    if overview && !paged {
-                        continue;
-                    }
+                // The paged pipelines' OVERVIEW, the resident ones' DEPTH_PYRAMID.
+                for variant in [false, true] {
                     let specialised = source
                         .replace(
                             "override MODE: u32 = 1u;",
@@ -450,12 +448,16 @@ fn two_plane_pipelines_have_no_branch_on_uniform_values_alone() {
                         )
                         .replace(
                             "override OVERVIEW: bool = true;",
-                            &format!("const OVERVIEW: bool = {overview};"),
+                            &format!("const OVERVIEW: bool = {variant};"),
+                        )
+                        .replace(
+                            "override DEPTH_PYRAMID: bool = true;",
+                            &format!("const DEPTH_PYRAMID: bool = {variant};"),
                         );
                     found.extend(uniform_branches_of(
                         &specialised,
                         &format!(
-                            "MODE {mode}, APERTURE {aperture}, OVERVIEW {overview}, paged {paged}"
+                            "MODE {mode}, APERTURE {aperture}, OVERVIEW/DEPTH_PYRAMID {variant}, paged {paged}"
                         ),
                     ));
                 }

@@ -51,11 +51,17 @@ const MODE_DITHER: u32 = 2u;
 const MODE_DEPTH: u32 = 3u;
 // Bisection steps after the march brackets a surface: the height error shrinks 16×.
 const REFINE: u32 = 4u;
+// Samples of the depth-corrected march whose segment is tested against the depth pyramid at
+// once: a block whose lowest sample lies above every surface its segment projects to is
+// skipped whole.
+const BLOCK: u32 = 8u;
 const INF_BITS: u32 = 0x7f800000u;
 
 // The cameras' images are read through `color_at`, `depth_at` and `depth_texel`, defined by the
 // file appended to this one: shaders/two_plane.wgsl (every camera a texture-array layer) or
-// shaders/two_plane_paged.wgsl (pages in a cache, found through an index table). The appended
+// shaders/two_plane_paged.wgsl (pages in a cache, found through an index table). Where the
+// appended file sets `DEPTH_PYRAMID`, its `depth_bound` bounds the stored depth over a box of
+// texels and the depth-corrected march skips what lies above every surface. The appended
 // file's `pixel_lod` sees each pixel inside the light field before it is shaded (the paged one
 // chooses its level there) and `pixel_done` after.
 @group(0) @binding(0) var<uniform> params: Params;
@@ -173,6 +179,25 @@ fn surface_height_of(c: vec3<f32>, layer: u32, q: vec3<f32>) -> f32 {
     return select(-3.0e38, params.separation * (1.0 - d), seen);
 }
 
+// The highest surface camera `layer` (at `c`) stores anywhere the ray's points between heights
+// `h_top` and `h_bottom` project to (−3e38 where it stores none): a march sample in between
+// that lies above it cannot be at or below the surface there, so skipping it changes nothing.
+// The projection of the segment is the segment between its ends' projections (both ends on the
+// camera's side of the uv plane, so every point between is too); the texels `depth_at` reads
+// lie in the box of its ends, clamped, one texel wider for rounding. Where an end is not on
+// the camera's side, the bound is the uv plane's height (no sample lies above it).
+fn height_bound(c: vec3<f32>, layer: u32, o: vec3<f32>, d: vec3<f32>, h_top: f32, h_bottom: f32) -> f32 {
+    let a = lookup(c, at_height(o, d, h_top));
+    let b = lookup(c, at_height(o, d, h_bottom));
+    let hi = vec2<f32>(params.res) - vec2<f32>(1.0);
+    let lo_t = vec2<i32>(floor(clamp(min(a.ji, b.ji), vec2<f32>(0.0), hi)));
+    let hi_t = vec2<i32>(ceil(clamp(max(a.ji, b.ji), vec2<f32>(0.0), hi)));
+    let last = vec2<i32>(params.res) - vec2<i32>(1);
+    let nearest = depth_bound(layer, max(lo_t - vec2<i32>(1), vec2<i32>(0)), min(hi_t + vec2<i32>(1), last));
+    let bound = select(-3.0e38, params.separation * (1.0 - nearest), nearest < 3.0e38);
+    return select(params.separation, bound, a.ok && b.ok);
+}
+
 fn hash(x: u32) -> u32 {
     var v = x * 747796405u + 2891336453u;
     let w = ((v >> ((v >> 28u) + 4u)) ^ v) * 277803737u;
@@ -247,14 +272,6 @@ fn add_bilinear(acc: ptr<function, Accum>, cell: vec2<f32>, q: Fan) {
     add_camera(acc, c1.x, c0.y, q, f.x * (1.0 - f.y));
     add_camera(acc, c0.x, c1.y, q, (1.0 - f.x) * f.y);
     add_camera(acc, c1.x, c1.y, q, f.x * f.y);
-}
-
-// Adds camera (a, b) read at `hit` if the surface it sees there is within the tolerance of the
-// marched height `h`.
-fn agreeing(acc: ptr<function, Accum>, a: u32, b: u32, hit: vec3<f32>, f: Fan, h: f32, w: f32) {
-    if w > 0.0 && abs(surface_height(a, b, hit) - h) <= params.tolerance {
-        add_camera(acc, a, b, f, w);
-    }
 }
 
 @compute @workgroup_size(8, 8, 1)
@@ -379,17 +396,41 @@ fn shade_pixel(gid: vec3<u32>) {
         var h_prev = params.h_hi;
         var found = false;
         var below = params.h_hi;
-        for (var k = 0u; k <= steps; k++) {
-            let h = params.h_hi - f32(k) * dh;
-            let hs = surface_height_of(c0, layer0, at_height(o, d, h));
-            // The first sample at or below the surface, close to it: where the ray passed
-            // behind a silhouette (the depth jumps) the gap is large, and the march goes on.
-            if h <= hs && hs - h <= params.tolerance + dh {
-                found = true;
-                below = h;
+        // Samples k = 0..=steps at heights h_hi − k·dh. Those above the highest surface the
+        // camera stores along the whole segment are skipped first (one sample early, for
+        // rounding), then blocks of BLOCK samples above every surface their own segment
+        // meets: the march finds the same sample as one that reads every depth.
+        var k = 0u;
+        if DEPTH_PYRAMID {
+            let top = height_bound(c0, layer0, o, d, params.h_hi, params.h_lo);
+            k = u32(clamp(floor((params.h_hi - top) / dh) - 1.0, 0.0, f32(steps + 1u)));
+            if k > 0u {
+                h_prev = params.h_hi - f32(k - 1u) * dh;
+            }
+        }
+        loop {
+            if found || k > steps {
                 break;
             }
-            h_prev = h;
+            let k_end = min(k + BLOCK - 1u, steps);
+            let h_end = params.h_hi - f32(k_end) * dh;
+            if DEPTH_PYRAMID && h_end > height_bound(c0, layer0, o, d, params.h_hi - f32(k) * dh, h_end) {
+                h_prev = h_end;
+                k = k_end + 1u;
+                continue;
+            }
+            for (; k <= k_end; k++) {
+                let h = params.h_hi - f32(k) * dh;
+                let hs = surface_height_of(c0, layer0, at_height(o, d, h));
+                // The first sample at or below the surface, close to it: where the ray passed
+                // behind a silhouette (the depth jumps) the gap is large, and the march goes on.
+                if h <= hs && hs - h <= params.tolerance + dh {
+                    found = true;
+                    below = h;
+                    break;
+                }
+                h_prev = h;
+            }
         }
         if found {
             // Bisect between the last sample above the surface and the first below it.
@@ -402,25 +443,44 @@ fn shade_pixel(gid: vec3<u32>) {
                     above = mid;
                 }
             }
-            let h_star = below;
-            hit = at_height(o, d, h_star);
-            surface = true;
-            let c0 = vec2<u32>(floor(cell));
-            let c1 = min(c0 + vec2<u32>(1u), last);
-            let f = cell - floor(cell);
-            let q = fan(hit);
-            agreeing(&acc, c0.x, c0.y, hit, q, h_star, (1.0 - f.x) * (1.0 - f.y));
-            agreeing(&acc, c1.x, c0.y, hit, q, h_star, f.x * (1.0 - f.y));
-            agreeing(&acc, c0.x, c1.y, hit, q, h_star, (1.0 - f.x) * f.y);
-            agreeing(&acc, c1.x, c1.y, hit, q, h_star, f.x * f.y);
-            if acc.color.a <= 0.0 {
-                add_camera(&acc, n.x, n.y, q, 1.0);
-            }
-        } else {
-            // The nearest camera sees no surface along the ray (it may be hidden from it):
-            // the plain bilinear blend at the focal plane decides.
-            add_bilinear(&acc, cell, fan(at_height(o, d, params.focus)));
         }
+        let h_star = below;
+        hit = at_height(o, d, h_star);
+        surface = found;
+        // The four cameras around the uv crossing, read once for both outcomes (a device that
+        // runs both sides of a branch, as lavapipe does, would read them twice): where the
+        // march found a surface, each is read where the ray meets it and joins the blend if
+        // the surface it sees there is within the tolerance of the marched one, the nearest
+        // camera alone where none of them has coverage; where the nearest camera sees no
+        // surface along the ray (it may be hidden from it), the plain bilinear blend at the
+        // focal plane decides.
+        let q = fan(select(at_height(o, d, params.focus), hit, found));
+        let lo = vec2<u32>(floor(cell));
+        let hi = min(lo + vec2<u32>(1u), last);
+        let f = cell - floor(cell);
+        var nearest = vec4<f32>(0.0);
+        for (var i = 0u; i < 4u; i++) {
+            let right = (i & 1u) != 0u;
+            let lower = i >= 2u;
+            let a = select(lo.x, hi.x, right);
+            let b = select(lo.y, hi.y, lower);
+            let w = select(1.0 - f.x, f.x, right) * select(1.0 - f.y, f.y, lower);
+            let ji = q.origin + vec2<f32>(f32(a), f32(b)) * q.step;
+            let color = color_at(b * params.grid.x + a, ji);
+            let agrees = w > 0.0 && abs(surface_height(a, b, hit) - h_star) <= params.tolerance;
+            let wa = select(w, select(0.0, w, agrees), found);
+            acc.color += wa * color;
+            acc.weight += wa;
+            if wa > acc.best_w {
+                acc.best_w = wa;
+                acc.best_cam = vec2<u32>(a, b);
+                acc.best_ji = ji;
+            }
+            nearest = select(nearest, color, a == n.x && b == n.y);
+        }
+        let lone = select(0.0, 1.0, found && acc.color.a <= 0.0);
+        acc.color += lone * nearest;
+        acc.weight += lone;
     } else {
         let q = fan(at_height(o, d, params.focus));
         if MODE == MODE_BILINEAR {

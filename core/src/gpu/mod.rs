@@ -739,7 +739,18 @@ pub(crate) fn empty_texture_array(
     gpu: &Gpu,
     label: &str,
     format: wgpu::TextureFormat,
+    size: [u32; 3],
+) -> wgpu::Texture {
+    empty_texture_array_with_mips(gpu, label, format, size, 1)
+}
+
+/// [`empty_texture_array`] with `mip_levels` mip levels (each `max(1, side >> level)`).
+pub(crate) fn empty_texture_array_with_mips(
+    gpu: &Gpu,
+    label: &str,
+    format: wgpu::TextureFormat,
     [width, height, layers]: [u32; 3],
+    mip_levels: u32,
 ) -> wgpu::Texture {
     gpu.device.create_texture(&wgpu::TextureDescriptor {
         label: Some(label),
@@ -748,7 +759,7 @@ pub(crate) fn empty_texture_array(
             height,
             depth_or_array_layers: layers,
         },
-        mip_level_count: 1,
+        mip_level_count: mip_levels,
         sample_count: 1,
         dimension: wgpu::TextureDimension::D2,
         format,
