@@ -2979,7 +2979,7 @@ fn block_compressed_bakes_render_and_bad_codecs_fail() {
         br#"{"eye": [0.5, 0.3, 14], "target": [0, 0, 0], "yfov_deg": 30, "width": 48, "height": 40}"#,
     );
     let two = path("two-plane-bc.lfa");
-    for (codec, gpu_bytes) in [("bc1", 51_840), ("bc7", 92_160)] {
+    for (codec, gpu_bytes) in [("bc1", 67_140), ("bc7", 107_460)] {
         let o = lumigraph(&[
             "bake",
             "--demo",
@@ -2996,8 +2996,9 @@ fn block_compressed_bakes_render_and_bad_codecs_fail() {
         ]);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         let text = String::from_utf8_lossy(&lumigraph(&["info", s(&two)]).stdout).into_owned();
-        // 9 cameras × 40 × 32 × (½ + 4) bytes for BC1 on a device that samples BC; BC7 counted
-        // decoded (a CPU adapter decodes it on the host).
+        // 9 cameras × (40 × 32 × ½ bytes of BC1 colour on a device that samples BC + 4 bytes of
+        // depth per texel of its pyramid, 40 × 32 + 20 × 16 + 10 × 8 + 5 × 4 + 2 × 2 + 1 = 1705
+        // texels); BC7 counted decoded, 4 bytes a texel (a CPU adapter decodes it on the host).
         assert!(
             text.contains(&format!("GPU memory when served: {gpu_bytes} bytes")),
             "{codec}: {text}"
