@@ -72,8 +72,10 @@ def test_listing_shows_the_kind_planes_and_memory(server: Server, uploaded: str)
     assert summary["camera_count"] == 25 and summary["resolution_px"] == 64
     planes = summary["planes"]
     assert planes["uv"]["grid"] == [5, 5] and planes["st"]["resolution"] == [64, 64]
-    # RGBA8 + R32F per texel, 25 layers (no padding needed): what the budget is charged.
-    assert summary["gpu_bytes"] == 25 * 64 * 64 * 8
+    # RGBA8 per texel + R32F per texel of the depth pyramid (64² down to 1²), 25 layers (no
+    # padding needed): what the budget is charged.
+    pyramid = sum((64 >> level) ** 2 for level in range(7))
+    assert summary["gpu_bytes"] == 25 * (64 * 64 * 4 + pyramid * 4)
     listed = {a["id"]: a for a in httpx.get(f"{server.base_url}/v1/assets", timeout=10).json()}
     assert listed[uploaded]["kind"] == "two_plane"
     demo = httpx.get(f"{server.base_url}/v1/assets/demo", timeout=10).json()

@@ -2403,7 +2403,8 @@ fn two_plane_bake_info_render_and_errors() {
         "{}",
         String::from_utf8_lossy(&info.stderr)
     );
-    // 9 cameras × 40 × 32 × (4 + 4) bytes; on the GPU the same (9 layers need no padding).
+    // 9 cameras × 40 × 32 × (4 + 4) bytes; on the GPU 9 layers (no padding) × (40 × 32 × 4 bytes
+    // of colour + 4 bytes per texel of the depth pyramid, 40 × 32 down to 1 × 1: 1705 texels).
     assert!(text.contains("lumigraph asset v5"), "{text}");
     assert!(
         text.contains("two-plane light field: 3×3 cameras"),
@@ -2411,7 +2412,7 @@ fn two_plane_bake_info_render_and_errors() {
     );
     assert!(text.contains("decoded size: 92160 bytes"), "{text}");
     assert!(
-        text.contains("GPU memory when served: 92160 bytes"),
+        text.contains("GPU memory when served: 107460 bytes"),
         "{text}"
     );
 

@@ -184,8 +184,10 @@ fn surface_height_of(c: vec3<f32>, layer: u32, q: vec3<f32>) -> f32 {
 // that lies above it cannot be at or below the surface there, so skipping it changes nothing.
 // The projection of the segment is the segment between its ends' projections (both ends on the
 // camera's side of the uv plane, so every point between is too); the texels `depth_at` reads
-// lie in the box of its ends, clamped, one texel wider for rounding. Where an end is not on
-// the camera's side, the bound is the uv plane's height (no sample lies above it).
+// lie in the box of its ends, clamped, one texel wider for rounding. Where an end is not
+// clearly on the camera's side (within a thousandth of the separation of the uv plane, the
+// side of a projection to near infinity is rounding's choice), the bound is the uv plane's
+// height (no sample lies above it).
 fn height_bound(c: vec3<f32>, layer: u32, o: vec3<f32>, d: vec3<f32>, h_top: f32, h_bottom: f32) -> f32 {
     let a = lookup(c, at_height(o, d, h_top));
     let b = lookup(c, at_height(o, d, h_bottom));
@@ -195,7 +197,7 @@ fn height_bound(c: vec3<f32>, layer: u32, o: vec3<f32>, d: vec3<f32>, h_top: f32
     let last = vec2<i32>(params.res) - vec2<i32>(1);
     let nearest = depth_bound(layer, max(lo_t - vec2<i32>(1), vec2<i32>(0)), min(hi_t + vec2<i32>(1), last));
     let bound = select(-3.0e38, params.separation * (1.0 - nearest), nearest < 3.0e38);
-    return select(params.separation, bound, a.ok && b.ok);
+    return select(params.separation, bound, a.ok && b.ok && h_top < 0.999 * params.separation);
 }
 
 fn hash(x: u32) -> u32 {
