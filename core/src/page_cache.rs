@@ -225,6 +225,10 @@ pub struct PageFrameStats {
     pub resident: u32,
     /// Time spent reading and decoding pages, ms.
     pub load_ms: f64,
+    /// Time spent planning, ms: projecting the view onto the pages (and, with the predictive
+    /// policy, the predicted views, on threads beside it) and choosing loads and evictions.
+    #[serde(default)]
+    pub plan_ms: f64,
     /// Pages that could not be read (the frame is degraded there), with the reason.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub read_errors: Vec<String>,
@@ -246,6 +250,7 @@ impl PageFrameStats {
         self.pages_pending = other.pages_pending;
         self.ms += other.ms;
         self.load_ms += other.load_ms;
+        self.plan_ms += other.plan_ms;
         self.pages_touched = self.pages_touched.max(other.pages_touched);
         self.pages_projected = self.pages_projected.max(other.pages_projected);
         self.projection_missed += other.projection_missed;
@@ -601,6 +606,108 @@ impl CameraState {
             width: self.size[0],
             height: self.size[1],
         }
+    }
+}
+
+/// What projecting a view onto a paged light field's pages reads ([`needed_pages`]'s
+/// arguments but the view's): shared by the frame's projection and the prediction's threads.
+#[derive(Clone, Copy)]
+struct Projector<'a> {
+    planes: &'a TwoPlanes,
+    grid: &'a PageGrid,
+    depth_range: [f32; 2],
+    overview: Option<u32>,
+}
+
+impl Projector<'_> {
+    /// [`needed_pages`] of `view` with `options`, rays `stride` pixels apart.
+    fn project(
+        self,
+        view: &View,
+        options: &TwoPlaneOptions,
+        stride: u32,
+    ) -> Result<Projection, RenderError> {
+        needed_pages(
+            self.planes,
+            self.grid,
+            self.depth_range,
+            view,
+            options,
+            stride,
+            self.overview,
+        )
+    }
+
+    /// Each page the predictive policy would prefetch after the frames in `history` (the
+    /// last two count), with its probability: for each camera parameter that moved over them
+    /// (and for all of them together), the pages of that parameter dead-reckoned 1, 2, …,
+    /// [`PREDICT_FRAMES`] frames ahead with probability 1/k; a page's probability is the mean
+    /// over the parameters (equal weights). The parameters that moved are projected on threads
+    /// of their own; their probabilities add up in the parameters' order, as one thread would.
+    fn predict(
+        self,
+        history: &VecDeque<CameraState>,
+        options: &TwoPlaneOptions,
+    ) -> (Vec<u32>, HashMap<u32, f32>) {
+        let mut probability: HashMap<u32, f32> = HashMap::new();
+        let (Some(now), Some(before)) = (history.back(), history.iter().rev().nth(1)) else {
+            return (Vec::new(), probability);
+        };
+        let moved: Vec<Param> = Param::ALL
+            .into_iter()
+            .filter(|p| p.extrapolate(now, before, 1.0).is_some())
+            .collect();
+        let per_param: Vec<HashMap<u32, f32>> = std::thread::scope(|scope| {
+            let threads: Vec<_> = moved
+                .iter()
+                .map(|&param| scope.spawn(move || self.predicted(param, now, before, options)))
+                .collect();
+            threads
+                .into_iter()
+                .map(|t| t.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
+                .collect()
+        });
+        let weight = 1.0 / Param::ALL.len() as f32;
+        for best in per_param {
+            for (page, p) in best {
+                *probability.entry(page).or_insert(0.0) += weight * p;
+            }
+        }
+        let mut order: Vec<u32> = probability.keys().copied().collect();
+        order.sort_by(|a, b| probability[b].total_cmp(&probability[a]).then(a.cmp(b)));
+        (order, probability)
+    }
+
+    /// The pages of `param` dead-reckoned 1, 2, …, [`PREDICT_FRAMES`] frames ahead from
+    /// `before` and `now`, each with its largest probability 1/k.
+    fn predicted(
+        self,
+        param: Param,
+        now: &CameraState,
+        before: &CameraState,
+        options: &TwoPlaneOptions,
+    ) -> HashMap<u32, f32> {
+        let mut best: HashMap<u32, f32> = HashMap::new();
+        for k in 1..=PREDICT_FRAMES {
+            let Some(state) = param.extrapolate(now, before, f64::from(k)) else {
+                break;
+            };
+            let mut o = *options;
+            o.focus = state.focus;
+            o.aperture = state.aperture;
+            // An extrapolated view may be invalid (a field of view past its range): nothing
+            // to prefetch for it.
+            let Ok(Projection { pages, .. }) = self.project(&state.view(), &o, 4 * NEEDS_STRIDE)
+            else {
+                continue;
+            };
+            let p = 1.0 / k as f32;
+            for page in pages {
+                let e = best.entry(page).or_insert(0.0);
+                *e = e.max(p);
+            }
+        }
+        best
     }
 }
 
@@ -1388,53 +1495,14 @@ impl PagedTwoPlane {
         self.config.overview.then_some(self.coarse_factor)
     }
 
-    /// Each page the predictive policy would prefetch after the frames so far, with its
-    /// probability: for each camera parameter that moved over the last two frames (and for all
-    /// of them together), the pages of that parameter dead-reckoned 1, 2, …,
-    /// [`PREDICT_FRAMES`] frames ahead with probability 1/k; a page's probability is the mean
-    /// over the parameters (equal weights).
-    fn predict(&self, options: &TwoPlaneOptions) -> (Vec<u32>, HashMap<u32, f32>) {
-        let mut probability: HashMap<u32, f32> = HashMap::new();
-        let (Some(now), Some(before)) = (self.history.back(), self.history.iter().rev().nth(1))
-        else {
-            return (Vec::new(), probability);
-        };
-        let weight = 1.0 / Param::ALL.len() as f32;
-        for param in Param::ALL {
-            let mut best: HashMap<u32, f32> = HashMap::new();
-            for k in 1..=PREDICT_FRAMES {
-                let Some(state) = param.extrapolate(now, before, f64::from(k)) else {
-                    break;
-                };
-                let mut o = *options;
-                o.focus = state.focus;
-                o.aperture = state.aperture;
-                let Ok(Projection { pages, .. }) = needed_pages(
-                    &self.planes,
-                    &self.grid,
-                    self.depth_range,
-                    &state.view(),
-                    &o,
-                    4 * NEEDS_STRIDE,
-                    self.overview_factor(),
-                ) else {
-                    // An extrapolated view may be invalid (a field of view past its range):
-                    // nothing to prefetch for it.
-                    continue;
-                };
-                let p = 1.0 / k as f32;
-                for page in pages {
-                    let e = best.entry(page).or_insert(0.0);
-                    *e = e.max(p);
-                }
-            }
-            for (page, p) in best {
-                *probability.entry(page).or_insert(0.0) += weight * p;
-            }
+    /// What projects views onto this cache's pages.
+    fn projector(&self) -> Projector<'_> {
+        Projector {
+            planes: &self.planes,
+            grid: &self.grid,
+            depth_range: self.depth_range,
+            overview: self.overview_factor(),
         }
-        let mut order: Vec<u32> = probability.keys().copied().collect();
-        order.sort_by(|a, b| probability[b].total_cmp(&probability[a]).then(a.cmp(b)));
-        (order, probability)
     }
 
     /// Renders `view` through the cache: plans, reads and uploads the frame's pages (the needed
@@ -1544,19 +1612,35 @@ impl PagedTwoPlane {
         wait: bool,
     ) -> Result<(Frame, PageFrameStats), RenderError> {
         options.validate()?;
+        view.basis(DEFAULT_MAX_VIEW_PX)?;
         let start = std::time::Instant::now();
+        let predicting = self.config.prefetch == Prefetch::Predict;
+        if predicting {
+            self.history.push_back(CameraState::of(view, options));
+            while self.history.len() > 2 {
+                self.history.pop_front();
+            }
+        }
+        // The frame's own projection beside the prediction's (on threads of its own): the
+        // planning is all CPU work done while the device waits for it.
+        let projector = self.projector();
+        let history = &self.history;
+        let plan_start = std::time::Instant::now();
+        let (projection, (prefetch, probability)) = std::thread::scope(|scope| {
+            let prediction =
+                predicting.then(|| scope.spawn(move || projector.predict(history, options)));
+            let projection = projector.project(view, options, NEEDS_STRIDE);
+            let predicted = prediction.map_or_else(
+                || (Vec::new(), HashMap::new()),
+                |t| t.join().unwrap_or_else(|e| std::panic::resume_unwind(e)),
+            );
+            (projection, predicted)
+        });
+        let mut plan_ms = plan_start.elapsed().as_secs_f64() * 1e3;
         let Projection {
             pages: projected,
             max_footprint,
-        } = needed_pages(
-            &self.planes,
-            &self.grid,
-            self.depth_range,
-            view,
-            options,
-            NEEDS_STRIDE,
-            self.overview_factor(),
-        )?;
+        } = projection?;
         // Overview pixels are possible where the projected rays reach half the coarse factor
         // (a wide margin: between rays the footprint changes little); otherwise the frame runs
         // the pipeline without the footprint test.
@@ -1579,16 +1663,7 @@ impl PagedTwoPlane {
         let (mut pages_loaded, mut bytes_uploaded, mut read_errors) = self.receive(wait);
         let mut load_ms = load_start.elapsed().as_secs_f64() * 1e3;
         let at_start = self.device_table();
-        let (prefetch, probability) = match self.config.prefetch {
-            Prefetch::Predict => {
-                self.history.push_back(CameraState::of(view, options));
-                while self.history.len() > 2 {
-                    self.history.pop_front();
-                }
-                self.predict(options)
-            }
-            _ => (Vec::new(), HashMap::new()),
-        };
+        let plan_start = std::time::Instant::now();
         let loads = self.residency.plan(
             frame,
             &needed,
@@ -1596,6 +1671,7 @@ impl PagedTwoPlane {
             &probability,
             self.config.pages_per_frame,
         );
+        plan_ms += plan_start.elapsed().as_secs_f64() * 1e3;
         let load_start = std::time::Instant::now();
         if wait {
             let ids: Vec<u32> = loads.iter().map(|&(id, _)| id).collect();
@@ -1737,6 +1813,7 @@ impl PagedTwoPlane {
                 .count() as u32,
             resident: self.residency.resident_count(),
             load_ms,
+            plan_ms,
             read_errors,
             degraded_mask,
             overview_mask,
@@ -1891,6 +1968,70 @@ mod tests {
         let loads = r.plan(2, &[], &[3, 4], &p, 8);
         assert_eq!(loads, vec![(3, 0)]);
         assert!(r.resident(2) && r.resident(3) && !r.resident(4));
+    }
+
+    #[test]
+    fn prediction_on_threads_equals_the_parameters_in_order() {
+        // A 9×9 grid of 512² images in 128² pages, seen from beyond the uv plane while the
+        // eye pans, turns, zooms and refocuses at once: every parameter moves.
+        let planes = crate::two_plane_io::default_planes([9, 9], [512, 512]);
+        let grid = PageGrid::new(&planes, 128);
+        let projector = Projector {
+            planes: &planes,
+            grid: &grid,
+            depth_range: [0.5, 1.5],
+            overview: None,
+        };
+        let frame = |x: f64, fov: f64, focus: f64| {
+            let view = View {
+                eye: [x, 0.2, 6.0],
+                target: [0.5 * x, 0.0, 0.0],
+                up: [0.0, 1.0, 0.0],
+                yfov_deg: fov,
+                width: 256,
+                height: 256,
+            };
+            let options = TwoPlaneOptions {
+                focus,
+                aperture: 0.5,
+                ..TwoPlaneOptions::default()
+            };
+            CameraState::of(&view, &options)
+        };
+        let history: VecDeque<CameraState> = [frame(-0.4, 30.0, 0.4), frame(-0.1, 33.0, 0.5)]
+            .into_iter()
+            .collect();
+        let options = TwoPlaneOptions {
+            focus: 0.5,
+            aperture: 0.5,
+            ..TwoPlaneOptions::default()
+        };
+        let (order, probability) = projector.predict(&history, &options);
+        // The same sum, one parameter after the other on this thread.
+        let (now, before) = (&history[1], &history[0]);
+        let mut serial: HashMap<u32, f32> = HashMap::new();
+        let mut moved = 0;
+        for param in Param::ALL {
+            if param.extrapolate(now, before, 1.0).is_some() {
+                moved += 1;
+            }
+            for (page, p) in projector.predicted(param, now, before, &options) {
+                *serial.entry(page).or_insert(0.0) += (1.0 / Param::ALL.len() as f32) * p;
+            }
+        }
+        assert!(moved >= 4, "{moved} parameters moved");
+        assert!(!probability.is_empty());
+        assert_eq!(probability.len(), serial.len());
+        for (page, p) in &serial {
+            // Bit for bit: the same additions in the same order.
+            assert_eq!(probability[page].to_bits(), p.to_bits(), "page {page}");
+        }
+        assert_eq!(order.len(), probability.len());
+        assert!(
+            order
+                .windows(2)
+                .all(|w| probability[&w[0]] >= probability[&w[1]])
+        );
     }
 
     #[test]

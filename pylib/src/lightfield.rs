@@ -437,7 +437,7 @@ impl PyLightField {
     /// before any): ``faults`` (pages it touched that were not resident when it started),
     /// ``degraded_px``, ``overview_px`` (pixels spanning the coarse factor or more texels,
     /// read from the coarse level by choice), ``pages_loaded``, ``bytes_uploaded``, ``ms``, ``pages_touched``,
-    /// ``pages_projected``, ``projection_missed``, ``resident``, ``load_ms`` and
+    /// ``pages_projected``, ``projection_missed``, ``resident``, ``load_ms``, ``plan_ms`` and
     /// ``read_errors`` when pages failed to read. ``summary``: ``frames``, ``faults``,
     /// ``degraded_px``, ``pages_loaded``, ``bytes_uploaded``, ``mean_ms``, ``max_ms``,
     /// ``overview_px``, ``projection_missed`` over every frame so far.

@@ -3149,6 +3149,13 @@ fn paged_trace_replay_reports_and_errors() {
             assert_eq!(r["cache"]["prefetch"].as_str(), Some(policy));
             assert_eq!(r["cache"]["async_loads"].as_bool(), Some(asynchronous));
             assert!(frames.iter().all(|f| f["pages_pending"].is_u64()));
+            // Every frame plans (projects its view) before it renders.
+            assert!(
+                frames
+                    .iter()
+                    .all(|f| f["plan_ms"].as_f64().is_some_and(|ms| ms > 0.0)),
+                "{policy}"
+            );
         }
         if asynchronous {
             // The first frame renders before any page arrives: all of it read the coarse level.
