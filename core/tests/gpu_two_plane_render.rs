@@ -7,6 +7,7 @@ use glam::DVec3;
 use lumigraph_core::asset::{
     AssetFile, AssetHeader, BlockCodec, Channel, ImageKey, Provenance, encode_asset,
 };
+use lumigraph_core::gpu::mesh::GpuMesh;
 use lumigraph_core::metrics;
 use lumigraph_core::reference::ReferenceRenderer;
 use lumigraph_core::shading::Shading;
@@ -416,6 +417,47 @@ fn refocus_is_sharpest_at_each_planes_depth() {
     assert!(at_focus(&right, front) < 0.5 * right_max, "{right:?}");
 }
 
+/// The demo mesh on the device, with the reference rasterizer that captures and scores it.
+fn demo_on_device() -> (ReferenceRenderer, GpuMesh) {
+    let reference = ReferenceRenderer::new(gpu());
+    let mesh = lumigraph_core::mesh::demo_mesh().expect("demo");
+    let gpu_mesh = reference.upload(&mesh).expect("upload mesh");
+    (reference, gpu_mesh)
+}
+
+/// Planes fitted around `mesh`'s bounding sphere along +z: `grid` cameras of `resolution`.
+fn fitted_planes(mesh: &GpuMesh, grid: [u32; 2], resolution: [u32; 2]) -> TwoPlanes {
+    two_plane::fit_planes(
+        DVec3::from(mesh.frame.center),
+        mesh.frame.radius,
+        DVec3::Z,
+        grid,
+        resolution,
+    )
+    .expect("planes")
+}
+
+/// `mesh` captured through `planes` into `path` (default shading), opened.
+fn capture(
+    reference: &ReferenceRenderer,
+    mesh: &GpuMesh,
+    planes: &TwoPlanes,
+    path: &std::path::Path,
+) -> AssetFile {
+    let report = two_plane::bake_to_file(
+        reference,
+        mesh,
+        planes,
+        &Shading::default(),
+        Provenance::default(),
+        path,
+        &mut |_, _| {},
+    )
+    .expect("bake");
+    assert_eq!(report.cameras, planes.uv.grid[0] * planes.uv.grid[1]);
+    AssetFile::open(path).expect("open")
+}
+
 /// The depth-corrected filter against the reference rasterizer on the demo mesh captured at
 /// 8 × 8 cameras of 512² over its bounding sphere: from three views beyond the uv plane, its
 /// masked PSNR over the valid region is at least 1 dB above the bilinear filter's (measured
@@ -423,34 +465,12 @@ fn refocus_is_sharpest_at_each_planes_depth() {
 /// every filter covers within 2 % of the reference's pixels, each drawn pixel with a depth.
 #[test]
 fn depth_correction_beats_bilinear_on_a_captured_mesh() {
-    let gpu = gpu();
-    let reference = ReferenceRenderer::new(gpu.clone());
-    let mesh = lumigraph_core::mesh::demo_mesh().expect("demo");
-    let gpu_mesh = reference.upload(&mesh).expect("upload mesh");
-    let planes = two_plane::fit_planes(
-        DVec3::from(gpu_mesh.frame.center),
-        gpu_mesh.frame.radius,
-        DVec3::Z,
-        [8, 8],
-        [512, 512],
-    )
-    .expect("planes");
+    let (reference, gpu_mesh) = demo_on_device();
+    let planes = fitted_planes(&gpu_mesh, [8, 8], [512, 512]);
     let dir = tempfile::tempdir().expect("temp dir");
-    let path = dir.path().join("demo.lfa");
+    let asset = capture(&reference, &gpu_mesh, &planes, &dir.path().join("demo.lfa"));
     let shading = Shading::default();
-    let report = two_plane::bake_to_file(
-        &reference,
-        &gpu_mesh,
-        &planes,
-        &shading,
-        Provenance::default(),
-        &path,
-        &mut |_, _| {},
-    )
-    .expect("bake");
-    assert_eq!(report.cameras, 64);
-    let asset = AssetFile::open(&path).expect("open");
-    let renderer = TwoPlaneRenderer::new(gpu);
+    let renderer = TwoPlaneRenderer::new(gpu());
     let field = renderer.upload(&asset).expect("upload");
     let mut scores = std::collections::HashMap::new();
     for v in evaluation_views(&planes, 3, 256, 1) {
@@ -510,37 +530,17 @@ fn depth_correction_beats_bilinear_on_a_captured_mesh() {
 /// the march starts at the uv plane, where a ray's projection into a camera runs to infinity).
 #[test]
 fn depth_pyramid_skips_change_no_pixel() {
-    let gpu = gpu();
-    let reference = ReferenceRenderer::new(gpu.clone());
-    let mesh = lumigraph_core::mesh::demo_mesh().expect("demo");
-    let gpu_mesh = reference.upload(&mesh).expect("upload mesh");
-    let fitted = two_plane::fit_planes(
-        DVec3::from(gpu_mesh.frame.center),
-        gpu_mesh.frame.radius,
-        DVec3::Z,
-        [6, 5],
-        [200, 120],
-    )
-    .expect("planes");
+    let (reference, gpu_mesh) = demo_on_device();
+    let fitted = fitted_planes(&gpu_mesh, [6, 5], [200, 120]);
     let mut cutting = fitted;
     let st = DVec3::from(fitted.st.center);
     cutting.uv.center = (st + 0.4 * gpu_mesh.frame.radius * fitted.normal()).to_array();
-    let renderer = TwoPlaneRenderer::new(gpu.clone());
-    let every = TwoPlaneRenderer::new(gpu).reading_every_sample();
+    let renderer = TwoPlaneRenderer::new(gpu());
+    let every = TwoPlaneRenderer::new(gpu()).reading_every_sample();
     let dir = tempfile::tempdir().expect("temp dir");
     for (name, planes) in [("fitted", fitted), ("cutting", cutting)] {
         let path = dir.path().join(format!("{name}.lfa"));
-        two_plane::bake_to_file(
-            &reference,
-            &gpu_mesh,
-            &planes,
-            &Shading::default(),
-            Provenance::default(),
-            &path,
-            &mut |_, _| {},
-        )
-        .expect("bake");
-        let asset = AssetFile::open(&path).expect("open");
+        let asset = capture(&reference, &gpu_mesh, &planes, &path);
         let field = renderer.upload(&asset).expect("upload");
         let mut surfaces = 0;
         for (k, v) in evaluation_views(&planes, 6, 128, 7).iter().enumerate() {
