@@ -860,10 +860,11 @@ impl Residency {
             let incoming = probability.get(&page).copied().unwrap_or(0.0);
             let Some(slot) = self.victim(frame, &protected, probability, is_needed, incoming)
             else {
-                // Every slot holds a page this frame needs (or a likelier one): no room.
-                if is_needed {
-                    continue;
-                }
+                // No room for this page nor any after it: for a needed page, every slot holds
+                // a page this frame needs or loaded (which no later page changes); for a
+                // prefetch, the least probable resident page is likelier, and later prefetches
+                // are less probable still. (Going on cost a scan of every slot per page: 50–75
+                // ms a frame once a frame needs more pages than there are slots.)
                 break;
             };
             let old = self.slot_page[slot as usize];
