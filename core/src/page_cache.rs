@@ -47,6 +47,9 @@ pub const DEFAULT_PAGES_PER_FRAME: u32 = 64;
 /// Pixel stride of the rays [`needed_pages`] projects (the pages between them are covered by
 /// the hull of each 2×2 group of rays).
 pub const NEEDS_STRIDE: u32 = 8;
+/// Relative margin on a group of rays' footprints when choosing its page levels
+/// ([`needed_pages`]).
+const LEVEL_MARGIN: f64 = 0.03;
 /// Frames ahead the predictive policy looks (the estimate one frame ahead, and further along
 /// the motion with falling probability).
 pub const PREDICT_FRAMES: u32 = 3;
@@ -142,7 +145,10 @@ impl CacheConfig {
     }
 }
 
-/// How the camera images are cut into pages.
+/// How the camera images are cut into pages, at every page level: level 0 is the asset's own
+/// pages; level `l ≥ 1` (a cache with intermediate levels, [`CacheLayout::of`]) is every camera
+/// downsampled 2^l× (mean colour, nearest depth of each 2^l × 2^l block) cut into pages of the
+/// same side P, numbered after the previous level's pages.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PageGrid {
     /// Page side P: the asset's, or the image's own power-of-two size when one page holds it.
@@ -153,10 +159,15 @@ pub struct PageGrid {
     pub cameras: u32,
     /// Image size (the st resolution).
     pub res: [u32; 2],
+    /// Page levels, level 0 included (1: the asset's pages only).
+    pub levels: u32,
 }
 
+/// Most page levels a cache has (level 0 included): the shader's table of levels.
+pub const MAX_PAGE_LEVELS: u32 = 8;
+
 impl PageGrid {
-    /// The grid of `planes` cut into pages of `page_size`.
+    /// The grid of `planes` cut into pages of `page_size`, level 0 only.
     pub fn new(planes: &TwoPlanes, page_size: u32) -> PageGrid {
         let res = planes.st.resolution;
         // An image within one page is one page of its own (power-of-two) size: a slot that size
@@ -167,29 +178,98 @@ impl PageGrid {
             pages: res.map(|n| n.div_ceil(page_size)),
             cameras: planes.camera_count(),
             res,
+            levels: 1,
         }
     }
 
-    /// Pages per camera image.
+    /// The same grid with `levels` page levels (clamped to 1..=[`MAX_PAGE_LEVELS`]).
+    #[must_use]
+    pub fn with_levels(self, levels: u32) -> PageGrid {
+        PageGrid {
+            levels: levels.clamp(1, MAX_PAGE_LEVELS),
+            ..self
+        }
+    }
+
+    /// Pages per camera image (level 0).
     pub fn per_image(&self) -> u32 {
         self.pages[0] * self.pages[1]
     }
 
-    /// Pages in all.
+    /// The asset's pages (level 0).
     pub fn total(&self) -> u32 {
         self.per_image() * self.cameras
     }
 
-    /// The camera and the page number within its image (DESIGN §5) of page `id`.
+    /// Image size at level `level`.
+    pub fn level_res(&self, level: u32) -> [u32; 2] {
+        self.res.map(|n| n.div_ceil(1 << level))
+    }
+
+    /// Pages per image row and column at level `level`.
+    pub fn level_pages(&self, level: u32) -> [u32; 2] {
+        self.level_res(level).map(|n| n.div_ceil(self.page_size))
+    }
+
+    /// Pages per camera image at level `level`.
+    pub fn level_per_image(&self, level: u32) -> u32 {
+        let [x, y] = self.level_pages(level);
+        x * y
+    }
+
+    /// The id of level `level`'s first page.
+    pub fn level_first(&self, level: u32) -> u32 {
+        (0..level)
+            .map(|l| self.level_per_image(l) * self.cameras)
+            .sum()
+    }
+
+    /// Pages of every level.
+    pub fn all_pages(&self) -> u32 {
+        self.level_first(self.levels)
+    }
+
+    /// The id of page `(column, row)` of camera `camera`'s image at level `level`.
+    pub fn id(&self, level: u32, camera: u32, column: u32, row: u32) -> u32 {
+        self.level_first(level)
+            + camera * self.level_per_image(level)
+            + row * self.level_pages(level)[0]
+            + column
+    }
+
+    /// The level, the camera and the page number within its image (DESIGN §5 at level 0) of
+    /// page `id` (of any level).
+    pub fn locate(&self, id: u32) -> (u32, u32, u32) {
+        let mut first = 0;
+        for level in 0..self.levels {
+            let per_image = self.level_per_image(level);
+            let count = per_image * self.cameras;
+            if id < first + count || level + 1 == self.levels {
+                let k = id - first;
+                return (level, k / per_image, k % per_image);
+            }
+            first += count;
+        }
+        (0, 0, 0)
+    }
+
+    /// The camera and the page number within its image (DESIGN §5) of level-0 page `id`.
     pub fn split(&self, id: u32) -> (u32, u32) {
         (id / self.per_image(), id % self.per_image())
     }
 
-    /// Texel rectangle `(x, y, width, height)` of page `page` of an image.
+    /// Texel rectangle `(x, y, width, height)` of page `page` of a level-0 image.
     pub fn rect(&self, page: u32) -> (u32, u32, u32, u32) {
+        self.level_rect(0, page)
+    }
+
+    /// Texel rectangle `(x, y, width, height)` of page `page` of a level-`level` image.
+    pub fn level_rect(&self, level: u32, page: u32) -> (u32, u32, u32, u32) {
         let p = self.page_size;
-        let (x, y) = ((page % self.pages[0]) * p, (page / self.pages[0]) * p);
-        (x, y, p.min(self.res[0] - x), p.min(self.res[1] - y))
+        let res = self.level_res(level);
+        let columns = self.level_pages(level)[0];
+        let (x, y) = ((page % columns) * p, (page / columns) * p);
+        (x, y, p.min(res[0] - x), p.min(res[1] - y))
     }
 }
 
@@ -200,8 +280,9 @@ pub struct PageFrameStats {
     pub faults: u32,
     /// Pixels that read at least one texel from the coarse level for want of a page.
     pub degraded_px: u64,
-    /// Pixels that span the coarse factor F or more st texels and read the coarse level by
-    /// choice (overview: they need no page; [`CacheConfig::overview`]).
+    /// Pixels that span 2 or more st texels and read a downsampled level by choice (overview,
+    /// [`CacheConfig::overview`]: a page level below the coarse factor F, the coarse level and
+    /// no page from F on).
     #[serde(default)]
     pub overview_px: u64,
     /// Pages loaded for this frame (needed ones first, then prefetched ones).
@@ -336,7 +417,9 @@ pub struct Projection {
 /// every camera the uv filter or aperture reads; each 2×2 group of rays covers the hull of its
 /// projections (a texel wider for the bilinear footprint). With `overview` (the coarse factor
 /// F of a cache whose [`CacheConfig::overview`] is on), a group whose rays all span F or more
-/// st texels needs no page.
+/// st texels needs no page, and with page levels ([`PageGrid::levels`]) a group's pixels that
+/// span 2^l to 2^(l+1) texels need level `l`'s pages (each level within 3 % of a group's
+/// footprints: the pixels between its rays differ a little).
 ///
 /// # Errors
 /// [`RenderError::View`] for an invalid view.
@@ -482,6 +565,14 @@ pub fn needed_pages(
     let mut pages = BTreeSet::new();
     let nx = xs.len();
     let p = f64::from(grid.page_size);
+    // The page level of a pixel spanning `fp` st texels (the shader's choice; level 0 below 2
+    // texels and without levels, the last paged level at most).
+    let level_of = |fp: f64| -> u32 {
+        if grid.levels <= 1 || !(fp >= 2.0) {
+            return 0;
+        }
+        (fp.log2().floor() as u32).min(grid.levels - 1)
+    };
     for qy in 0..ys.len().saturating_sub(1) {
         for qx in 0..nx.saturating_sub(1) {
             let corners: Vec<&Ray> = [(qx, qy), (qx + 1, qy), (qx, qy + 1), (qx + 1, qy + 1)]
@@ -499,14 +590,24 @@ pub fn needed_pages(
                 (f64::from(ys[qy])..=f64::from(ys[qy + 1])).contains(&fi)
                     && (f64::from(xs[qx])..=f64::from(xs[qx + 1])).contains(&fj)
             });
-            if let Some(f) = overview.map(f64::from)
-                && corners.len() == 4
-                && corners.iter().all(|r| r.footprint >= f)
-                && (!holds_foot
-                    || (ys[qy]..=ys[qy + 1])
-                        .all(|i| (xs[qx]..=xs[qx + 1]).all(|j| footprint(i, j) >= f)))
-            {
-                continue;
+            // The page levels the group's pixels read: from its least footprint's to its
+            // largest's.
+            let (mut level_lo, mut level_hi) = (0, 0);
+            if let Some(f) = overview.map(f64::from) {
+                let mut least = corners.iter().map(|r| r.footprint).fold(f64::MAX, f64::min);
+                if holds_foot {
+                    for i in ys[qy]..=ys[qy + 1] {
+                        for j in xs[qx]..=xs[qx + 1] {
+                            least = least.min(footprint(i, j));
+                        }
+                    }
+                }
+                if corners.len() == 4 && least >= f {
+                    continue;
+                }
+                let most = corners.iter().map(|r| r.footprint).fold(0.0, f64::max);
+                level_lo = level_of(least * (1.0 - LEVEL_MARGIN));
+                level_hi = level_of(most * (1.0 + LEVEL_MARGIN));
             }
             let mut lo = [f64::INFINITY; 2];
             let mut hi = [f64::NEG_INFINITY; 2];
@@ -538,19 +639,29 @@ pub fn needed_pages(
                     if !(jlo[0] <= jhi[0] && jlo[1] <= jhi[1]) {
                         continue;
                     }
-                    // Texels read: the bilinear and 2×2 depth footprints reach one texel past
-                    // the lookup; f32 on the device may round a hair either way.
-                    let range = |k: usize| {
-                        let t0 = (jlo[k] - 0.01).floor().clamp(0.0, res[k] - 1.0);
-                        let t1 = ((jhi[k] + 0.01).floor() + 1.0).clamp(0.0, res[k] - 1.0);
-                        ((t0 / p) as u32, (t1 / p) as u32)
-                    };
-                    let (px0, px1) = range(0);
-                    let (py0, py1) = range(1);
                     let cam = b * planes.uv.grid[0] + a;
-                    for py in py0..=py1 {
-                        for px in px0..=px1 {
-                            pages.insert(cam * grid.per_image() + py * grid.pages[0] + px);
+                    for level in level_lo..=level_hi {
+                        // Texels read: the bilinear and 2×2 depth footprints reach one texel
+                        // past the lookup (depth at level l: the block holding the texel;
+                        // colour: the level's own bilinear footprint); f32 on the device may
+                        // round a hair either way.
+                        let scale = f64::from(1u32 << level);
+                        let level_res = grid.level_res(level).map(f64::from);
+                        let range = |k: usize| {
+                            let d0 = (jlo[k] - 0.01).floor().clamp(0.0, res[k] - 1.0);
+                            let d1 = ((jhi[k] + 0.01).floor() + 1.0).clamp(0.0, res[k] - 1.0);
+                            let c0 = ((jlo[k] + 0.5) / scale - 0.5 - 0.01).floor();
+                            let c1 = ((jhi[k] + 0.5) / scale - 0.5 + 0.01).floor() + 1.0;
+                            let t0 = (d0 / scale).floor().min(c0).clamp(0.0, level_res[k] - 1.0);
+                            let t1 = (d1 / scale).floor().max(c1).clamp(0.0, level_res[k] - 1.0);
+                            ((t0 / p) as u32, (t1 / p) as u32)
+                        };
+                        let (px0, px1) = range(0);
+                        let (py0, py1) = range(1);
+                        for py in py0..=py1 {
+                            for px in px0..=px1 {
+                                pages.insert(grid.id(level, cam, px, py));
+                            }
                         }
                     }
                 }
@@ -971,15 +1082,16 @@ impl CacheLayout {
         config: &CacheConfig,
         gpu: &Gpu,
     ) -> Result<CacheLayout, RenderError> {
-        let grid = PageGrid::new(planes, page_size);
+        let mut grid = PageGrid::new(planes, page_size);
         let p = u64::from(grid.page_size);
         let slot_bytes = p * p * SLOT_TEXEL_BYTES;
         let total = grid.total();
         let full_bytes = u64::from(total) * slot_bytes;
+        let (cameras, res) = (grid.cameras, grid.res);
         let coarse_bytes = |f: u32| {
-            u64::from(grid.cameras)
-                * u64::from(grid.res[0].div_ceil(f))
-                * u64::from(grid.res[1].div_ceil(f))
+            u64::from(cameras)
+                * u64::from(res[0].div_ceil(f))
+                * u64::from(res[1].div_ceil(f))
                 * SLOT_TEXEL_BYTES
         };
         let (coarse_factor, slots) = match config.budget_bytes {
@@ -989,8 +1101,13 @@ impl CacheLayout {
                 while coarse_bytes(f) > budget / 8 && f < grid.res[0].max(grid.res[1]) {
                     f *= 2;
                 }
+                // With the overview, the levels between the full resolution and the coarse
+                // level's F (2, 4, …, F/2) are paged too.
+                if config.overview {
+                    grid = grid.with_levels(f.trailing_zeros());
+                }
                 let left = budget.saturating_sub(coarse_bytes(f));
-                let slots = (left / slot_bytes).min(u64::from(total)) as u32;
+                let slots = (left / slot_bytes).min(u64::from(grid.all_pages())) as u32;
                 if slots == 0 {
                     return Err(RenderError::Option(format!(
                         "a cache of {:.2} MiB holds no {}x{} page besides the coarse level \
@@ -1062,14 +1179,17 @@ fn atlas_shape(slots: u32, page_size: u32, max_side: u32) -> (u32, u32, u32) {
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct PagingUniform {
     page_shift: u32,
-    pages_x: u32,
-    pages_per_image: u32,
     coarse_shift: u32,
     coarse_res: [u32; 2],
     stamp: u32,
     overview_min: f32,
     mask_words: u32,
+    levels: u32,
+    level_min: f32,
     pad: [u32; 3],
+    /// Per page level (0: the full resolution): its first page, pages per image row and per
+    /// image, and its image size (width in bits 0–15, height in 16–31).
+    level: [[u32; 4]; MAX_PAGE_LEVELS as usize],
 }
 
 /// A page read from the file: its id and colour and depth texels.
@@ -1079,18 +1199,358 @@ struct LoadedPage {
     depth: Vec<u8>,
 }
 
-/// Reads and decodes `ids` from `asset`, on up to the machine's cores: each page's result.
-fn read_pages(
-    asset: &AssetFile,
+/// Where a cache reads its pages: the asset's (level 0) from the file, the intermediate levels'
+/// from the store built when the cache opened.
+struct PageSource {
+    asset: Arc<AssetFile>,
+    grid: PageGrid,
+    levels: LevelStore,
+}
+
+/// The pages of the intermediate levels (1 ≤ l < [`PageGrid::levels`]), built from the file's
+/// pages when the cache opens and kept in an unnamed temporary file (zstd, level 1: the host holds
+/// none of them), each read back alone like the file's.
+#[derive(Default)]
+struct LevelStore {
+    file: Option<std::sync::Mutex<std::fs::File>>,
+    /// Per page of the levels (id − the first level-1 id): offset and length in the file.
+    index: Vec<(u64, u32)>,
+    /// Bytes written.
+    bytes: u64,
+}
+
+impl LevelStore {
+    /// A store for `grid`'s intermediate levels: no file where it has none.
+    fn new(grid: &PageGrid) -> Result<LevelStore, RenderError> {
+        if grid.levels <= 1 {
+            return Ok(LevelStore::default());
+        }
+        let file = tempfile::tempfile().map_err(|e| {
+            RenderError::Option(format!(
+                "cannot create the temporary file of the cache's page levels in {}: {e}",
+                std::env::temp_dir().display()
+            ))
+        })?;
+        Ok(LevelStore {
+            file: Some(std::sync::Mutex::new(file)),
+            index: vec![(0, 0); (grid.all_pages() - grid.level_first(1)) as usize],
+            bytes: 0,
+        })
+    }
+
+    /// Stores pages `(k, colour bytes then depth bytes)`, compressed on every core.
+    fn put(&mut self, pages: &[(usize, Vec<u8>)]) -> Result<(), RenderError> {
+        use rayon::prelude::*;
+        use std::io::Write;
+        let io = |e: std::io::Error| {
+            RenderError::Option(format!("cannot write the cache's page levels: {e}"))
+        };
+        let packed: Vec<Vec<u8>> = pages
+            .par_iter()
+            .map(|(_, raw)| zstd::bulk::compress(raw, 1))
+            .collect::<Result<_, _>>()
+            .map_err(io)?;
+        let Some(file) = &mut self.file else {
+            return Err(RenderError::Option(
+                "the cache has no page levels".to_owned(),
+            ));
+        };
+        let file = file
+            .get_mut()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        for ((k, _), packed) in pages.iter().zip(packed) {
+            let Some(entry) = self.index.get_mut(*k) else {
+                return Err(RenderError::Option(format!("no page level holds page {k}")));
+            };
+            file.write_all(&packed).map_err(io)?;
+            *entry = (self.bytes, packed.len() as u32);
+            self.bytes += packed.len() as u64;
+        }
+        Ok(())
+    }
+
+    /// Page `k`: `texels` texels of colour (RGBA8) and depth (f32).
+    fn get(&self, k: usize, texels: usize) -> Result<(Vec<u8>, Vec<u8>), RenderError> {
+        use std::io::{Read, Seek};
+        let (Some(file), Some(&(offset, len))) = (&self.file, self.index.get(k)) else {
+            return Err(RenderError::Option(format!("no page level holds page {k}")));
+        };
+        let io = |e: std::io::Error| {
+            RenderError::Option(format!("cannot read the cache's page levels: {e}"))
+        };
+        let mut packed = vec![0; len as usize];
+        {
+            let mut file = file
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            file.seek(std::io::SeekFrom::Start(offset)).map_err(io)?;
+            file.read_exact(&mut packed).map_err(io)?;
+        }
+        let mut color = zstd::bulk::decompress(&packed, texels * 8).map_err(io)?;
+        if color.len() != texels * 8 {
+            return Err(RenderError::Option(format!(
+                "page level entry {k}: {} bytes for {texels} texels",
+                color.len()
+            )));
+        }
+        let depth = color.split_off(texels * 4);
+        Ok((color, depth))
+    }
+}
+
+/// Block sums of one level of a camera image, over a rectangle of it (a tile, or the whole
+/// image): per texel the RGBA sums and the count of the full-resolution texels in its block, and
+/// their nearest depth.
+struct LevelSums {
+    /// The rectangle's first texel, at this level.
+    origin: [u32; 2],
+    res: [u32; 2],
+    sum: Vec<[u32; 5]>,
+    near: Vec<f32>,
+}
+
+impl LevelSums {
+    /// Empty sums of `res` texels from `origin`.
+    fn new(origin: [u32; 2], res: [u32; 2]) -> LevelSums {
+        let n = res[0] as usize * res[1] as usize;
+        LevelSums {
+            origin,
+            res,
+            sum: vec![[0; 5]; n],
+            near: vec![f32::INFINITY; n],
+        }
+    }
+
+    /// Adds the full-resolution texel `(x, y)` at level `shift` (its block `(x, y) >> shift`,
+    /// inside the rectangle).
+    #[inline]
+    fn add(&mut self, x: u32, y: u32, shift: u32, color: &[u8], depth: f32) {
+        let k = ((y >> shift) - self.origin[1]) as usize * self.res[0] as usize
+            + ((x >> shift) - self.origin[0]) as usize;
+        let s = &mut self.sum[k];
+        for i in 0..4 {
+            s[i] += u32::from(color[i]);
+        }
+        s[4] += 1;
+        self.near[k] = self.near[k].min(depth);
+    }
+
+    /// The next level: 2 × 2 blocks of these (exact: sums add; the origin must be even).
+    fn halve(&self) -> LevelSums {
+        let res = self.res.map(|n| n.div_ceil(2));
+        let mut out = LevelSums::new(self.origin.map(|o| o / 2), res);
+        let (w, half) = (self.res[0].max(1) as usize, res[0] as usize);
+        for (y, (sums, nears)) in self
+            .sum
+            .chunks_exact(w)
+            .zip(self.near.chunks_exact(w))
+            .enumerate()
+        {
+            let row = (y / 2) * half;
+            let (to_sum, to_near) = (
+                &mut out.sum[row..row + half],
+                &mut out.near[row..row + half],
+            );
+            for (x, (s, n)) in sums.iter().zip(nears).enumerate() {
+                let t = &mut to_sum[x / 2];
+                for i in 0..5 {
+                    t[i] += s[i];
+                }
+                to_near[x / 2] = to_near[x / 2].min(*n);
+            }
+        }
+        out
+    }
+
+    /// The pages of camera `camera`'s image at `level` (whose sums these are) inside the
+    /// rectangle (whose origin is on a page border), as the store keeps them (index after the
+    /// first level-1 page `level_first`; colour rows, then depth rows).
+    fn pages(
+        &self,
+        grid: &PageGrid,
+        level: u32,
+        camera: u32,
+        level_first: u32,
+    ) -> Vec<(usize, Vec<u8>)> {
+        let p = grid.page_size;
+        let columns = grid.level_pages(level)[0];
+        let [c0, r0] = self.origin.map(|o| o / p);
+        let [c1, r1] = [0, 1].map(|k| (self.origin[k] + self.res[k]).div_ceil(p));
+        let mut out = Vec::new();
+        for row in r0..r1 {
+            for column in c0..c1 {
+                let page = row * columns + column;
+                let (x0, y0, w, h) = grid.level_rect(level, page);
+                let mut raw = Vec::with_capacity((w * h * 8) as usize);
+                let at = |x: u32, y: u32| {
+                    ((y - self.origin[1]) * self.res[0] + (x - self.origin[0])) as usize
+                };
+                for y in y0..y0 + h {
+                    for x in x0..x0 + w {
+                        raw.extend_from_slice(&mean(&self.sum[at(x, y)]));
+                    }
+                }
+                for y in y0..y0 + h {
+                    for x in x0..x0 + w {
+                        raw.extend_from_slice(&self.near[at(x, y)].to_le_bytes());
+                    }
+                }
+                let id = grid.id(level, camera, column, row);
+                out.push(((id - level_first) as usize, raw));
+            }
+        }
+        out
+    }
+
+    /// The rectangle's texels: mean colour (rounded) and nearest depth.
+    fn texels(&self) -> (Vec<u8>, Vec<f32>) {
+        let color = self.sum.iter().flat_map(mean).collect();
+        (color, self.near.clone())
+    }
+}
+
+/// What one camera image gives the cache besides its pages: its page levels' pages (as
+/// [`LevelStore::put`] takes them), its coarse level (RGBA8 colour and f32 depth) and its range
+/// of finite depths.
+struct CameraLevels {
+    pages: Vec<(usize, Vec<u8>)>,
+    color: Vec<u8>,
+    depth: Vec<f32>,
+    range: [f32; 2],
+}
+
+/// One tile of [`camera_levels`]: its level pages, its block of the coarse level's sums and its
+/// range of finite depths.
+type TileLevels = (Vec<(usize, Vec<u8>)>, LevelSums, [f32; 2]);
+
+/// Builds camera `camera`'s page levels and coarse level (factor `1 << coarse_shift`) from its
+/// full-resolution `pages` (in page order), in tiles on every core: a tile is whole pages at
+/// every paged level and whole coarse texels, so its block sums stay small (a few MB) and
+/// tiles need nothing from each other. Each level is the exact block sums of the one before
+/// (the same as direct accumulation), one rounding per texel.
+///
+/// # Errors
+/// [`RenderError::Asset`] for a depth that is neither finite nor +inf.
+fn camera_levels(
     grid: &PageGrid,
-    ids: &[u32],
-) -> Vec<Result<LoadedPage, RenderError>> {
+    coarse_shift: u32,
+    camera: u32,
+    pages: &[LoadedPage],
+) -> Result<CameraLevels, RenderError> {
+    use rayon::prelude::*;
+    let p = grid.page_size;
+    let tile = (p << (grid.levels - 1)).max(1 << coarse_shift);
+    let tiles = grid.res.map(|n| n.div_ceil(tile));
+    let level_first = grid.level_first(1);
+    // Sums at level 1 where there are page levels, at the coarse level itself otherwise.
+    let first_shift = if grid.levels > 1 { 1 } else { coarse_shift };
+    let results: Vec<Result<TileLevels, RenderError>> = (0..tiles[0] * tiles[1])
+        .into_par_iter()
+        .map(|t| {
+            let (x0, y0) = ((t % tiles[0]) * tile, (t / tiles[0]) * tile);
+            let (x1, y1) = ((x0 + tile).min(grid.res[0]), (y0 + tile).min(grid.res[1]));
+            let origin = [x0 >> first_shift, y0 >> first_shift];
+            let res = [
+                x1.div_ceil(1 << first_shift) - origin[0],
+                y1.div_ceil(1 << first_shift) - origin[1],
+            ];
+            let mut sums = LevelSums::new(origin, res);
+            let mut range = [f32::INFINITY, f32::NEG_INFINITY];
+            for py in y0 / p..y1.div_ceil(p) {
+                for px in x0 / p..x1.div_ceil(p) {
+                    let number = py * grid.pages[0] + px;
+                    let Some(page) = pages.get(number as usize) else {
+                        continue;
+                    };
+                    let (px0, py0, w, h) = grid.rect(number);
+                    for y in 0..h {
+                        for x in 0..w {
+                            let k = (y * w + x) as usize;
+                            let d = f32::from_le_bytes([
+                                page.depth[4 * k],
+                                page.depth[4 * k + 1],
+                                page.depth[4 * k + 2],
+                                page.depth[4 * k + 3],
+                            ]);
+                            if d.is_finite() {
+                                range = [range[0].min(d), range[1].max(d)];
+                            } else if !(d.is_infinite() && d > 0.0) {
+                                return Err(RenderError::Asset(AssetError::Header(format!(
+                                    "camera {camera} stores depth {d}: two-plane depth is \
+                                     finite or +inf"
+                                ))));
+                            }
+                            sums.add(px0 + x, py0 + y, first_shift, &page.color[4 * k..], d);
+                        }
+                    }
+                }
+            }
+            let mut level_pages = Vec::new();
+            let mut shift = first_shift;
+            while shift < coarse_shift {
+                if shift < grid.levels {
+                    level_pages.extend(sums.pages(grid, shift, camera, level_first));
+                }
+                sums = sums.halve();
+                shift += 1;
+            }
+            Ok((level_pages, sums, range))
+        })
+        .collect();
+    let [cw, ch] = grid.level_res(coarse_shift);
+    let mut out = CameraLevels {
+        pages: Vec::new(),
+        color: vec![0; (cw * ch * 4) as usize],
+        depth: vec![f32::INFINITY; (cw * ch) as usize],
+        range: [f32::INFINITY, f32::NEG_INFINITY],
+    };
+    for result in results {
+        let (level_pages, coarse, range) = result?;
+        out.pages.extend(level_pages);
+        out.range = [out.range[0].min(range[0]), out.range[1].max(range[1])];
+        let (color, depth) = coarse.texels();
+        let w = coarse.res[0] as usize;
+        for (y, (c, d)) in color
+            .chunks_exact(4 * w)
+            .zip(depth.chunks_exact(w))
+            .enumerate()
+        {
+            let at = (coarse.origin[1] as usize + y) * cw as usize + coarse.origin[0] as usize;
+            out.color[4 * at..4 * (at + w)].copy_from_slice(c);
+            out.depth[at..at + w].copy_from_slice(d);
+        }
+    }
+    Ok(out)
+}
+
+/// The rounded mean colour of a block's sums (`[r, g, b, a, count]`; an empty block is 0).
+fn mean(s: &[u32; 5]) -> [u8; 4] {
+    let n = s[4].max(1);
+    [0, 1, 2, 3].map(|i| ((s[i] + n / 2) / n) as u8)
+}
+
+/// Reads and decodes `ids` (of any level) from `source`, on up to the machine's cores: each
+/// page's result.
+fn read_pages(source: &PageSource, ids: &[u32]) -> Vec<Result<LoadedPage, RenderError>> {
+    let grid = &source.grid;
     let read = |id: u32| -> Result<LoadedPage, RenderError> {
-        let (camera, page) = grid.split(id);
-        let (_, _, w, h) = grid.rect(page);
+        let (level, camera, page) = grid.locate(id);
+        let (_, _, w, h) = grid.level_rect(level, page);
         let texels = w as usize * h as usize;
-        let color = asset.read_page(ImageKey::new(0, 0, camera, Channel::Color), page)?;
-        let depth = asset.read_page(ImageKey::new(0, 0, camera, Channel::Depth), page)?;
+        let (color, depth) = if level == 0 {
+            (
+                source
+                    .asset
+                    .read_page(ImageKey::new(0, 0, camera, Channel::Color), page)?,
+                source
+                    .asset
+                    .read_page(ImageKey::new(0, 0, camera, Channel::Depth), page)?,
+            )
+        } else {
+            source
+                .levels
+                .get((id - grid.level_first(1)) as usize, texels)?
+        };
         if color.len() != texels * 4 || depth.len() != texels * 4 {
             return Err(RenderError::Asset(AssetError::Header(format!(
                 "camera {camera} page {page}: {} colour and {} depth bytes for {w}x{h} texels \
@@ -1148,7 +1608,7 @@ pub struct PagedTwoPlane {
     /// Device bytes every page would take resident (slots for all pages).
     pub full_bytes: u64,
     config: CacheConfig,
-    asset: Arc<AssetFile>,
+    source: Arc<PageSource>,
     gpu: Arc<Gpu>,
     tiles_x: u32,
     per_layer: u32,
@@ -1186,7 +1646,7 @@ struct Loader {
 }
 
 impl Loader {
-    fn start(asset: Arc<AssetFile>, grid: PageGrid) -> Result<Loader, RenderError> {
+    fn start(source: Arc<PageSource>) -> Result<Loader, RenderError> {
         let (requests, inbox) = std::sync::mpsc::channel::<Vec<(u32, u32)>>();
         let (outbox, results) = std::sync::mpsc::channel();
         std::thread::Builder::new()
@@ -1195,7 +1655,7 @@ impl Loader {
                 // Ends when the cache (the requests' sender) is dropped.
                 while let Ok(batch) = inbox.recv() {
                     let ids: Vec<u32> = batch.iter().map(|&(id, _)| id).collect();
-                    for (&(id, slot), result) in batch.iter().zip(read_pages(&asset, &grid, &ids)) {
+                    for (&(id, slot), result) in batch.iter().zip(read_pages(&source, &ids)) {
                         if outbox.send((id, slot, result)).is_err() {
                             return;
                         }
@@ -1222,8 +1682,9 @@ impl Drop for PagedTwoPlane {
 
 impl PagedTwoPlane {
     /// Opens `asset` (a two-plane light field with depth) through a cache: one pass over every
-    /// page builds the coarse level and the depth range (and, with [`CacheConfig::whole`],
-    /// uploads every page); no other page is loaded until a frame needs it.
+    /// page builds the coarse level, the intermediate page levels (into a temporary file) and
+    /// the depth range (and, with [`CacheConfig::whole`], uploads every page); no other page is
+    /// loaded until a frame needs it.
     ///
     /// # Errors
     /// [`RenderError::Asset`] for another kind or a bad page; [`RenderError::Option`] for a
@@ -1251,7 +1712,8 @@ impl PagedTwoPlane {
             full_bytes,
             ..
         } = layout;
-        let total = grid.total();
+        // Every level's pages: the index table and the feedback cover them all.
+        let total = grid.all_pages();
         let slot_color = empty_texture_array(
             &gpu,
             "page cache colour",
@@ -1314,7 +1776,11 @@ impl PagedTwoPlane {
             bytes,
             full_bytes,
             config,
-            asset,
+            source: Arc::new(PageSource {
+                asset,
+                grid,
+                levels: LevelStore::default(),
+            }),
             gpu,
             tiles_x,
             per_layer: tiles_x * layout.tiles_y,
@@ -1339,61 +1805,32 @@ impl PagedTwoPlane {
         Ok(paged)
     }
 
-    /// One pass over every page: the coarse level, the depth range, and with `load_all` every
-    /// page uploaded to its slot.
+    /// One pass over every page: the coarse level, the intermediate page levels, the depth
+    /// range, and with `load_all` every page uploaded to its slot.
     fn build_coarse(&mut self, load_all: bool) -> Result<(), RenderError> {
         let grid = self.grid;
-        let f = self.coarse_factor as usize;
-        let [cw, ch] = grid.res.map(|n| n.div_ceil(self.coarse_factor) as usize);
+        let coarse_shift = self.coarse_factor.trailing_zeros();
+        let mut levels = LevelStore::new(&grid)?;
+        let level_first = grid.level_first(1);
         let mut range = [f32::INFINITY, f32::NEG_INFINITY];
         let per_image = grid.per_image();
         for camera in 0..grid.cameras {
             let ids: Vec<u32> = (0..per_image).map(|p| camera * per_image + p).collect();
-            let pages = read_pages(&self.asset, &grid, &ids)
+            let pages = read_pages(&self.source, &ids)
                 .into_iter()
                 .collect::<Result<Vec<_>, _>>()?;
-            let mut sum = vec![[0u32; 5]; cw * ch];
-            let mut near = vec![f32::INFINITY; cw * ch];
-            for page in &pages {
-                let (_, number) = grid.split(page.id);
-                let (x0, y0, w, h) = grid.rect(number);
-                for y in 0..h as usize {
-                    for x in 0..w as usize {
-                        let k = y * w as usize + x;
-                        let c = (y0 as usize + y) / f * cw + (x0 as usize + x) / f;
-                        let px = &page.color[4 * k..4 * k + 4];
-                        for i in 0..4 {
-                            sum[c][i] += u32::from(px[i]);
-                        }
-                        sum[c][4] += 1;
-                        let d = f32::from_le_bytes([
-                            page.depth[4 * k],
-                            page.depth[4 * k + 1],
-                            page.depth[4 * k + 2],
-                            page.depth[4 * k + 3],
-                        ]);
-                        if d.is_finite() {
-                            range = [range[0].min(d), range[1].max(d)];
-                            near[c] = near[c].min(d);
-                        } else if !(d.is_infinite() && d > 0.0) {
-                            return Err(RenderError::Asset(AssetError::Header(format!(
-                                "camera {camera} stores depth {d}: two-plane depth is finite or \
-                                 +inf"
-                            ))));
-                        }
-                    }
-                }
+            let built = camera_levels(&grid, coarse_shift, camera, &pages)?;
+            range = [range[0].min(built.range[0]), range[1].max(built.range[1])];
+            if !built.pages.is_empty() {
+                levels.put(&built.pages)?;
             }
-            let color: Vec<u8> = sum
-                .iter()
-                .flat_map(|s| {
-                    let n = s[4].max(1);
-                    [0, 1, 2, 3].map(|i| ((s[i] + n / 2) / n) as u8)
-                })
-                .collect();
-            let depth: Vec<u8> = near.iter().flat_map(|d| d.to_le_bytes()).collect();
-            for (texture, data) in [(&self.coarse_color, &color), (&self.coarse_depth, &depth)] {
-                self.write(texture, [0, 0, camera], [cw as u32, ch as u32], data);
+            let [cw, ch] = grid.level_res(coarse_shift);
+            let depth: Vec<u8> = bytemuck::cast_slice(&built.depth).to_vec();
+            for (texture, data) in [
+                (&self.coarse_color, &built.color),
+                (&self.coarse_depth, &depth),
+            ] {
+                self.write(texture, [0, 0, camera], [cw, ch], data);
             }
             if load_all {
                 let loads: Vec<(u32, u32)> =
@@ -1404,6 +1841,19 @@ impl PagedTwoPlane {
         if range[0] <= range[1] {
             self.depth_range = range;
         }
+        if grid.levels > 1 {
+            tracing::debug!(
+                levels = grid.levels - 1,
+                pages = grid.all_pages() - level_first,
+                bytes = levels.bytes,
+                "page levels stored"
+            );
+        }
+        self.source = Arc::new(PageSource {
+            asset: Arc::clone(&self.source.asset),
+            grid,
+            levels,
+        });
         self.write_table();
         self.gpu.wait()?;
         Ok(())
@@ -1442,8 +1892,8 @@ impl PagedTwoPlane {
             let Some(page) = by_id.get(&id) else {
                 continue;
             };
-            let (_, number) = self.grid.split(id);
-            let (_, _, w, h) = self.grid.rect(number);
+            let (level, _, number) = self.grid.locate(id);
+            let (_, _, w, h) = self.grid.level_rect(level, number);
             let (x, y, layer) = self.place(slot);
             let origin = [x * self.grid.page_size, y * self.grid.page_size, layer];
             self.write(&self.slot_color, origin, [w, h], &page.color);
@@ -1479,6 +1929,12 @@ impl PagedTwoPlane {
         self.gpu
             .queue
             .write_buffer(&self.table, 0, bytemuck::cast_slice(&packed));
+    }
+
+    /// Bytes of the intermediate page levels' temporary file (zstd-compressed pages; 0
+    /// without levels).
+    pub fn level_file_bytes(&self) -> u64 {
+        self.source.levels.bytes
     }
 
     /// Pages resident now.
@@ -1642,12 +2098,15 @@ impl PagedTwoPlane {
             pages: projected,
             max_footprint,
         } = projection?;
-        // Overview pixels are possible where the projected rays reach half the coarse factor
-        // (a wide margin: between rays the footprint changes little); otherwise the frame runs
-        // the pipeline without the footprint test.
-        let overview = self
-            .overview_factor()
-            .is_some_and(|f| max_footprint >= f64::from(f) / 2.0);
+        // Pixels that read a downsampled level (a page level from 2 texels, the coarse level
+        // from F) are possible where the projected rays reach 90 % of that footprint (the rays
+        // include the frame's edges, where the footprint is largest, and between rays it
+        // changes by a few per cent at most); otherwise the frame runs the pipeline without the
+        // footprint test.
+        let overview = self.overview_factor().is_some_and(|f| {
+            let least = if self.grid.levels > 1 { 2 } else { f };
+            max_footprint >= 0.9 * f64::from(least)
+        });
         // The projection, and the shader's feedback of the last frame where it saw more.
         let needed: std::borrow::Cow<'_, [u32]> = if self.missed.is_empty() {
             std::borrow::Cow::Borrowed(&projected)
@@ -1676,7 +2135,7 @@ impl PagedTwoPlane {
         let load_start = std::time::Instant::now();
         if wait {
             let ids: Vec<u32> = loads.iter().map(|&(id, _)| id).collect();
-            let read = read_pages(&self.asset, &self.grid, &ids);
+            let read = read_pages(&self.source, &ids);
             let (pages, bytes, errors) = self.accept(
                 loads
                     .iter()
@@ -1690,7 +2149,7 @@ impl PagedTwoPlane {
         } else if !loads.is_empty() {
             let loader = match &mut self.loader {
                 Some(loader) => loader,
-                slot @ None => slot.insert(Loader::start(Arc::clone(&self.asset), self.grid)?),
+                slot @ None => slot.insert(Loader::start(Arc::clone(&self.source))?),
             };
             if loader.requests.send(loads.clone()).is_ok() {
                 loader.in_flight += loads.len();
@@ -1709,14 +2168,31 @@ impl PagedTwoPlane {
         let pixels = u64::from(view.width) * u64::from(view.height);
         let uniform = PagingUniform {
             page_shift: self.grid.page_size.trailing_zeros(),
-            pages_x: self.grid.pages[0],
-            pages_per_image: self.grid.per_image(),
             coarse_shift: self.coarse_factor.trailing_zeros(),
             coarse_res: self.grid.res.map(|n| n.div_ceil(self.coarse_factor)),
             stamp: frame,
             overview_min: self.overview_factor().map_or(f32::INFINITY, |f| f as f32),
             mask_words: pixels.div_ceil(32) as u32,
+            levels: self.grid.levels,
+            level_min: if self.grid.levels > 1 {
+                2.0
+            } else {
+                f32::INFINITY
+            },
             pad: [0; 3],
+            level: std::array::from_fn(|l| {
+                let l = l as u32;
+                if l >= self.grid.levels {
+                    return [0; 4];
+                }
+                let [w, h] = self.grid.level_res(l);
+                [
+                    self.grid.level_first(l),
+                    self.grid.level_pages(l)[0],
+                    self.grid.level_per_image(l),
+                    w | (h << 16),
+                ]
+            }),
         };
         self.gpu
             .queue
@@ -2055,6 +2531,258 @@ mod tests {
             // Less than a row of tiles per layer is wasted.
             assert!(tx * ty * layers - slots < tx * layers, "{slots}");
         }
+    }
+
+    /// A grid of `cameras` images of `res` texels in pages of `page_size` with `levels` levels.
+    fn grid_of(res: [u32; 2], page_size: u32, cameras: u32, levels: u32) -> PageGrid {
+        PageGrid {
+            page_size,
+            pages: res.map(|n| n.div_ceil(page_size)),
+            cameras,
+            res,
+            levels,
+        }
+    }
+
+    /// A grid of 5 cameras of 100 × 37 texels in pages of 16 with 4 levels (100 × 37, 50 × 19,
+    /// 25 × 10, 13 × 5 texels).
+    fn levelled_grid() -> PageGrid {
+        grid_of([100, 37], 16, 5, 4)
+    }
+
+    #[test]
+    fn page_ids_number_every_page_of_every_level_once() {
+        let grid = levelled_grid();
+        assert_eq!(grid.level_res(3), [13, 5]);
+        assert_eq!(
+            (1..4).map(|l| grid.level_pages(l)).collect::<Vec<_>>(),
+            vec![[4, 2], [2, 1], [1, 1]]
+        );
+        assert_eq!(grid.all_pages(), 5 * (21 + 8 + 2 + 1));
+        let mut next = 0;
+        for level in 0..grid.levels {
+            let [columns, rows] = grid.level_pages(level);
+            for camera in 0..grid.cameras {
+                let (mut width, mut height) = (0, 0);
+                for row in 0..rows {
+                    for column in 0..columns {
+                        let id = grid.id(level, camera, column, row);
+                        assert_eq!(id, next, "level {level} camera {camera}");
+                        next += 1;
+                        let page = row * columns + column;
+                        assert_eq!(grid.locate(id), (level, camera, page));
+                        let (x, y, w, h) = grid.level_rect(level, page);
+                        assert!(w > 0 && h > 0 && w <= 16 && h <= 16);
+                        if y == 0 {
+                            width += w;
+                        }
+                        if x == 0 {
+                            height += h;
+                        }
+                    }
+                }
+                assert_eq!([width, height], grid.level_res(level), "level {level}");
+            }
+        }
+        assert_eq!(next, grid.all_pages());
+        assert_eq!(grid.with_levels(0).levels, 1);
+        assert_eq!(grid.with_levels(99).levels, MAX_PAGE_LEVELS);
+    }
+
+    /// The levels built from level-1 sums and halving equal each 2^l block's rounded mean
+    /// colour and nearest depth computed directly, odd sizes (partial blocks) included.
+    #[test]
+    fn level_sums_are_block_means_and_nearest_depths() {
+        let res = [37u32, 23u32];
+        let texel = |x: u32, y: u32| -> ([u8; 4], f32) {
+            let h = x.wrapping_mul(2_654_435_761) ^ y.wrapping_mul(40_503);
+            let color = [(h % 251) as u8, (h / 7 % 256) as u8, (x * 6) as u8, 255];
+            let depth = if h.is_multiple_of(5) {
+                f32::INFINITY
+            } else {
+                (h % 1000) as f32 / 1000.0
+            };
+            (color, depth)
+        };
+        let mut sums = LevelSums::new([0, 0], res.map(|n| n.div_ceil(2)));
+        for y in 0..res[1] {
+            for x in 0..res[0] {
+                let (c, d) = texel(x, y);
+                sums.add(x, y, 1, &c, d);
+            }
+        }
+        for level in 1..5u32 {
+            let (color, near) = sums.texels();
+            let size = res.map(|n| n.div_ceil(1 << level));
+            assert_eq!(sums.res, size);
+            for by in 0..size[1] {
+                for bx in 0..size[0] {
+                    let mut total = [0u32; 4];
+                    let (mut n, mut depth) = (0, f32::INFINITY);
+                    for y in (by << level)..((by + 1) << level).min(res[1]) {
+                        for x in (bx << level)..((bx + 1) << level).min(res[0]) {
+                            let (c, d) = texel(x, y);
+                            for i in 0..4 {
+                                total[i] += u32::from(c[i]);
+                            }
+                            n += 1;
+                            depth = depth.min(d);
+                        }
+                    }
+                    let k = (by * size[0] + bx) as usize;
+                    let mean = total.map(|t| ((t + n / 2) / n) as u8);
+                    assert_eq!(
+                        &color[4 * k..4 * k + 4],
+                        &mean,
+                        "level {level} ({bx}, {by})"
+                    );
+                    assert_eq!(
+                        near[k].to_bits(),
+                        depth.to_bits(),
+                        "level {level} ({bx}, {by})"
+                    );
+                }
+            }
+            // Cut into pages of 8 (as the store keeps them): each texel where `texels` has it.
+            let grid = grid_of(res, 8, 3, 5);
+            let first = grid.level_first(1);
+            for (k, raw) in sums.pages(&grid, level, 2, first) {
+                let (l, camera, page) = grid.locate(k as u32 + first);
+                assert_eq!((l, camera), (level, 2));
+                let (x0, y0, w, h) = grid.level_rect(level, page);
+                let n = (w * h) as usize;
+                assert_eq!(raw.len(), 8 * n);
+                for (i, (x, y)) in (y0..y0 + h)
+                    .flat_map(|y| (x0..x0 + w).map(move |x| (x, y)))
+                    .enumerate()
+                {
+                    let at = (y * size[0] + x) as usize;
+                    assert_eq!(&raw[4 * i..4 * i + 4], &color[4 * at..4 * at + 4]);
+                    assert_eq!(
+                        &raw[4 * n + 4 * i..4 * n + 4 * i + 4],
+                        &near[at].to_le_bytes()
+                    );
+                }
+            }
+            sums = sums.halve();
+        }
+    }
+
+    /// A camera's levels built in tiles (4 × 2 tiles of 32 texels here, partial ones at the
+    /// right and bottom) equal the levels of the whole image's sums: every page of every level,
+    /// the coarse level and the depth range; a NaN depth is refused.
+    #[test]
+    fn camera_levels_in_tiles_equal_the_whole_image() {
+        let res = [100u32, 37u32];
+        let grid = grid_of(res, 8, 2, 3);
+        let texel = |x: u32, y: u32| -> ([u8; 4], f32) {
+            let h = x.wrapping_mul(2_654_435_761) ^ y.wrapping_mul(40_503);
+            let d = if h.is_multiple_of(7) {
+                f32::INFINITY
+            } else {
+                0.2 + (h % 997) as f32 / 2000.0
+            };
+            (
+                [
+                    (h % 256) as u8,
+                    (x * 2) as u8,
+                    (y * 5) as u8,
+                    (h % 200) as u8,
+                ],
+                d,
+            )
+        };
+        let camera = 1;
+        let mut pages: Vec<LoadedPage> = (0..grid.per_image())
+            .map(|number| {
+                let (x0, y0, w, h) = grid.rect(number);
+                let (mut color, mut depth) = (Vec::new(), Vec::new());
+                for y in y0..y0 + h {
+                    for x in x0..x0 + w {
+                        let (c, d) = texel(x, y);
+                        color.extend_from_slice(&c);
+                        depth.extend_from_slice(&d.to_le_bytes());
+                    }
+                }
+                LoadedPage {
+                    id: camera * grid.per_image() + number,
+                    color,
+                    depth,
+                }
+            })
+            .collect();
+        let built = camera_levels(&grid, 3, camera, &pages).expect("levels");
+        // The whole image's sums, level by level.
+        let mut sums = LevelSums::new([0, 0], grid.level_res(1));
+        let mut range = [f32::INFINITY, f32::NEG_INFINITY];
+        for y in 0..res[1] {
+            for x in 0..res[0] {
+                let (c, d) = texel(x, y);
+                sums.add(x, y, 1, &c, d);
+                if d.is_finite() {
+                    range = [range[0].min(d), range[1].max(d)];
+                }
+            }
+        }
+        let first = grid.level_first(1);
+        let mut expected = sums.pages(&grid, 1, camera, first);
+        sums = sums.halve();
+        expected.extend(sums.pages(&grid, 2, camera, first));
+        sums = sums.halve();
+        let mut got = built.pages;
+        got.sort();
+        expected.sort();
+        assert_eq!(got.len(), 7 * 3 + 4 * 2);
+        assert_eq!(got, expected);
+        let (color, depth) = sums.texels();
+        assert_eq!(built.color, color);
+        assert_eq!(
+            built.depth.iter().map(|d| d.to_bits()).collect::<Vec<_>>(),
+            depth.iter().map(|d| d.to_bits()).collect::<Vec<_>>()
+        );
+        assert_eq!(built.range, range);
+        pages[3].depth[..4].copy_from_slice(&f32::NAN.to_le_bytes());
+        assert!(camera_levels(&grid, 3, camera, &pages).is_err());
+    }
+
+    #[test]
+    fn level_store_reads_back_what_it_stored() {
+        let grid = levelled_grid();
+        assert!(
+            LevelStore::new(&grid.with_levels(1))
+                .expect("store")
+                .file
+                .is_none()
+        );
+        let mut store = LevelStore::new(&grid).expect("store");
+        let pages = (grid.all_pages() - grid.level_first(1)) as usize;
+        assert_eq!(store.index.len(), pages);
+        let page = |k: usize| -> (Vec<u8>, Vec<u8>) {
+            let color = (0..k * 4 + 4).map(|i| (i * 7 + k) as u8).collect();
+            let depth = (0..=k)
+                .flat_map(|i| (i as f32 * 0.5).to_le_bytes())
+                .collect();
+            (color, depth)
+        };
+        // Out of order, as any order of pages would be, in two calls.
+        let all: Vec<(usize, Vec<u8>)> = (0..pages)
+            .rev()
+            .map(|k| {
+                let (c, d) = page(k);
+                (k, [c, d].concat())
+            })
+            .collect();
+        let (first, second) = all.split_at(pages / 3);
+        store.put(first).expect("put");
+        store.put(second).expect("put");
+        for k in 0..pages {
+            assert_eq!(store.get(k, k + 1).expect("get"), page(k), "page {k}");
+        }
+        assert!(store.get(pages, 1).is_err());
+        assert!(store.put(&[(pages, vec![0; 8])]).is_err());
+        assert!(LevelStore::default().put(&[(0, vec![0; 8])]).is_err());
+        // A texel count that does not match what was stored is an error, not a short page.
+        assert!(store.get(3, 5).is_err());
     }
 
     #[test]

@@ -474,8 +474,9 @@ fn a_page_failing_to_read_in_the_background_degrades_later_frames() {
 
 /// Overview pixels (spanning the coarse factor F or more st texels) read the coarse level and
 /// need no page: a zoomed-out view touches, projects and loads none; as the same view grows
-/// the overview gives way to pages pixel by pixel, the pages are exact where read, and the
-/// projection still covers every page touched.
+/// the overview gives way to the page levels and then to the full-resolution pages pixel by
+/// pixel, the full-resolution pages are exact where read, and the projection still covers every
+/// page touched (of every level).
 #[test]
 fn overview_pixels_read_the_coarse_level_and_need_no_page() {
     let planes = planes();
@@ -504,6 +505,9 @@ fn overview_pixels_read_the_coarse_level_and_need_no_page() {
         ("oblique", oblique(10)),
         ("oblique", oblique(11)),
         ("oblique", oblique(16)),
+        // Below 2 texels a pixel (page level 0) on part of the frame.
+        ("straight", straight(40)),
+        ("oblique", oblique(40)),
     ] {
         let size = v.width;
         // Twice: the second frame has every page it reads.
@@ -540,4 +544,107 @@ fn overview_pixels_read_the_coarse_level_and_need_no_page() {
         }
     }
     assert!(mixed > 0, "no size mixed overview and paged pixels");
+}
+
+/// A light field on [`common::small_planes`] in pages of 16 whose colour is a ramp in the
+/// texel's column and row (red 2j, green 2i, blue per camera) over a constant depth: the mean
+/// of any 2^l × 2^l block is the ramp at the block's centre, a whole code, so a page level read
+/// bilinearly gives what the full resolution gives (away from the image's border, where each
+/// level clamps to its own last texel).
+fn ramp_asset(planes: &TwoPlanes) -> Arc<AssetFile> {
+    let header =
+        AssetHeader::new_two_plane(*planes, 16, Provenance::default()).expect("a valid header");
+    let [nu, nv] = planes.uv.grid;
+    let [ns, nt] = planes.st.resolution;
+    let mut images = Vec::new();
+    for camera in 0..nu * nv {
+        let mut c = Vec::new();
+        let mut d = Vec::new();
+        for i in 0..nt {
+            for j in 0..ns {
+                c.extend_from_slice(&[(2 * j) as u8, (2 * i) as u8, (10 * camera) as u8, 255]);
+                d.extend_from_slice(&0.6f32.to_le_bytes());
+            }
+        }
+        images.push((ImageKey::new(0, 0, camera, Channel::Color), c));
+        images.push((ImageKey::new(0, 0, camera, Channel::Depth), d));
+    }
+    Arc::new(AssetFile::from_bytes(encode_asset(header, images).expect("encode")).expect("read"))
+}
+
+/// Page levels: zoomed-out views (2 to 8 st texels a pixel, the coarse factor 8) read levels 1
+/// and 2 through the cache. Away from the image's border, every pixel is within 1 code of the
+/// fully resident frame in each uv filter (the ramp's block means are exact; f32 bilinear
+/// weights at two scales may round a half code apart), no pixel is degraded once the pages are
+/// loaded, the projection predicts every page touched, and the frame touches fewer pages than
+/// the same view at full resolution.
+#[test]
+fn page_levels_read_downsampled_pages_within_a_code_and_fewer_of_them() {
+    let planes = planes();
+    let asset = ramp_asset(&planes);
+    let renderer = TwoPlaneRenderer::new(gpu());
+    let mut whole =
+        PagedTwoPlane::open(&renderer, Arc::clone(&asset), CacheConfig::whole()).expect("open");
+    let config = |overview| CacheConfig {
+        budget_bytes: Some(160 * 1024),
+        prefetch: Prefetch::Lru,
+        pages_per_frame: 1000,
+        overview,
+    };
+    let mut levels =
+        PagedTwoPlane::open(&renderer, Arc::clone(&asset), config(true)).expect("open");
+    let mut flat = PagedTwoPlane::open(&renderer, asset, config(false)).expect("open");
+    assert_eq!((levels.coarse_factor, levels.grid.levels), (8, 3));
+    assert_eq!(flat.grid.levels, 1);
+    // The border margin: 2F texels, in codes (2 per texel) of red and green.
+    let margin = 2 * 2 * 8;
+    let mut compared = 0;
+    for filter in [UvFilter::Nearest, UvFilter::Bilinear, UvFilter::Depth] {
+        let options = TwoPlaneOptions {
+            uv_filter: filter,
+            focus: 0.6,
+            ..TwoPlaneOptions::default()
+        };
+        for v in [
+            view([0.1, 0.05, 4.0], [0.0, 0.0, 0.0], 30.0, 12),
+            view([0.1, 0.05, 4.0], [0.0, 0.0, 0.0], 30.0, 24),
+            view([0.1, 0.05, 4.0], [0.0, 0.0, 0.0], 30.0, 32),
+            view([-0.5, 0.0, 3.0], [1.0, 0.0, 0.0], 40.0, 16),
+            view([-0.5, 0.0, 3.0], [1.0, 0.0, 0.0], 40.0, 28),
+        ] {
+            levels.render(&renderer, &v, &options).expect("render");
+            let (frame, stats) = levels.render(&renderer, &v, &options).expect("render");
+            let (reference, _) = whole.render(&renderer, &v, &options).expect("whole");
+            flat.render(&renderer, &v, &options).expect("render");
+            let (_, full) = flat.render(&renderer, &v, &options).expect("render");
+            let what = format!("{filter:?} {}px", v.width);
+            assert_eq!(stats.degraded_px, 0, "{what}");
+            assert_eq!(stats.projection_missed, 0, "{what}");
+            assert!(stats.overview_px > 0, "{what}: no pixel read a level");
+            assert!(
+                stats.pages_touched < full.pages_touched,
+                "{what}: {} pages touched with levels, {} without",
+                stats.pages_touched,
+                full.pages_touched
+            );
+            for p in 0..frame.pixel_count() {
+                let (a, b) = (
+                    &frame.color[4 * p..4 * p + 4],
+                    &reference.color[4 * p..4 * p + 4],
+                );
+                let inside = b[3] == 255
+                    && (margin..=126 - margin).contains(&b[0])
+                    && (margin..=94 - margin).contains(&b[1]);
+                if !inside {
+                    continue;
+                }
+                compared += 1;
+                assert!(
+                    a.iter().zip(b).all(|(x, y)| x.abs_diff(*y) <= 1),
+                    "{what}: pixel {p}: {a:?} against {b:?}"
+                );
+            }
+        }
+    }
+    assert!(compared > 300, "{compared} pixels compared");
 }

@@ -433,10 +433,11 @@ impl PyLightField {
     /// The paging of a light field opened with ``cache_mib``, else None: ``{"cache": {...},
     /// "last": {...}, "summary": {...}}``. ``cache``: ``prefetch``, ``pages_per_frame``,
     /// ``budget_bytes``, and once the first frame opened it ``slots``, ``pages``, ``page_size``,
-    /// ``coarse_factor``, ``device_bytes``, ``resident_bytes``. ``last`` (the last frame; None
-    /// before any): ``faults`` (pages it touched that were not resident when it started),
-    /// ``degraded_px``, ``overview_px`` (pixels spanning the coarse factor or more texels,
-    /// read from the coarse level by choice), ``pages_loaded``, ``bytes_uploaded``, ``ms``, ``pages_touched``,
+    /// ``coarse_factor``, ``page_levels`` (levels between the full resolution and the coarse
+    /// level), ``level_pages``, ``level_file_bytes``, ``device_bytes``, ``resident_bytes``.
+    /// ``last`` (the last frame; None before any): ``faults`` (pages it touched that were not
+    /// resident when it started), ``degraded_px``, ``overview_px`` (pixels spanning 2 or more
+    /// st texels, read from a downsampled level by choice), ``pages_loaded``, ``bytes_uploaded``, ``ms``, ``pages_touched``,
     /// ``pages_projected``, ``projection_missed``, ``resident``, ``load_ms``, ``plan_ms`` and
     /// ``read_errors`` when pages failed to read. ``summary``: ``frames``, ``faults``,
     /// ``degraded_px``, ``pages_loaded``, ``bytes_uploaded``, ``mean_ms``, ``max_ms``,
@@ -460,6 +461,9 @@ impl PyLightField {
             cache["pages"] = c.grid.total().into();
             cache["page_size"] = c.grid.page_size.into();
             cache["coarse_factor"] = c.coarse_factor.into();
+            cache["page_levels"] = (c.grid.levels - 1).into();
+            cache["level_pages"] = (c.grid.all_pages() - c.grid.total()).into();
+            cache["level_file_bytes"] = c.level_file_bytes().into();
             cache["device_bytes"] = c.bytes.into();
             cache["resident_bytes"] = c.full_bytes.into();
         }

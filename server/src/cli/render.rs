@@ -73,8 +73,10 @@ pub struct CacheArgs {
     /// later frames, as in an interactive viewer. Without it each frame waits for its pages.
     #[arg(long, requires = "cache_mib")]
     pub async_loads: bool,
-    /// Pixels that span the coarse factor F or more st texels read the pages like every other
-    /// pixel, instead of the coarse level (the overview a zoomed-out view needs no page for).
+    /// Pixels that span 2 or more st texels read the full-resolution pages like every other
+    /// pixel, instead of a downsampled level (the page levels 2×, 4×, … below the coarse
+    /// factor F, and the coarse level itself from F on: the overview a zoomed-out view needs
+    /// fewer or no pages for).
     #[arg(long, requires = "cache_mib")]
     pub no_overview: bool,
 }
@@ -106,6 +108,9 @@ struct CacheDescription {
     pages: u32,
     page_size: u32,
     coarse_factor: u32,
+    page_levels: u32,
+    level_pages: u32,
+    level_file_mib: f64,
 }
 
 /// `render` of a two-plane asset through the paged cache (`--cache-mib`, `--trace`).
@@ -163,14 +168,17 @@ fn render_paged(args: &RenderArgs, asset: AssetFile) -> Result<()> {
         .with_context(|| format!("cannot open asset {} through a cache", args.asset.display()))?;
     let mib = |b: u64| b as f64 / 1_048_576.0;
     println!(
-        "cache: {} slots of {}x{} ({:.1} MiB on the device with a {}x coarse level) for {} pages ({:.1} MiB resident)",
+        "cache: {} slots of {}x{} ({:.1} MiB on the device with a {}x coarse level) for {} pages ({:.1} MiB resident), {} page levels above the full resolution ({} pages, {:.1} MiB in a temporary file)",
         field.slots,
         field.grid.page_size,
         field.grid.page_size,
         mib(field.bytes),
         field.coarse_factor,
         field.grid.total(),
-        mib(field.full_bytes)
+        mib(field.full_bytes),
+        field.grid.levels - 1,
+        field.grid.all_pages() - field.grid.total(),
+        mib(field.level_file_bytes())
     );
     let mut stats = Vec::with_capacity(frames.len());
     for (i, f) in frames.iter().enumerate() {
@@ -215,6 +223,9 @@ fn render_paged(args: &RenderArgs, asset: AssetFile) -> Result<()> {
                 pages: field.grid.total(),
                 page_size: field.grid.page_size,
                 coarse_factor: field.coarse_factor,
+                page_levels: field.grid.levels - 1,
+                level_pages: field.grid.all_pages() - field.grid.total(),
+                level_file_mib: mib(field.level_file_bytes()),
             },
         };
         let text = serde_json::to_string_pretty(&report)?;

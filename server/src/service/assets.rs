@@ -109,6 +109,13 @@ pub struct CacheSummary {
     pub page_size: u32,
     /// The coarse level's downsampling factor.
     pub coarse_factor: u32,
+    /// Page levels between the full resolution and the coarse level (each camera downsampled
+    /// 2×, 4×, …: read by pixels spanning 2 or more st texels, paged like the full resolution).
+    pub page_levels: u32,
+    /// Pages of those levels.
+    pub level_pages: u32,
+    /// Bytes of the temporary file holding those levels' pages (zstd-compressed).
+    pub level_file_bytes: u64,
 }
 
 impl PagedField {
@@ -345,12 +352,15 @@ fn open_paged(
     let cache = PagedTwoPlane::open(&engine.two_plane, Arc::clone(file), config)?;
     tracing::info!(
         asset = id,
-        "paged: {} slots of {}² px for {} pages; {} on the device for {} resident",
+        "paged: {} slots of {}² px for {} pages; {} on the device for {} resident; {} page \
+         levels above the full resolution ({} in a temporary file)",
         cache.slots,
         cache.grid.page_size,
         cache.grid.total(),
         describe_bytes(cache.bytes),
-        describe_bytes(cache.full_bytes)
+        describe_bytes(cache.full_bytes),
+        cache.grid.levels - 1,
+        describe_bytes(cache.level_file_bytes())
     );
     let summary = CacheSummary {
         prefetch: config.prefetch.to_string(),
@@ -361,6 +371,9 @@ fn open_paged(
         pages: cache.grid.total(),
         page_size: cache.grid.page_size,
         coarse_factor: cache.coarse_factor,
+        page_levels: cache.grid.levels - 1,
+        level_pages: cache.grid.all_pages() - cache.grid.total(),
+        level_file_bytes: cache.level_file_bytes(),
     };
     Ok(AssetField::Paged(Box::new(PagedField {
         gpu: Arc::clone(engine.gpu()),

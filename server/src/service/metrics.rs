@@ -115,8 +115,8 @@ impl Metrics {
             ),
             (
                 "page_cache_overview_pixels",
-                "Pixels of paged frames that spanned the coarse factor or more st texels and read \
-                 the coarse level by choice (no page needed)",
+                "Pixels of paged frames that spanned 2 or more st texels and read a downsampled \
+                 level by choice (a page level, or the coarse level and no page from its factor on)",
                 &overview_pixels,
             ),
             (
